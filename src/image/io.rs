@@ -1,0 +1,1 @@
+//! Reading and writing images: EXR, PNG, PFM. (Being written.)
