@@ -1,1 +1,1113 @@
-//! Reading and writing images: EXR, PNG, PFM. (Being written.)
+//! Reading and writing images: OpenEXR, PNG and PFM, chosen by the file extension
+//! (case-insensitive).
+//!
+//! Conventions (see `DESIGN.md`):
+//! 1. Pixels in memory are linear light with premultiplied alpha. EXR (premultiplied by its own
+//!    convention) and PFM (no alpha) are read and written as they are. PNG stores sRGB-encoded,
+//!    straight colour: reading decodes, then multiplies by alpha; writing divides by alpha, then
+//!    encodes. Alpha itself is never sRGB-coded. Depth read from a PNG is a plain number.
+//! 2. Row 0 is the top of the image. PFM stores its rows bottom to top; they are flipped here.
+//! 3. A file's size is checked against [`MAX_PIXELS`](super::MAX_PIXELS) from its header, before
+//!    any pixel memory is allocated.
+//! 4. Every error names the file; format errors also name the field or channel and what was
+//!    expected. Nothing here panics on a bad file.
+//! 5. Every write is atomic: the data goes to a temporary file in the target's directory, which is
+//!    renamed over the target only when complete. On any error the temporary file is removed, so
+//!    a failed write leaves neither partial output nor litter.
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use exr::prelude::{
+    AnyChannel, AnyChannels, Encoding, FlatSamples, Image as ExrImage, LayerAttributes,
+    ReadChannels, ReadLayers, SmallVec, Text, Vec2, WritableImage,
+};
+use image::{ColorType, ExtendedColorType, ImageDecoder, ImageEncoder};
+
+use super::{check_size, srgb_decode, srgb_encode, ColorImage, GrayImage, Rgba};
+use crate::{Error, Result};
+
+/// The file formats this module reads and writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum FileFormat {
+    Exr,
+    Png,
+    Pfm,
+}
+
+/// The format of `path` from its extension, or an error naming the path and the supported ones.
+fn file_format(path: &Path, role: &'static str) -> Result<FileFormat> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("exr") => Ok(FileFormat::Exr),
+        Some("png") => Ok(FileFormat::Png),
+        Some("pfm") => Ok(FileFormat::Pfm),
+        other => Err(Error::invalid(
+            role,
+            format!(
+                "{}: {}; expected one of .exr, .png, .pfm",
+                path.display(),
+                match other {
+                    Some(e) => format!("unsupported extension '.{e}'"),
+                    None => "no file extension".to_string(),
+                }
+            ),
+        )),
+    }
+}
+
+/// [`check_size`] for a size read from a file header: the error names the file.
+fn check_file_size(path: &Path, width: usize, height: usize) -> Result<()> {
+    check_size(width, height).map_err(|e| {
+        let reason = match e {
+            Error::Invalid { message, .. } => message,
+            other => other.to_string(),
+        };
+        Error::format(path, format!("image size from the header: {reason}"))
+    })
+}
+
+/// Opens a file for reading; a missing or unreadable file is an [`Error::Io`] naming it.
+fn open(path: &Path) -> Result<File> {
+    File::open(path).map_err(|e| Error::io(path, e))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Public reading API
+// ---------------------------------------------------------------------------------------------
+
+/// Reads a colour image (linear RGBA, premultiplied alpha; alpha is 1 where the file has none).
+///
+/// - `.exr`: plain `R`, `G`, `B` (and optional `A`) channels, or those of a layer such as
+///   `ViewLayer.Combined.R` (Blender's multilayer files). Plain channels win over layers, and a
+///   `Combined` layer over other layers (the first one, alphabetically, if there are several);
+///   other layers are used only when there is exactly one. Without RGB, a single `Y` channel is
+///   read as grey. Otherwise the error lists the channels found.
+/// - `.png`: 8 or 16 bits, grey, grey-alpha, RGB or RGBA (palettes are expanded); colour is
+///   sRGB-decoded to linear light (any gAMA or iCCP chunk is ignored) and premultiplied by
+///   alpha, which is read as stored.
+/// - `.pfm`: colour (`PF`) or grey (`Pf`), either byte order.
+pub fn read_color(path: &Path) -> Result<ColorImage> {
+    match file_format(path, "input image path")? {
+        FileFormat::Exr => color_from_exr(path, &read_exr_channels(path)?),
+        FileFormat::Png => color_from_png(read_png(path)?),
+        FileFormat::Pfm => color_from_pfm(read_pfm(path)?),
+    }
+}
+
+/// Every channel of an OpenEXR file, as `f32` planes of one common size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExrChannels {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// (full name, row-major samples). The full name includes the layer, e.g.
+    /// `ViewLayer.Depth.Z`; `f16` and `u32` samples are converted to `f32`.
+    pub channels: Vec<(String, Vec<f32>)>,
+}
+
+impl ExrChannels {
+    /// The samples of the channel whose full name is exactly `name`.
+    pub fn find(&self, name: &str) -> Option<&[f32]> {
+        self.channels
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+
+    /// The channels that `name` can refer to: the channel named exactly `name` if there is one;
+    /// otherwise every channel whose full name equals `name` or ends with `.name`, ignoring ASCII
+    /// case (so `Z` finds `ViewLayer.Depth.Z` and `depth.z` finds `Layer.Depth.Z`). Returned in
+    /// file order; more than one result means the name is ambiguous.
+    pub fn find_by_suffix(&self, name: &str) -> Vec<(&str, &[f32])> {
+        if let Some((n, v)) = self.channels.iter().find(|(n, _)| n == name) {
+            return vec![(n.as_str(), v.as_slice())];
+        }
+        self.channels
+            .iter()
+            .filter(|(n, _)| ends_with_component(n, name))
+            .map(|(n, v)| (n.as_str(), v.as_slice()))
+            .collect()
+    }
+
+    /// All full channel names, in file order.
+    pub fn names(&self) -> Vec<&str> {
+        self.channels.iter().map(|(n, _)| n.as_str()).collect()
+    }
+
+    /// The channel names as one comma-separated list, for error messages.
+    fn name_list(&self) -> String {
+        if self.channels.is_empty() {
+            "none".to_string()
+        } else {
+            self.names().join(", ")
+        }
+    }
+
+    /// The channel named `prefix` + `component`, the component compared ignoring ASCII case.
+    fn component(&self, prefix: &str, component: &str) -> Option<&[f32]> {
+        self.channels
+            .iter()
+            .find(|(n, _)| {
+                n.len() == prefix.len() + component.len()
+                    && n.starts_with(prefix)
+                    && n[prefix.len()..].eq_ignore_ascii_case(component)
+            })
+            .map(|(_, v)| v.as_slice())
+    }
+}
+
+/// True when `name` equals `suffix` or ends with `.suffix`, ignoring ASCII case.
+fn ends_with_component(name: &str, suffix: &str) -> bool {
+    let (n, s) = (name.as_bytes(), suffix.as_bytes());
+    if n.len() < s.len() || !n[n.len() - s.len()..].eq_ignore_ascii_case(s) {
+        return false;
+    }
+    n.len() == s.len() || n[n.len() - s.len() - 1] == b'.'
+}
+
+/// Reads every channel of an OpenEXR file, converted to `f32`.
+///
+/// Only the largest resolution level is read (mip and rip maps are ignored). The image size is the
+/// data window of the first layer (part); other layers of the same size are included, with the
+/// layer name and a dot prefixed to their channel names, and layers of other sizes are skipped.
+/// Subsampled channels (x or y sampling other than 1, as in luminance-chroma files) are skipped.
+/// Deep files are refused.
+pub fn read_exr_channels(path: &Path) -> Result<ExrChannels> {
+    let chunks = exr::block::read(BufReader::new(open(path)?), false)
+        .map_err(|e| exr_read_error(path, e))?;
+    for header in chunks.headers() {
+        check_file_size(path, header.layer_size.0, header.layer_size.1)?;
+        if header.deep {
+            return Err(Error::format(
+                path,
+                "deep OpenEXR data is not supported: expected flat (scanline or tiled) images",
+            ));
+        }
+    }
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .from_chunks(chunks)
+        .map_err(|e| exr_read_error(path, e))?;
+
+    let Some(first) = image.layer_data.first() else {
+        return Err(Error::format(path, "the OpenEXR file has no layers"));
+    };
+    let size = first.size;
+    let mut channels = Vec::new();
+    for layer in image.layer_data.iter().filter(|l| l.size == size) {
+        let prefix = match layer.attributes.layer_name.as_ref().map(|n| n.to_string()) {
+            Some(name) if !name.is_empty() => format!("{name}."),
+            _ => String::new(),
+        };
+        for channel in &layer.channel_data.list {
+            if channel.sampling != Vec2(1, 1) {
+                continue;
+            }
+            let samples: Vec<f32> = match &channel.sample_data {
+                FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+                FlatSamples::F32(v) => v.clone(),
+                FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+            };
+            if samples.len() != size.0 * size.1 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "channel '{prefix}{}': expected {} samples for {}x{} pixels, found {}",
+                        channel.name,
+                        size.0 * size.1,
+                        size.0,
+                        size.1,
+                        samples.len()
+                    ),
+                ));
+            }
+            channels.push((format!("{prefix}{}", channel.name), samples));
+        }
+    }
+    Ok(ExrChannels {
+        width: size.0,
+        height: size.1,
+        channels,
+    })
+}
+
+/// How to read a depth file: see [`read_depth`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthRead {
+    /// EXR channel to read (a full name such as `ViewLayer.Depth.Z`, or a unique suffix such as
+    /// `Z`); `None` searches for a depth channel.
+    pub channel: Option<String>,
+    /// Factor from the stored values to metres (e.g. the range of a 16-bit PNG). Default 1.
+    pub scale: f32,
+    /// True when the file holds radial distance from the eye rather than view-axis depth.
+    /// [`read_depth`] does not convert (it needs the camera); the caller applies
+    /// [`radial_to_view_depth`] when this is set. Default false.
+    pub radial: bool,
+}
+
+impl Default for DepthRead {
+    fn default() -> Self {
+        Self {
+            channel: None,
+            scale: 1.0,
+            radial: false,
+        }
+    }
+}
+
+/// Reads a depth image in metres (stored value times `opts.scale`).
+///
+/// - `.exr`: the channel `opts.channel` (exact full name, else a unique suffix, see
+///   [`ExrChannels::find_by_suffix`]); without it the first of these that matches, ignoring case:
+///   `Z`, `depth`, `*.Depth.Z`, `*.Z`, `*.depth`. Several matches of one pattern (e.g. two view
+///   layers) are an error listing them.
+/// - `.pfm`: the grey channel, or the first (red) channel of a colour file.
+/// - `.png`: grey or grey-alpha, 8 or 16 bits, read as value / 255 or value / 65535 (no sRGB
+///   decoding; alpha ignored).
+///
+/// Every depth must be positive: `+inf` (no surface) becomes `f32::MAX` ("far"); NaN, zero and
+/// negative values are an error naming the first bad pixel, its value and how many there are.
+pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
+    if !(opts.scale.is_finite() && opts.scale > 0.0) {
+        return Err(Error::invalid(
+            "depth scale",
+            format!(
+                "{} for {}: expected a finite number > 0",
+                opts.scale,
+                path.display()
+            ),
+        ));
+    }
+    let (width, height, mut values, what) = match file_format(path, "depth path")? {
+        FileFormat::Exr => {
+            let channels = read_exr_channels(path)?;
+            let (name, samples) = depth_channel(path, &channels, opts.channel.as_deref())?;
+            let samples = samples.to_vec();
+            (
+                channels.width,
+                channels.height,
+                samples,
+                format!("channel '{name}'"),
+            )
+        }
+        FileFormat::Pfm => {
+            let pfm = read_pfm(path)?;
+            let what = if pfm.channels == 1 {
+                "grey PFM"
+            } else {
+                "PFM red channel"
+            };
+            let values = pfm.data.iter().step_by(pfm.channels).copied().collect();
+            (pfm.width, pfm.height, values, what.to_string())
+        }
+        FileFormat::Png => {
+            let png = read_png(path)?;
+            let values = depth_from_png(path, &png)?;
+            (
+                png.width,
+                png.height,
+                values,
+                "PNG grey channel".to_string(),
+            )
+        }
+    };
+    if opts.scale != 1.0 {
+        values.iter_mut().for_each(|v| *v *= opts.scale);
+    }
+    validate_depth(path, &what, width, &mut values)?;
+    GrayImage::from_vec(width, height, values)
+}
+
+/// Converts radial distance from the eye (what some renderers store as depth) to view-axis depth,
+/// in place: z = d / sqrt(1 + ((x+0.5-cx)^2 + (y+0.5-cy)^2) / f_px^2) with the principal point
+/// (cx, cy) = (width/2, height/2) and `f_px` the focal length in pixels.
+///
+/// `f_px` must be finite and positive (it comes from a validated camera); any other value leaves
+/// the image unchanged.
+pub fn radial_to_view_depth(depth: &mut GrayImage, f_px: f32) {
+    if !(f_px.is_finite() && f_px > 0.0) {
+        return;
+    }
+    let (w, h) = (depth.width(), depth.height());
+    let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+    let inv_f2 = 1.0 / (f_px as f64 * f_px as f64);
+    for y in 0..h {
+        let dy = y as f64 + 0.5 - cy;
+        for x in 0..w {
+            let dx = x as f64 + 0.5 - cx;
+            let d = depth.get_mut(x, y);
+            *d = (*d as f64 / (1.0 + (dx * dx + dy * dy) * inv_f2).sqrt()) as f32;
+        }
+    }
+}
+
+/// Refuses an output path that names the same file as an input (which the write would
+/// destroy). Paths are compared after canonicalisation (and, on Unix, by device and inode, which
+/// also catches hard links); an output that does not exist yet is always fine.
+pub fn ensure_not_same_file(input: &Path, output: &Path) -> Result<()> {
+    let Ok(out_meta) = std::fs::metadata(output) else {
+        return Ok(());
+    };
+    let same_path = match (input.canonicalize(), output.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    #[cfg(unix)]
+    let same_inode = {
+        use std::os::unix::fs::MetadataExt;
+        std::fs::metadata(input)
+            .map(|m| m.dev() == out_meta.dev() && m.ino() == out_meta.ino())
+            .unwrap_or(false)
+    };
+    #[cfg(not(unix))]
+    let same_inode = {
+        let _ = out_meta;
+        false
+    };
+    if same_path || same_inode {
+        return Err(Error::invalid(
+            "output path",
+            format!(
+                "{} is the input file {}: choose another output path",
+                output.display(),
+                input.display()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Public writing API
+// ---------------------------------------------------------------------------------------------
+
+/// Writes a colour image, atomically, by extension:
+/// - `.exr`: float32 linear `R`, `G`, `B`, `A`, ZIP-compressed;
+/// - `.png`: 8-bit RGBA with straight alpha: alpha clamped to [0, 1], colour divided by it
+///   (0 where alpha is 0), clamped to [0, 1] and sRGB-encoded;
+/// - `.pfm`: colour PFM (`PF`, little-endian), alpha dropped.
+pub fn write_color(path: &Path, img: &ColorImage) -> Result<()> {
+    let format = file_format(path, "output image path")?;
+    check_output_size(path, img.width(), img.height())?;
+    match format {
+        FileFormat::Exr => {
+            let mut planes: [Vec<f32>; 4] =
+                std::array::from_fn(|_| Vec::with_capacity(img.pixels().len()));
+            for p in img.pixels() {
+                for (plane, &v) in planes.iter_mut().zip(p) {
+                    plane.push(v);
+                }
+            }
+            let [r, g, b, a] = planes;
+            let channels = vec![
+                ("R".to_string(), r),
+                ("G".to_string(), g),
+                ("B".to_string(), b),
+                ("A".to_string(), a),
+            ];
+            write_exr(path, img.width(), img.height(), channels)
+        }
+        FileFormat::Png => {
+            let mut bytes = Vec::with_capacity(img.pixels().len() * 4);
+            for p in img.pixels() {
+                bytes.extend(straight_srgb(*p).map(|v| quantize(v, 255.0) as u8));
+            }
+            write_png(path, img, &bytes, ExtendedColorType::Rgba8)
+        }
+        FileFormat::Pfm => write_pfm(path, img),
+    }
+}
+
+/// Writes a 16-bit RGBA PNG, atomically, converted as [`write_color`] does for 8-bit PNG.
+/// The extension is not checked.
+pub fn write_png16(path: &Path, img: &ColorImage) -> Result<()> {
+    check_output_size(path, img.width(), img.height())?;
+    let mut bytes = Vec::with_capacity(img.pixels().len() * 8);
+    for p in img.pixels() {
+        for v in straight_srgb(*p) {
+            // PngEncoder takes 16-bit samples in native byte order.
+            bytes.extend((quantize(v, 65535.0) as u16).to_ne_bytes());
+        }
+    }
+    write_png(path, img, &bytes, ExtendedColorType::Rgba16)
+}
+
+/// Writes a depth image as an OpenEXR file with one float32 channel `Z`, atomically.
+pub fn write_depth_exr(path: &Path, depth: &GrayImage) -> Result<()> {
+    check_output_size(path, depth.width(), depth.height())?;
+    let channels = vec![("Z".to_string(), depth.pixels().to_vec())];
+    write_exr(path, depth.width(), depth.height(), channels)
+}
+
+/// Writes float32 channels of one size to an OpenEXR file (one part, ZIP), atomically.
+///
+/// Names are written as given, so `ViewLayer.Combined.R` makes a Blender-style multilayer file.
+/// Each channel must hold `width * height` row-major samples; names must be non-empty, unique and
+/// Latin-1.
+pub fn write_exr_layers(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: &[(&str, &[f32])],
+) -> Result<()> {
+    check_output_size(path, width, height)?;
+    let owned = channels
+        .iter()
+        .map(|(name, data)| (name.to_string(), data.to_vec()))
+        .collect();
+    write_exr(path, width, height, owned)
+}
+
+// ---------------------------------------------------------------------------------------------
+// EXR internals
+// ---------------------------------------------------------------------------------------------
+
+/// An OpenEXR reading error, with the path.
+fn exr_read_error(path: &Path, err: exr::error::Error) -> Error {
+    match err {
+        exr::error::Error::Io(e) if e.kind() != std::io::ErrorKind::UnexpectedEof => {
+            Error::io(path, e)
+        }
+        other => Error::format(
+            path,
+            format!("not a readable OpenEXR file (corrupt or truncated?): {other}"),
+        ),
+    }
+}
+
+/// The RGBA image in an EXR file's channels; see [`read_color`] for the rules.
+fn color_from_exr(path: &Path, ch: &ExrChannels) -> Result<ColorImage> {
+    let prefix = color_prefix(path, ch)?;
+    let n = ch.width * ch.height;
+    let ones = vec![1.0; n];
+    let alpha = ch.component(&prefix, "A").unwrap_or(&ones);
+    let pixels: Vec<Rgba> = match (
+        ch.component(&prefix, "R"),
+        ch.component(&prefix, "G"),
+        ch.component(&prefix, "B"),
+    ) {
+        (Some(r), Some(g), Some(b)) => (0..n).map(|i| [r[i], g[i], b[i], alpha[i]]).collect(),
+        _ => {
+            let y = ch.component(&prefix, "Y").unwrap_or(&ones);
+            (0..n).map(|i| [y[i], y[i], y[i], alpha[i]]).collect()
+        }
+    };
+    ColorImage::from_vec(ch.width, ch.height, pixels)
+}
+
+/// The prefix (`""` or `"Layer.Pass."`) of the colour channels: R, G, B, or failing that, Y.
+fn color_prefix(path: &Path, ch: &ExrChannels) -> Result<String> {
+    let prefixes_with = |last: &str| -> Vec<String> {
+        ch.channels
+            .iter()
+            .filter(|(n, _)| ends_with_component(n, last))
+            .map(|(n, _)| n[..n.len() - last.len()].to_string())
+            .collect()
+    };
+    let rgb: Vec<String> = prefixes_with("R")
+        .into_iter()
+        .filter(|p| ch.component(p, "G").is_some() && ch.component(p, "B").is_some())
+        .collect();
+    if !rgb.is_empty() {
+        if rgb.iter().any(|p| p.is_empty()) {
+            return Ok(String::new());
+        }
+        let mut combined: Vec<&String> = rgb
+            .iter()
+            .filter(|p| {
+                p.trim_end_matches('.')
+                    .rsplit('.')
+                    .next()
+                    .is_some_and(|last| last.eq_ignore_ascii_case("combined"))
+            })
+            .collect();
+        combined.sort();
+        if let Some(p) = combined.first() {
+            return Ok(p.to_string());
+        }
+        if rgb.len() == 1 {
+            return Ok(rgb[0].clone());
+        }
+        return Err(Error::format(
+            path,
+            format!(
+                "several RGB layers ({}) and none is plain R, G, B or a 'Combined' layer; \
+                 expected one colour layer",
+                rgb.join(", ")
+            ),
+        ));
+    }
+    let grey = prefixes_with("Y");
+    match grey.as_slice() {
+        [p] => Ok(p.clone()),
+        [] => Err(Error::format(
+            path,
+            format!(
+                "no colour channels: expected R, G, B (optionally A), a layer such as \
+                 'ViewLayer.Combined.R', or a grey Y channel; found: {}",
+                ch.name_list()
+            ),
+        )),
+        _ => Err(Error::format(
+            path,
+            format!(
+                "several grey Y channels ({}) and no RGB: expected one colour layer",
+                ch.names()
+                    .into_iter()
+                    .filter(|n| ends_with_component(n, "Y"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )),
+    }
+}
+
+/// The depth channel of an EXR file: see [`read_depth`] for the search order.
+fn depth_channel<'a>(
+    path: &Path,
+    ch: &'a ExrChannels,
+    requested: Option<&str>,
+) -> Result<(&'a str, &'a [f32])> {
+    let unique = |found: Vec<(&'a str, &'a [f32])>, what: &str| -> Result<_> {
+        match found.as_slice() {
+            [one] => Ok(Some(*one)),
+            [] => Ok(None),
+            many => Err(Error::format(
+                path,
+                format!(
+                    "several depth channels match {what} ({}): choose one with the depth channel \
+                     option",
+                    many.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ")
+                ),
+            )),
+        }
+    };
+    if let Some(name) = requested {
+        return unique(ch.find_by_suffix(name), &format!("'{name}'"))?.ok_or_else(|| {
+            Error::format(
+                path,
+                format!(
+                    "no depth channel '{name}'; available channels: {}",
+                    ch.name_list()
+                ),
+            )
+        });
+    }
+    let exact = |want: &str| -> Vec<(&'a str, &'a [f32])> {
+        ch.channels
+            .iter()
+            .filter(|(n, _)| n.eq_ignore_ascii_case(want))
+            .map(|(n, v)| (n.as_str(), v.as_slice()))
+            .collect()
+    };
+    let suffix = |want: &str| -> Vec<(&'a str, &'a [f32])> {
+        ch.channels
+            .iter()
+            .filter(|(n, _)| {
+                n.len() > want.len()
+                    && n.as_bytes()[n.len() - want.len()..].eq_ignore_ascii_case(want.as_bytes())
+            })
+            .map(|(n, v)| (n.as_str(), v.as_slice()))
+            .collect()
+    };
+    let candidates = [
+        (exact("Z"), "'Z'"),
+        (exact("depth"), "'depth'"),
+        (suffix(".Depth.Z"), "'*.Depth.Z'"),
+        (suffix(".Z"), "'*.Z'"),
+        (suffix(".depth"), "'*.depth'"),
+    ];
+    for (found, what) in candidates {
+        if let Some(one) = unique(found, what)? {
+            return Ok(one);
+        }
+    }
+    Err(Error::format(
+        path,
+        format!(
+            "no depth channel: expected Z, depth, *.Depth.Z, *.Z or *.depth (or name one with the \
+             depth channel option); available channels: {}",
+            ch.name_list()
+        ),
+    ))
+}
+
+/// Writes named float32 channels as a one-part, ZIP-compressed scanline EXR, atomically.
+fn write_exr(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: Vec<(String, Vec<f32>)>,
+) -> Result<()> {
+    if channels.is_empty() {
+        return Err(Error::invalid(
+            "EXR channels",
+            format!("{}: at least one channel is needed", path.display()),
+        ));
+    }
+    let mut list = SmallVec::new();
+    for (i, (name, data)) in channels.into_iter().enumerate() {
+        if data.len() != width * height {
+            return Err(Error::Mismatch(format!(
+                "{}: channel '{name}' has {} samples, expected {} for {width}x{height} pixels",
+                path.display(),
+                data.len(),
+                width * height
+            )));
+        }
+        let text = Text::new_or_none(&name).filter(|_| !name.is_empty());
+        let Some(text) = text else {
+            return Err(Error::invalid(
+                "EXR channel name",
+                format!(
+                    "{}: channel {i} is named '{name}': expected a non-empty Latin-1 name",
+                    path.display()
+                ),
+            ));
+        };
+        list.push(AnyChannel::new(text, FlatSamples::F32(data)));
+    }
+    let channels = AnyChannels::sort(list);
+    if let Some(pair) = channels.list.windows(2).find(|p| p[0].name == p[1].name) {
+        return Err(Error::invalid(
+            "EXR channel name",
+            format!(
+                "{}: channel '{}' is given twice: expected unique names",
+                path.display(),
+                pair[0].name
+            ),
+        ));
+    }
+    let layer = exr::prelude::Layer::new(
+        (width, height),
+        LayerAttributes::default(),
+        Encoding::SMALL_LOSSLESS,
+        channels,
+    );
+    let image = ExrImage::from_layer(layer);
+    write_atomic(path, |out| {
+        image.write().to_buffered(out).map_err(|e| match e {
+            exr::error::Error::Io(e) => Error::io(path, e),
+            other => Error::format(path, format!("could not write OpenEXR: {other}")),
+        })
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// PNG internals
+// ---------------------------------------------------------------------------------------------
+
+/// A decoded PNG: samples normalised to [0, 1], `channels` per pixel, row-major.
+struct Png {
+    width: usize,
+    height: usize,
+    channels: usize,
+    bits: u32,
+    samples: Vec<f32>,
+}
+
+/// A PNG decoding error, with the path.
+fn png_error(path: &Path, err: image::ImageError) -> Error {
+    match err {
+        image::ImageError::IoError(e) if e.kind() != std::io::ErrorKind::UnexpectedEof => {
+            Error::io(path, e)
+        }
+        other => Error::format(
+            path,
+            format!("not a readable PNG file (corrupt or truncated?): {other}"),
+        ),
+    }
+}
+
+/// Decodes a PNG to normalised samples, checking the size from the header first.
+fn read_png(path: &Path) -> Result<Png> {
+    let decoder = image::codecs::png::PngDecoder::new(BufReader::new(open(path)?))
+        .map_err(|e| png_error(path, e))?;
+    let (w, h) = decoder.dimensions();
+    let (width, height) = (w as usize, h as usize);
+    check_file_size(path, width, height)?;
+    let color = decoder.color_type();
+    let (channels, bits) = match color {
+        ColorType::L8 => (1, 8),
+        ColorType::La8 => (2, 8),
+        ColorType::Rgb8 => (3, 8),
+        ColorType::Rgba8 => (4, 8),
+        ColorType::L16 => (1, 16),
+        ColorType::La16 => (2, 16),
+        ColorType::Rgb16 => (3, 16),
+        ColorType::Rgba16 => (4, 16),
+        other => {
+            return Err(Error::format(
+                path,
+                format!("unsupported PNG pixel type {other:?}: expected 8 or 16 bits per sample"),
+            ))
+        }
+    };
+    let total = usize::try_from(decoder.total_bytes()).map_err(|_| {
+        Error::format(
+            path,
+            "PNG image data is too large for this machine's memory",
+        )
+    })?;
+    let mut bytes = vec![0u8; total];
+    decoder
+        .read_image(&mut bytes)
+        .map_err(|e| png_error(path, e))?;
+    let samples = if bits == 8 {
+        bytes.iter().map(|&b| b as f32 / 255.0).collect()
+    } else {
+        bytes
+            .chunks_exact(2)
+            .map(|c| u16::from_ne_bytes([c[0], c[1]]) as f32 / 65535.0)
+            .collect()
+    };
+    Ok(Png {
+        width,
+        height,
+        channels,
+        bits,
+        samples,
+    })
+}
+
+/// Linear premultiplied RGBA from a decoded PNG: colour sRGB-decoded, times alpha as stored.
+fn color_from_png(png: Png) -> Result<ColorImage> {
+    let c = png.channels;
+    let pixels: Vec<Rgba> = png
+        .samples
+        .chunks_exact(c)
+        .map(|s| {
+            let (rgb, a) = match c {
+                1 => ([s[0]; 3], 1.0),
+                2 => ([s[0]; 3], s[1]),
+                3 => ([s[0], s[1], s[2]], 1.0),
+                _ => ([s[0], s[1], s[2]], s[3]),
+            };
+            [
+                srgb_decode(rgb[0]) * a,
+                srgb_decode(rgb[1]) * a,
+                srgb_decode(rgb[2]) * a,
+                a,
+            ]
+        })
+        .collect();
+    ColorImage::from_vec(png.width, png.height, pixels)
+}
+
+/// Depth samples (value / max) from a grey PNG.
+fn depth_from_png(path: &Path, png: &Png) -> Result<Vec<f32>> {
+    if png.channels > 2 {
+        return Err(Error::format(
+            path,
+            format!(
+                "depth PNG has {} channels ({}-bit colour): expected a grey image (one channel, \
+                 optionally with alpha)",
+                png.channels, png.bits
+            ),
+        ));
+    }
+    Ok(png.samples.iter().step_by(png.channels).copied().collect())
+}
+
+/// Writes already-quantised PNG bytes of `img`'s size, atomically.
+fn write_png(path: &Path, img: &ColorImage, bytes: &[u8], color: ExtendedColorType) -> Result<()> {
+    let (w, h) = (img.width() as u32, img.height() as u32);
+    write_atomic(path, |out| {
+        image::codecs::png::PngEncoder::new(out)
+            .write_image(bytes, w, h, color)
+            .map_err(|e| match e {
+                image::ImageError::IoError(e) => Error::io(path, e),
+                other => Error::format(path, format!("could not write PNG: {other}")),
+            })
+    })
+}
+
+/// A premultiplied linear pixel as PNG wants it, each value in [0, 1] (NaN aside): straight
+/// sRGB-encoded colour and clamped alpha. Colour is 0 where alpha is 0.
+#[inline]
+fn straight_srgb(p: Rgba) -> [f32; 4] {
+    let a = if p[3].is_nan() {
+        0.0
+    } else {
+        p[3].clamp(0.0, 1.0)
+    };
+    let straight = |c: f32| if a > 0.0 { srgb_encode(c / a) } else { 0.0 };
+    [straight(p[0]), straight(p[1]), straight(p[2]), a]
+}
+
+/// `v` clamped to [0, 1], scaled by `max` and rounded (NaN becomes 0).
+#[inline]
+fn quantize(v: f32, max: f32) -> f32 {
+    if v.is_nan() {
+        return 0.0;
+    }
+    (v.clamp(0.0, 1.0) * max + 0.5).floor()
+}
+
+// ---------------------------------------------------------------------------------------------
+// PFM internals
+// ---------------------------------------------------------------------------------------------
+
+/// A decoded PFM, rows top to bottom.
+struct Pfm {
+    width: usize,
+    height: usize,
+    /// 1 (`Pf`) or 3 (`PF`).
+    channels: usize,
+    data: Vec<f32>,
+}
+
+/// Reads one whitespace-delimited header token of a PFM file, consuming the single whitespace
+/// byte after it. Leading whitespace is skipped.
+fn pfm_token(path: &Path, r: &mut impl Read, field: &str, consumed: &mut u64) -> Result<String> {
+    let mut token = Vec::new();
+    let mut byte = [0u8; 1];
+    loop {
+        let n = r.read(&mut byte).map_err(|e| Error::io(path, e))?;
+        if n == 0 {
+            return Err(Error::format(
+                path,
+                format!("truncated PFM header: the file ends before the {field} field"),
+            ));
+        }
+        *consumed += 1;
+        if byte[0].is_ascii_whitespace() {
+            if token.is_empty() {
+                continue;
+            }
+            break;
+        }
+        token.push(byte[0]);
+        if token.len() > 32 {
+            return Err(Error::format(
+                path,
+                format!("PFM header field {field} is longer than 32 bytes: not a PFM file?"),
+            ));
+        }
+    }
+    Ok(String::from_utf8_lossy(&token).into_owned())
+}
+
+/// Reads a PFM file (`PF` colour or `Pf` grey; byte order from the sign of the scale field,
+/// negative meaning little-endian; the scale's magnitude is ignored). Trailing bytes after the
+/// pixel data are ignored.
+fn read_pfm(path: &Path) -> Result<Pfm> {
+    let file = open(path)?;
+    let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let mut r = BufReader::new(file);
+    let mut consumed = 0u64;
+    let magic = pfm_token(path, &mut r, "magic ('PF' or 'Pf')", &mut consumed)?;
+    let channels = match magic.as_str() {
+        "PF" => 3,
+        "Pf" => 1,
+        other => {
+            return Err(Error::format(
+                path,
+                format!("not a PFM file: expected 'PF' or 'Pf' at the start, found '{other}'"),
+            ))
+        }
+    };
+    let mut dimension = |field: &str| -> Result<usize> {
+        let t = pfm_token(path, &mut r, field, &mut consumed)?;
+        t.parse::<usize>().map_err(|_| {
+            Error::format(
+                path,
+                format!("PFM {field}: expected a whole number of pixels, found '{t}'"),
+            )
+        })
+    };
+    let width = dimension("width")?;
+    let height = dimension("height")?;
+    check_file_size(path, width, height)?;
+    let t = pfm_token(path, &mut r, "scale", &mut consumed)?;
+    let scale: f32 = t.parse().unwrap_or(f32::NAN);
+    if !(scale.is_finite() && scale != 0.0) {
+        return Err(Error::format(
+            path,
+            format!(
+                "PFM scale: expected a non-zero number (negative for little-endian), found '{t}'"
+            ),
+        ));
+    }
+    let little_endian = scale < 0.0;
+    let expected = width * height * channels * 4;
+    let available = file_len.saturating_sub(consumed);
+    if available < expected as u64 {
+        return Err(Error::format(
+            path,
+            format!(
+                "truncated PFM: expected {expected} bytes of pixel data for {width}x{height}x{channels} \
+                 floats, found {available}"
+            ),
+        ));
+    }
+    let mut bytes = vec![0u8; expected];
+    r.read_exact(&mut bytes).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            Error::format(
+                path,
+                format!("truncated PFM: expected {expected} bytes of pixel data"),
+            )
+        } else {
+            Error::io(path, e)
+        }
+    })?;
+    let row_len = width * channels;
+    let mut data = vec![0f32; width * height * channels];
+    // Stored rows go bottom to top.
+    for (stored_row, src) in bytes.chunks_exact(row_len * 4).enumerate() {
+        let dst = &mut data[(height - 1 - stored_row) * row_len..][..row_len];
+        for (d, c) in dst.iter_mut().zip(src.chunks_exact(4)) {
+            let b = [c[0], c[1], c[2], c[3]];
+            *d = if little_endian {
+                f32::from_le_bytes(b)
+            } else {
+                f32::from_be_bytes(b)
+            };
+        }
+    }
+    Ok(Pfm {
+        width,
+        height,
+        channels,
+        data,
+    })
+}
+
+/// RGBA (alpha 1) from a PFM; grey files are replicated to R, G, B.
+fn color_from_pfm(pfm: Pfm) -> Result<ColorImage> {
+    let pixels: Vec<Rgba> = pfm
+        .data
+        .chunks_exact(pfm.channels)
+        .map(|s| match s {
+            [r, g, b] => [*r, *g, *b, 1.0],
+            _ => [s[0], s[0], s[0], 1.0],
+        })
+        .collect();
+    ColorImage::from_vec(pfm.width, pfm.height, pixels)
+}
+
+/// Writes a colour PFM (`PF`, little-endian, rows bottom to top), atomically.
+fn write_pfm(path: &Path, img: &ColorImage) -> Result<()> {
+    let (w, h) = (img.width(), img.height());
+    let mut bytes = Vec::with_capacity(32 + w * h * 12);
+    bytes.extend(format!("PF\n{w} {h}\n-1.0\n").into_bytes());
+    for y in (0..h).rev() {
+        for p in img.row(y) {
+            for v in &p[..3] {
+                bytes.extend(v.to_le_bytes());
+            }
+        }
+    }
+    write_atomic(path, |out| {
+        out.write_all(&bytes).map_err(|e| Error::io(path, e))
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Depth validation and atomic writes
+// ---------------------------------------------------------------------------------------------
+
+/// Checks depth values in metres: `+inf` becomes `f32::MAX`; NaN, zero, negative values and
+/// `-inf` are an error naming the first such pixel (x, y), its value and their count.
+fn validate_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Result<()> {
+    let mut bad = 0usize;
+    let mut first = None;
+    for (i, v) in values.iter_mut().enumerate() {
+        if *v == f32::INFINITY {
+            *v = f32::MAX;
+        } else if !(*v > 0.0 && v.is_finite()) {
+            bad += 1;
+            first.get_or_insert((i % width, i / width, *v));
+        }
+    }
+    match first {
+        None => Ok(()),
+        Some((x, y, v)) => Err(Error::format(
+            path,
+            format!(
+                "depth {what}: {bad} pixel(s) are not positive depths, the first at (x {x}, y {y}) \
+                 = {v}; expected depth > 0 in metres (+inf means far)"
+            ),
+        )),
+    }
+}
+
+/// A size check for an image about to be written, naming the output file.
+fn check_output_size(path: &Path, width: usize, height: usize) -> Result<()> {
+    check_size(width, height).map_err(|e| {
+        let reason = match e {
+            Error::Invalid { message, .. } => message,
+            other => other.to_string(),
+        };
+        Error::invalid("output image size", format!("{}: {reason}", path.display()))
+    })
+}
+
+/// Distinguishes temporary files of concurrent writes within one process.
+static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// A temporary file that is deleted when dropped, unless it was renamed into place.
+struct TempFile {
+    path: PathBuf,
+    committed: bool,
+}
+
+impl Drop for TempFile {
+    fn drop(&mut self) {
+        if !self.committed {
+            // Best effort: the write already failed, and that error is the one to report.
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// Writes `path` atomically: `write` fills a temporary file `.<name>.tmp-<pid>-<n>` in the same
+/// directory, which is flushed, synced and renamed over `path`. On any error (including a panic
+/// in `write`) the temporary file is removed and `path` is left as it was.
+fn write_atomic(path: &Path, write: impl FnOnce(&mut BufWriter<File>) -> Result<()>) -> Result<()> {
+    let Some(name) = path.file_name() else {
+        return Err(Error::invalid(
+            "output path",
+            format!("{}: expected a path ending in a file name", path.display()),
+        ));
+    };
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut temp_name = std::ffi::OsString::from(".");
+    temp_name.push(name);
+    temp_name.push(format!(
+        ".tmp-{}-{}",
+        std::process::id(),
+        TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let temp_path = dir.join(temp_name);
+    let file = File::create_new(&temp_path).map_err(|e| Error::io(path, e))?;
+    let mut temp = TempFile {
+        path: temp_path,
+        committed: false,
+    };
+    let mut out = BufWriter::new(file);
+    write(&mut out)?;
+    let file = out
+        .into_inner()
+        .map_err(|e| Error::io(path, e.into_error()))?;
+    file.sync_all().map_err(|e| Error::io(path, e))?;
+    drop(file);
+    std::fs::rename(&temp.path, path).map_err(|e| Error::io(path, e))?;
+    temp.committed = true;
+    Ok(())
+}

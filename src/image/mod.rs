@@ -1,14 +1,15 @@
 //! Image types and file I/O.
 //!
-//! Pixels are linear-light `f32`. [`Rgba`] images hold straight (not premultiplied) colour with
-//! alpha; blending code premultiplies locally. Row 0 is the top of the image; pixel (i, j) covers
+//! Pixels are linear-light `f32`. [`Rgba`] images hold premultiplied colour with alpha (as
+//! EXR does): RGB is the colour seen over black, alpha the coverage. PNG files store straight
+//! alpha and are converted when read and written. Row 0 is the top of the image; pixel (i, j) covers
 //! [i, i+1) x [j, j+1).
 
 pub mod io;
 
 use crate::{Error, Result};
 
-/// A linear-light RGBA pixel.
+/// A linear-light RGBA pixel, colour premultiplied by alpha.
 pub type Rgba = [f32; 4];
 
 /// Largest image we accept, in pixels (about 1 GiB of RGBA f32): larger inputs are refused with an
@@ -23,7 +24,7 @@ pub struct Image<P> {
     data: Vec<P>,
 }
 
-/// Colour image (linear RGBA, straight alpha).
+/// Colour image (linear RGBA, premultiplied alpha).
 pub type ColorImage = Image<Rgba>;
 /// Single-channel image, e.g. view-axis depth in metres.
 pub type GrayImage = Image<f32>;

@@ -1,1 +1,310 @@
-//! Rasterizer.
+//! One triangle rasterizer for every method, emitting fragments into sinks.
+//!
+//! Passes, in order, for each view:
+//! 1. `setup` ([`setup`]): project camera-space triangles with the view's (possibly sheared)
+//!    projection, cull back faces of single-sided materials, clip in homogeneous space against
+//!    the near and far planes (and a guard band), snap to 1/256-pixel fixed point, and build
+//!    edge functions and perspective-correct attribute planes.
+//! 2. `bin`: put each triangle in the list of every 32x32 tile its bounding box touches.
+//! 3. `raster`: tiles in parallel (rayon); within a tile triangles in scene order, so the output
+//!    does not depend on the thread count. Coverage uses the top-left fill rule at pixel
+//!    centres; the sink may reject a fragment by depth before it is shaded (early depth test);
+//!    shading is unlit (base colour + emission, textures filtered with mipmaps) and alpha-mask
+//!    materials are tested against their cutoff.
+//! 4. The sink finishes each tile in parallel (e.g. sorts and composites transparent
+//!    fragments), then gathers the tiles in order.
+//!
+//! A view is the pinhole projection through the lens centre, optionally sheared for a point on
+//! the lens with the focal plane held fixed (DESIGN.md):
+//! `x_ndc = (X_xy - V) / z + V / z_f` with `V = E * (v_x, -v_y, 0)`, and shifted by a sub-pixel
+//! offset for anti-aliasing. It stays a projective map with `w = z`, so clipping and
+//! perspective-correct interpolation work unchanged.
+//!
+//! Sinks: [`GBuffer`] (nearest opaque surface with transparent surfaces composited over it).
+//! Per-pixel fragment lists and depth layers are further implementations of [`Sink`].
+
+mod gbuffer;
+mod setup;
+mod shade;
+
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+pub use gbuffer::GBuffer;
+pub use setup::SetupTriangle;
+
+use crate::image::Rgba;
+use crate::lens::ThinLens;
+use crate::scene::{AlphaMode, Scene};
+use crate::Result;
+
+/// Tile side in pixels.
+pub const TILE: usize = 32;
+
+/// A screen-space fragment handed to a sink.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fragment {
+    /// Pixel column.
+    pub x: u32,
+    /// Pixel row.
+    pub y: u32,
+    /// View-axis depth in metres.
+    pub depth_m: f32,
+    /// Linear colour and alpha of the surface (straight: the sink premultiplies when it
+    /// blends). Alpha is 1 for opaque and alpha-mask surfaces.
+    pub color: Rgba,
+    /// True for alpha-blended (transparent) surfaces.
+    pub blend: bool,
+}
+
+/// A rectangle of pixels: `[x0, x1) x [y0, y1)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileRect {
+    /// First column.
+    pub x0: usize,
+    /// First row.
+    pub y0: usize,
+    /// One past the last column.
+    pub x1: usize,
+    /// One past the last row.
+    pub y1: usize,
+}
+
+impl TileRect {
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.x1 - self.x0
+    }
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.y1 - self.y0
+    }
+}
+
+/// Receives the fragments of one tile. Created by a [`Sink`], filled by one thread.
+pub trait TileSink: Send {
+    /// True when an opaque fragment at this depth would certainly be hidden, so the rasterizer
+    /// can skip shading it. The default never rejects.
+    #[inline]
+    fn occluded(&self, _x: u32, _y: u32, _depth_m: f32) -> bool {
+        false
+    }
+    /// Takes one fragment.
+    fn fragment(&mut self, fragment: &Fragment);
+    /// Called once after the last fragment, still in parallel with other tiles.
+    fn finish(&mut self) {}
+}
+
+/// Where fragments go. The rasterizer asks for one [`TileSink`] per tile, fills the tiles in
+/// parallel, then hands them back in tile order with [`Sink::end_tile`].
+pub trait Sink: Sync {
+    /// Per-tile state.
+    type Tile: TileSink;
+    /// A fresh tile.
+    fn begin_tile(&self, rect: TileRect) -> Self::Tile;
+    /// Takes a finished tile back (sequentially, in row-major tile order).
+    fn end_tile(&mut self, rect: TileRect, tile: Self::Tile);
+}
+
+/// One view: the camera's thin lens seen from a point on the lens, sampled at an offset inside
+/// each pixel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct View {
+    /// The shared thin-lens constants.
+    pub lens: ThinLens,
+    /// Point in the unit aperture, image axes (x right, y down); zero for the pinhole view.
+    pub lens_point: Vec2,
+    /// Sample position relative to the pixel centre, in pixels.
+    pub pixel_offset: Vec2,
+}
+
+impl View {
+    /// The pinhole view through the lens centre, sampled at pixel centres.
+    pub fn pinhole(lens: ThinLens) -> Self {
+        Self {
+            lens,
+            lens_point: Vec2::ZERO,
+            pixel_offset: Vec2::ZERO,
+        }
+    }
+
+    /// Homogeneous raster coordinates `(x*w, y*w, w)` of a camera-space point, `w = z` the view
+    /// depth. Linear in the point, so clipping and interpolation can be done on it.
+    #[inline]
+    pub fn clip_from_camera(&self, p: Vec3) -> Vec3 {
+        let l = &self.lens;
+        let z = -p.z;
+        let (cx, cy) = l.centre_px();
+        // Lens point in camera space (y up).
+        let vx = l.lens_radius_m * self.lens_point.x;
+        let vy = -l.lens_radius_m * self.lens_point.y;
+        let f = l.f_px;
+        let hx = (cx - self.pixel_offset.x + f * vx / l.focus_m) * z + f * (p.x - vx);
+        let hy = (cy - self.pixel_offset.y - f * vy / l.focus_m) * z - f * (p.y - vy);
+        Vec3::new(hx, hy, z)
+    }
+}
+
+/// A scene transformed to camera space and flattened for rasterization, reused for every view
+/// of a frame.
+#[derive(Clone, Debug)]
+pub struct PreparedScene<'a> {
+    scene: &'a Scene,
+    positions: Vec<Vec3>,
+    uvs: Vec<Vec2>,
+    triangles: Vec<PreparedTriangle>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct PreparedTriangle {
+    v: [u32; 3],
+    material: u32,
+}
+
+impl<'a> PreparedScene<'a> {
+    /// Transforms `scene` into the camera space of `camera_from_world` and validates it.
+    pub fn new(scene: &'a Scene, camera_from_world: &glam::Affine3A) -> Result<Self> {
+        scene.validate()?;
+        let mut positions = Vec::with_capacity(scene.meshes.iter().map(|m| m.positions.len()).sum());
+        let mut uvs = Vec::with_capacity(positions.capacity());
+        let mut triangles = Vec::with_capacity(scene.triangle_count());
+        for mesh in &scene.meshes {
+            let base = positions.len() as u32;
+            positions.extend(mesh.positions.iter().map(|&p| camera_from_world.transform_point3(p)));
+            if mesh.uvs.is_empty() {
+                uvs.extend(std::iter::repeat_n(Vec2::ZERO, mesh.positions.len()));
+            } else {
+                uvs.extend_from_slice(&mesh.uvs);
+            }
+            triangles.extend(mesh.indices.iter().map(|t| PreparedTriangle {
+                v: [t[0] + base, t[1] + base, t[2] + base],
+                material: mesh.material as u32,
+            }));
+        }
+        Ok(Self {
+            scene,
+            positions,
+            uvs,
+            triangles,
+        })
+    }
+
+    /// The scene this was prepared from.
+    pub fn scene(&self) -> &Scene {
+        self.scene
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+}
+
+/// Triangles of a view after setup and binning, ready to rasterize into any sink.
+pub struct BinnedView {
+    triangles: Vec<SetupTriangle>,
+    bins: Vec<Vec<u32>>,
+    tiles_x: usize,
+    tiles_y: usize,
+    width: usize,
+    height: usize,
+}
+
+impl BinnedView {
+    /// Sets up and bins every triangle of `prepared` for `view` (passes `setup` and `bin`).
+    pub fn new(prepared: &PreparedScene, view: &View) -> Self {
+        let width = view.lens.width_px;
+        let height = view.lens.height_px;
+        let materials = &prepared.scene.materials;
+        let triangles: Vec<SetupTriangle> = prepared
+            .triangles
+            .par_chunks(1024)
+            .flat_map_iter(|chunk| {
+                let mut out = Vec::new();
+                for t in chunk {
+                    let material = &materials[t.material as usize];
+                    let verts = t.v.map(|i| {
+                        (
+                            view.clip_from_camera(prepared.positions[i as usize]),
+                            prepared.uvs[i as usize],
+                        )
+                    });
+                    setup::setup_triangle(
+                        &verts,
+                        t.material,
+                        material.double_sided,
+                        matches!(material.alpha_mode, AlphaMode::Blend),
+                        &view.lens,
+                        &mut out,
+                    );
+                }
+                out
+            })
+            .collect();
+        let tiles_x = width.div_ceil(TILE);
+        let tiles_y = height.div_ceil(TILE);
+        let mut bins: Vec<Vec<u32>> = vec![Vec::new(); tiles_x * tiles_y];
+        for (i, t) in triangles.iter().enumerate() {
+            let (x0, y0, x1, y1) = t.bbox;
+            // bbox is inclusive pixel range clamped to the image.
+            for ty in y0 as usize / TILE..=y1 as usize / TILE {
+                for tx in x0 as usize / TILE..=x1 as usize / TILE {
+                    bins[ty * tiles_x + tx].push(i as u32);
+                }
+            }
+        }
+        Self {
+            triangles,
+            bins,
+            tiles_x,
+            tiles_y,
+            width,
+            height,
+        }
+    }
+
+    /// Number of triangles after clipping and culling.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Rasterizes into `sink` (pass `raster`), tiles in parallel.
+    pub fn rasterize<S: Sink>(&self, prepared: &PreparedScene, sink: &mut S) {
+        let scene = prepared.scene;
+        let rects: Vec<TileRect> = (0..self.tiles_y)
+            .flat_map(|ty| {
+                (0..self.tiles_x).map(move |tx| TileRect {
+                    x0: tx * TILE,
+                    y0: ty * TILE,
+                    x1: ((tx + 1) * TILE).min(self.width),
+                    y1: ((ty + 1) * TILE).min(self.height),
+                })
+            })
+            .collect();
+        let shared: &S = sink;
+        let tiles: Vec<S::Tile> = rects
+            .par_iter()
+            .enumerate()
+            .map(|(i, rect)| {
+                let mut tile = shared.begin_tile(*rect);
+                for &ti in &self.bins[i] {
+                    let tri = &self.triangles[ti as usize];
+                    setup::raster_triangle(tri, rect, scene, &mut tile);
+                }
+                tile.finish();
+                tile
+            })
+            .collect();
+        for (rect, tile) in rects.into_iter().zip(tiles) {
+            sink.end_tile(rect, tile);
+        }
+    }
+}
+
+/// Renders one view of `prepared` into a fresh [`GBuffer`].
+pub fn render_gbuffer(prepared: &PreparedScene, view: &View) -> GBuffer {
+    let binned = BinnedView::new(prepared, view);
+    let mut g = GBuffer::new(view.lens.width_px, view.lens.height_px);
+    binned.rasterize(prepared, &mut g);
+    g
+}

@@ -1,1 +1,143 @@
-//! Tests: cli.
+//! Tests: the `defocus` command line, run as a user would.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use defocus::image::io;
+
+fn defocus(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .expect("run defocus")
+}
+
+/// A fresh, empty temporary folder for one test.
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("defocus-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn render_writes_the_default_scene_with_depth_and_json_timings() {
+    let dir = temp_dir("render");
+    let out = dir.join("r.exr");
+    let depth = dir.join("z.exr");
+    let o = defocus(&[
+        "render", "--width", "64", "--height", "36", "--samples", "4", "--out", s(&out),
+        "--depth-out", s(&depth), "--timings", "json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let img = io::read_color(&out).unwrap();
+    assert_eq!((img.width(), img.height()), (64, 36));
+    let z = io::read_depth(&depth, &Default::default()).unwrap();
+    assert_eq!((z.width(), z.height()), (64, 36));
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    assert_eq!(json["method"], "reference");
+    assert_eq!(json["width"], 64);
+    assert!(json["passes"].as_array().unwrap().iter().any(|p| p["name"] == "reference/raster"));
+    assert!(json["total_ms"].as_f64().unwrap() > 0.0);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn bad_lens_parameters_fail_with_a_clear_error_and_no_output() {
+    let dir = temp_dir("badlens");
+    let out = dir.join("r.png");
+    for (flag, value, needle) in [
+        ("--fstop", "0", "f-number"),
+        ("--fstop", "-2", "f-number"),
+        ("--focus", "0", "focus"),
+        ("--focus", "5000", "far plane"),
+        ("--width", "0", "image size"),
+        ("--samples", "0", "samples"),
+        ("--aperture", "poly:1", "blades"),
+    ] {
+        let o = defocus(&["render", flag, value, "--width", "32", "--height", "18", "--out", s(&out)]);
+        assert!(!o.status.success(), "{flag} {value} should fail");
+        let e = stderr(&o);
+        assert!(e.contains(needle), "{flag} {value}: '{e}' should mention {needle}");
+        assert!(!e.contains("panicked"), "{e}");
+        assert!(!out.exists(), "no output after an error");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn unsupported_output_format_is_refused_before_rendering() {
+    let dir = temp_dir("badext");
+    let out = dir.join("r.jpg");
+    let o = defocus(&["render", "--out", s(&out)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains(".exr"), "{}", stderr(&o));
+    assert!(!out.exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn compare_of_an_image_with_itself_is_infinite_psnr_and_ssim_one() {
+    let dir = temp_dir("compare");
+    let a = dir.join("a.exr");
+    let o = defocus(&["render", "--method", "pinhole", "--width", "48", "--height", "32", "--out", s(&a)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = defocus(&["compare", s(&a), s(&a)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.lines().any(|l| l == "psnr: inf"), "{text}");
+    assert!(text.lines().any(|l| l == "ssim: 1.000000"), "{text}");
+    assert!(text.lines().any(|l| l.starts_with("mse: 0")), "{text}");
+    let o = defocus(&["compare", s(&a), s(&a), "--json"]);
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(json["ssim"], 1.0);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn compare_reports_size_mismatch_and_corrupt_files_without_writing_the_diff() {
+    let dir = temp_dir("compare-bad");
+    let a = dir.join("a.png");
+    let b = dir.join("b.png");
+    let diff = dir.join("d.png");
+    assert!(defocus(&["render", "--method", "pinhole", "--width", "40", "--height", "30", "--out", s(&a)]).status.success());
+    assert!(defocus(&["render", "--method", "pinhole", "--width", "30", "--height", "40", "--out", s(&b)]).status.success());
+    let o = defocus(&["compare", s(&a), s(&b), "--diff", s(&diff)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("mismatch"), "{}", stderr(&o));
+    assert!(!diff.exists());
+    // Truncated PNG.
+    let bytes = std::fs::read(&a).unwrap();
+    let cut = dir.join("cut.png");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let o = defocus(&["compare", s(&cut), s(&a), "--diff", s(&diff)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("cut.png"), "{}", stderr(&o));
+    assert!(!diff.exists());
+    // Missing file.
+    let o = defocus(&["compare", s(&dir.join("missing.exr")), s(&a)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("missing.exr"), "{}", stderr(&o));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn the_diff_map_never_overwrites_an_input() {
+    let dir = temp_dir("overwrite");
+    let a = dir.join("a.png");
+    assert!(defocus(&["render", "--method", "pinhole", "--width", "40", "--height", "30", "--out", s(&a)]).status.success());
+    let before = std::fs::read(&a).unwrap();
+    let o = defocus(&["compare", s(&a), s(&a), "--diff", s(&a)]);
+    assert!(!o.status.success());
+    assert_eq!(std::fs::read(&a).unwrap(), before);
+    std::fs::remove_dir_all(dir).unwrap();
+}

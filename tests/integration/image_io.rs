@@ -1,1 +1,688 @@
-//! Tests: image_io.
+//! Tests: image_io. Round trips through every format, Blender-style multilayer EXR, depth reading
+//! and validation, and the errors for missing, truncated and corrupt files and failed writes.
+
+use std::path::{Path, PathBuf};
+
+use defocus::image::io::{
+    ensure_not_same_file, radial_to_view_depth, read_color, read_depth, read_exr_channels,
+    write_color, write_depth_exr, write_exr_layers, write_png16, DepthRead,
+};
+use defocus::image::{srgb_encode, ColorImage, GrayImage};
+use defocus::Error;
+
+/// A scratch directory unique to this process and test, removed when dropped.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(test: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("defocus-{}-{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        TempDir(dir)
+    }
+
+    fn join(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+
+    /// File names in the directory, sorted.
+    fn listing(&self) -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(&self.0)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A deterministic premultiplied colour test image: straight colour in [0, 1], alpha in
+/// [0.25, 1].
+fn ldr_image(w: usize, h: usize) -> ColorImage {
+    let px = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f32, (i / w) as f32);
+            let a = 0.25 + 0.75 * ((x + y) % 4.0) / 3.0;
+            [
+                a * x / (w - 1).max(1) as f32,
+                a * y / (h - 1).max(1) as f32,
+                a * (0.5 + 0.5 * (0.7 * x + 0.3 * y).sin()),
+                a,
+            ]
+        })
+        .collect();
+    ColorImage::from_vec(w, h, px).unwrap()
+}
+
+/// Largest difference between the straight, sRGB-encoded colours (and the alphas) of two
+/// premultiplied images: what a PNG stores.
+fn max_straight_srgb_difference(a: &ColorImage, b: &ColorImage) -> f32 {
+    let straight = |p: [f32; 4]| {
+        [
+            srgb_encode(p[0] / p[3]),
+            srgb_encode(p[1] / p[3]),
+            srgb_encode(p[2] / p[3]),
+            p[3],
+        ]
+    };
+    a.pixels()
+        .iter()
+        .zip(b.pixels())
+        .flat_map(|(p, q)| {
+            let (p, q) = (straight(*p), straight(*q));
+            (0..4).map(move |c| (p[c] - q[c]).abs())
+        })
+        .fold(0.0, f32::max)
+}
+
+/// The error's full message, with its path.
+fn message(err: &Error) -> String {
+    err.to_string()
+}
+
+/// Writes a file, then cuts it to half its length.
+fn truncate_to_half(path: &Path) {
+    let bytes = std::fs::read(path).unwrap();
+    std::fs::write(path, &bytes[..bytes.len() / 2]).unwrap();
+}
+
+/// A PFM file built by hand: header, then rows bottom to top.
+fn pfm_bytes(magic: &str, w: usize, h: usize, scale: &str, rows_top_first: &[Vec<f32>]) -> Vec<u8> {
+    let little = scale.starts_with('-');
+    let mut bytes = format!("{magic}\n{w} {h}\n{scale}\n").into_bytes();
+    for row in rows_top_first.iter().rev() {
+        for v in row {
+            bytes.extend(if little {
+                v.to_le_bytes()
+            } else {
+                v.to_be_bytes()
+            });
+        }
+    }
+    bytes
+}
+
+/// Writes a 16- or 8-bit grey PNG with the `image` crate's encoder.
+fn write_grey_png(path: &Path, w: u32, h: u32, values: &[u16], sixteen: bool) {
+    use image::ImageEncoder;
+    let file = std::fs::File::create(path).unwrap();
+    let enc = image::codecs::png::PngEncoder::new(std::io::BufWriter::new(file));
+    if sixteen {
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_ne_bytes()).collect();
+        enc.write_image(&bytes, w, h, image::ExtendedColorType::L16)
+            .unwrap();
+    } else {
+        let bytes: Vec<u8> = values.iter().map(|&v| v as u8).collect();
+        enc.write_image(&bytes, w, h, image::ExtendedColorType::L8)
+            .unwrap();
+    }
+}
+
+/// Planes of a colour image, for building multilayer EXRs.
+fn planes(img: &ColorImage) -> [Vec<f32>; 4] {
+    std::array::from_fn(|c| img.pixels().iter().map(|p| p[c]).collect())
+}
+
+#[test]
+fn exr_colour_round_trip_is_bit_exact_including_hdr_and_negative_values() {
+    let dir = TempDir::new("exr_round_trip");
+    let mut img = ldr_image(37, 23);
+    *img.get_mut(3, 4) = [1.0e4, -0.25, 65_504.5, 0.0];
+    *img.get_mut(36, 22) = [1.0e-30, 3.0, f32::MAX, 2.0];
+    let path = dir.join("c.exr");
+    write_color(&path, &img).unwrap();
+    assert_eq!(read_color(&path).unwrap(), img);
+    // Upper-case extensions are recognised too.
+    let upper = dir.join("C.EXR");
+    write_color(&upper, &img).unwrap();
+    assert_eq!(read_color(&upper).unwrap(), img);
+}
+
+#[test]
+fn png_8bit_round_trip_is_within_half_a_code_value_after_srgb_encoding() {
+    let dir = TempDir::new("png8_round_trip");
+    let img = ldr_image(19, 11);
+    let path = dir.join("c.png");
+    write_color(&path, &img).unwrap();
+    let back = read_color(&path).unwrap();
+    assert_eq!((back.width(), back.height()), (19, 11));
+    let d = max_straight_srgb_difference(&img, &back);
+    assert!(d <= 0.5 / 255.0 + 1e-6, "{d}");
+}
+
+#[test]
+fn png_16bit_round_trip_is_within_half_a_16bit_step() {
+    let dir = TempDir::new("png16_round_trip");
+    let img = ldr_image(13, 9);
+    let path = dir.join("c16.png");
+    write_png16(&path, &img).unwrap();
+    let back = read_color(&path).unwrap();
+    let d = max_straight_srgb_difference(&img, &back);
+    assert!(d <= 0.5 / 65535.0 + 1e-6, "{d}");
+}
+
+#[test]
+fn png_straight_alpha_is_premultiplied_on_reading() {
+    use image::ImageEncoder;
+    let dir = TempDir::new("png_premultiply");
+    let path = dir.join("rgba.png");
+    let file = std::fs::File::create(&path).unwrap();
+    image::codecs::png::PngEncoder::new(std::io::BufWriter::new(file))
+        .write_image(&[255, 128, 0, 51], 1, 1, image::ExtendedColorType::Rgba8)
+        .unwrap();
+    let p = read_color(&path).unwrap().get(0, 0);
+    let a = 51.0 / 255.0;
+    let want = [a, defocus::image::srgb_decode(128.0 / 255.0) * a, 0.0, a];
+    for c in 0..4 {
+        assert!((p[c] - want[c]).abs() < 1e-6, "{p:?} vs {want:?}");
+    }
+}
+
+#[test]
+fn png_writing_clamps_hdr_colour_and_alpha_and_zeroes_colour_without_alpha() {
+    let dir = TempDir::new("png_clamps");
+    let img = ColorImage::from_vec(
+        2,
+        1,
+        vec![[4.0, -1.0, 0.5, 7.0], [f32::NAN, 1.0, 0.0, -3.0]],
+    )
+    .unwrap();
+    let path = dir.join("c.png");
+    write_color(&path, &img).unwrap();
+    let back = read_color(&path).unwrap();
+    assert_eq!(back.get(0, 0)[0], 1.0);
+    assert_eq!(back.get(0, 0)[1], 0.0);
+    assert_eq!(back.get(0, 0)[3], 1.0);
+    assert_eq!(back.get(1, 0), [0.0; 4]);
+}
+
+#[test]
+fn grey_png_reads_as_grey_with_opaque_alpha() {
+    let dir = TempDir::new("grey_png");
+    let path = dir.join("g.png");
+    write_grey_png(&path, 3, 1, &[0, 128, 255], false);
+    let img = read_color(&path).unwrap();
+    for (p, v) in img.pixels().iter().zip([0.0f32, 128.0 / 255.0, 1.0]) {
+        let lin = defocus::image::srgb_decode(v);
+        assert_eq!(*p, [lin, lin, lin, 1.0]);
+    }
+}
+
+#[test]
+fn depth_from_16bit_png_is_value_over_65535_times_scale_without_srgb() {
+    let dir = TempDir::new("depth_png16");
+    let path = dir.join("d.png");
+    write_grey_png(&path, 2, 2, &[1, 1000, 32768, 65535], true);
+    let opts = DepthRead {
+        scale: 100.0,
+        ..Default::default()
+    };
+    let depth = read_depth(&path, &opts).unwrap();
+    let expect = [1.0, 1000.0, 32768.0, 65535.0].map(|v: f32| v / 65535.0 * 100.0);
+    for (d, e) in depth.pixels().iter().zip(expect) {
+        assert!((d - e).abs() <= 1e-5 * e, "{d} vs {e}");
+    }
+}
+
+#[test]
+fn depth_from_8bit_png_is_value_over_255_times_scale() {
+    let dir = TempDir::new("depth_png8");
+    let path = dir.join("d.png");
+    write_grey_png(&path, 3, 1, &[1, 51, 255], false);
+    let opts = DepthRead {
+        scale: 10.0,
+        ..Default::default()
+    };
+    let depth = read_depth(&path, &opts).unwrap();
+    let expect = [10.0 / 255.0, 2.0, 10.0];
+    for (d, e) in depth.pixels().iter().zip(expect) {
+        assert!((d - e).abs() <= 1e-6 * e, "{d} vs {e}");
+    }
+}
+
+#[test]
+fn depth_png_in_colour_is_refused_with_the_channel_count() {
+    let dir = TempDir::new("depth_png_rgb");
+    let path = dir.join("d.png");
+    write_color(&path, &ldr_image(4, 4)).unwrap();
+    let err = read_depth(&path, &DepthRead::default()).unwrap_err();
+    let msg = message(&err);
+    assert!(msg.contains("d.png") && msg.contains("grey"), "{msg}");
+}
+
+#[test]
+fn little_endian_colour_pfm_rows_are_flipped_to_top_first() {
+    let dir = TempDir::new("pfm_le");
+    let path = dir.join("c.pfm");
+    let rows = vec![
+        vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+        vec![-7.0, 8.5, 9.0, 1e6, 0.125, 12.0],
+    ];
+    std::fs::write(&path, pfm_bytes("PF", 2, 2, "-1.0", &rows)).unwrap();
+    let img = read_color(&path).unwrap();
+    assert_eq!(img.get(0, 0), [1.0, 2.0, 3.0, 1.0]);
+    assert_eq!(img.get(1, 0), [4.0, 5.0, 6.0, 1.0]);
+    assert_eq!(img.get(0, 1), [-7.0, 8.5, 9.0, 1.0]);
+    assert_eq!(img.get(1, 1), [1e6, 0.125, 12.0, 1.0]);
+}
+
+#[test]
+fn big_endian_grey_pfm_reads_as_grey_and_as_depth() {
+    let dir = TempDir::new("pfm_be");
+    let path = dir.join("g.pfm");
+    let rows = vec![vec![1.5, 2.5, 3.5], vec![4.5, 5.5, 6.5]];
+    std::fs::write(&path, pfm_bytes("Pf", 3, 2, "1.0", &rows)).unwrap();
+    let img = read_color(&path).unwrap();
+    assert_eq!(img.get(2, 0), [3.5, 3.5, 3.5, 1.0]);
+    assert_eq!(img.get(0, 1), [4.5, 4.5, 4.5, 1.0]);
+    let depth = read_depth(
+        &path,
+        &DepthRead {
+            scale: 2.0,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(depth.pixels(), &[3.0, 5.0, 7.0, 9.0, 11.0, 13.0]);
+}
+
+#[test]
+fn colour_pfm_round_trip_is_exact_and_drops_alpha() {
+    let dir = TempDir::new("pfm_round_trip");
+    let mut img = ldr_image(7, 5);
+    *img.get_mut(6, 4) = [123.0, -4.0, 0.0, 0.5];
+    let path = dir.join("c.pfm");
+    write_color(&path, &img).unwrap();
+    let back = read_color(&path).unwrap();
+    let opaque = img.map(|p| [p[0], p[1], p[2], 1.0]);
+    assert_eq!(back, opaque);
+}
+
+#[test]
+fn multilayer_exr_gives_the_combined_colour_and_the_depth_z_without_a_channel_name() {
+    let dir = TempDir::new("multilayer");
+    let (w, h) = (6, 4);
+    let img = ldr_image(w, h);
+    let [r, g, b, a] = planes(&img);
+    let z: Vec<f32> = (0..w * h).map(|i| 1.0 + i as f32).collect();
+    let noise = vec![0.5f32; w * h];
+    let path = dir.join("blender.exr");
+    write_exr_layers(
+        &path,
+        w,
+        h,
+        &[
+            ("ViewLayer.Combined.R", &r),
+            ("ViewLayer.Combined.G", &g),
+            ("ViewLayer.Combined.B", &b),
+            ("ViewLayer.Combined.A", &a),
+            ("ViewLayer.DiffCol.R", &noise),
+            ("ViewLayer.DiffCol.G", &noise),
+            ("ViewLayer.DiffCol.B", &noise),
+            ("ViewLayer.Depth.Z", &z),
+        ],
+    )
+    .unwrap();
+    assert_eq!(read_color(&path).unwrap(), img);
+    let depth = read_depth(&path, &DepthRead::default()).unwrap();
+    assert_eq!(depth.pixels(), z.as_slice());
+
+    let all = read_exr_channels(&path).unwrap();
+    assert_eq!((all.width, all.height), (w, h));
+    assert_eq!(all.find("ViewLayer.Depth.Z"), Some(z.as_slice()));
+    assert_eq!(all.find("Z"), None);
+    let by_suffix = all.find_by_suffix("depth.z");
+    assert_eq!(by_suffix.len(), 1);
+    assert_eq!(by_suffix[0].0, "ViewLayer.Depth.Z");
+    assert_eq!(all.find_by_suffix("R").len(), 2);
+}
+
+#[test]
+fn depth_channel_can_be_named_in_full_or_by_a_unique_suffix() {
+    let dir = TempDir::new("depth_named");
+    let (w, h) = (3, 2);
+    let near = vec![0.5f32; w * h];
+    let far = vec![9.0f32; w * h];
+    let path = dir.join("two.exr");
+    write_exr_layers(&path, w, h, &[("A.Depth.Z", &near), ("B.Depth.Z", &far)]).unwrap();
+    let pick = |name: &str| {
+        let opts = DepthRead {
+            channel: Some(name.to_string()),
+            ..Default::default()
+        };
+        read_depth(&path, &opts)
+    };
+    assert_eq!(pick("B.Depth.Z").unwrap().pixels(), far.as_slice());
+    assert_eq!(pick("a.depth.z").unwrap().pixels(), near.as_slice());
+    let msg = message(&pick("Mist").unwrap_err());
+    assert!(
+        msg.contains("'Mist'") && msg.contains("A.Depth.Z, B.Depth.Z"),
+        "{msg}"
+    );
+    // Two view layers and no choice: the error lists both.
+    let msg = message(&read_depth(&path, &DepthRead::default()).unwrap_err());
+    assert!(
+        msg.contains("two.exr") && msg.contains("A.Depth.Z, B.Depth.Z"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn plain_rgb_wins_over_layers_and_a_grey_y_channel_reads_as_grey() {
+    let dir = TempDir::new("exr_choices");
+    let (w, h) = (2, 2);
+    let one = vec![1.0f32; 4];
+    let two = vec![2.0f32; 4];
+    let mixed = dir.join("mixed.exr");
+    write_exr_layers(
+        &mixed,
+        w,
+        h,
+        &[
+            ("R", &one),
+            ("G", &one),
+            ("B", &one),
+            ("L.Combined.R", &two),
+            ("L.Combined.G", &two),
+            ("L.Combined.B", &two),
+        ],
+    )
+    .unwrap();
+    assert_eq!(read_color(&mixed).unwrap().get(1, 1), [1.0, 1.0, 1.0, 1.0]);
+
+    let grey = dir.join("grey.exr");
+    let y: Vec<f32> = vec![0.1, 0.2, 0.3, 0.4];
+    let alpha = vec![0.5f32; 4];
+    write_exr_layers(&grey, w, h, &[("Y", &y), ("A", &alpha)]).unwrap();
+    let img = read_color(&grey).unwrap();
+    assert_eq!(img.get(1, 1), [0.4, 0.4, 0.4, 0.5]);
+}
+
+#[test]
+fn depth_exr_round_trip_is_exact_and_plus_infinity_reads_as_far() {
+    let dir = TempDir::new("depth_round_trip");
+    let mut depth = GrayImage::new(5, 3, 2.0);
+    *depth.get_mut(4, 2) = 1e10;
+    *depth.get_mut(0, 1) = 0.125;
+    let path = dir.join("z.exr");
+    write_depth_exr(&path, &depth).unwrap();
+    assert_eq!(read_depth(&path, &DepthRead::default()).unwrap(), depth);
+    let names = read_exr_channels(&path).unwrap();
+    assert_eq!(names.names(), vec!["Z"]);
+
+    *depth.get_mut(1, 1) = f32::INFINITY;
+    write_depth_exr(&path, &depth).unwrap();
+    let back = read_depth(&path, &DepthRead::default()).unwrap();
+    assert_eq!(back.get(1, 1), f32::MAX);
+}
+
+#[test]
+fn nan_negative_and_zero_depths_are_reported_with_the_first_pixel_and_the_count() {
+    let dir = TempDir::new("bad_depth");
+    let path = dir.join("bad.exr");
+    let mut depth = GrayImage::new(4, 3, 3.0);
+    *depth.get_mut(2, 1) = f32::NAN;
+    *depth.get_mut(0, 2) = -1.5;
+    *depth.get_mut(3, 2) = 0.0;
+    write_depth_exr(&path, &depth).unwrap();
+    let msg = message(&read_depth(&path, &DepthRead::default()).unwrap_err());
+    assert!(msg.contains("bad.exr"), "{msg}");
+    assert!(msg.contains("(x 2, y 1)") && msg.contains("NaN"), "{msg}");
+    assert!(msg.contains("3 pixel(s)") && msg.contains("'Z'"), "{msg}");
+
+    let mut depth = GrayImage::new(4, 3, 3.0);
+    *depth.get_mut(1, 2) = -1.5;
+    write_depth_exr(&path, &depth).unwrap();
+    let msg = message(&read_depth(&path, &DepthRead::default()).unwrap_err());
+    assert!(
+        msg.contains("(x 1, y 2) = -1.5") && msg.contains("1 pixel(s)"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn depth_scale_must_be_positive_and_finite() {
+    let dir = TempDir::new("depth_scale");
+    let path = dir.join("z.exr");
+    write_depth_exr(&path, &GrayImage::new(2, 2, 1.0)).unwrap();
+    for scale in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+        let opts = DepthRead {
+            scale,
+            ..Default::default()
+        };
+        let err = read_depth(&path, &opts).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                Error::Invalid {
+                    name: "depth scale",
+                    ..
+                }
+            ),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn radial_distance_becomes_view_depth_by_the_pinhole_angle() {
+    let (w, h, f_px) = (8, 6, 5.0f32);
+    let mut depth = GrayImage::new(w, h, 10.0);
+    radial_to_view_depth(&mut depth, f_px);
+    for y in 0..h {
+        for x in 0..w {
+            let (dx, dy) = (x as f64 + 0.5 - 4.0, y as f64 + 0.5 - 3.0);
+            let cos = 1.0 / (1.0 + (dx * dx + dy * dy) / (f_px as f64).powi(2)).sqrt();
+            let want = (10.0 * cos) as f32;
+            assert!((depth.get(x, y) - want).abs() < 1e-5, "({x}, {y})");
+        }
+    }
+    // Pixels next to the centre (0.5 px off axis) barely change; corners shrink most.
+    assert!(depth.get(4, 3) > 9.9 && depth.get(0, 0) < depth.get(1, 1));
+}
+
+#[test]
+fn cycles_pinhole_exr_gives_colour_and_depth_of_the_calibration_scene() {
+    let Some(assets) = crate::shared_assets() else {
+        return;
+    };
+    let path = assets.join("cycles/pinhole.exr");
+    let color = read_color(&path).unwrap();
+    assert_eq!((color.width(), color.height()), (480, 270));
+    assert!(color.pixels().iter().all(|p| p[3] == 1.0));
+    // The background wall reads 0.0300003 (README).
+    let wall = color.get(2, 268);
+    assert!((wall[0] - 0.03).abs() < 1e-4, "{wall:?}");
+
+    let depth = read_depth(&path, &DepthRead::default()).unwrap();
+    assert_eq!((depth.width(), depth.height()), (480, 270));
+    let count = |z: f32| depth.pixels().iter().filter(|&&d| d == z).count();
+    assert_eq!(count(2.0), 62_302);
+    assert_eq!(count(20.0), 63_945);
+    assert!(count(0.6) > 0);
+}
+
+#[test]
+fn missing_file_error_names_the_path() {
+    let dir = TempDir::new("missing");
+    for name in ["nope.exr", "nope.png", "nope.pfm"] {
+        let path = dir.join(name);
+        let err = read_color(&path).unwrap_err();
+        assert!(matches!(err, Error::Io { .. }), "{err}");
+        assert!(message(&err).contains(name), "{err}");
+        let err = read_depth(&path, &DepthRead::default()).unwrap_err();
+        assert!(message(&err).contains(name), "{err}");
+    }
+}
+
+#[test]
+fn truncated_exr_png_and_pfm_are_format_errors_naming_the_file() {
+    let dir = TempDir::new("truncated");
+    let img = ldr_image(64, 48);
+    for name in ["cut.exr", "cut.png", "cut.pfm"] {
+        let path = dir.join(name);
+        write_color(&path, &img).unwrap();
+        truncate_to_half(&path);
+        let err = read_color(&path).unwrap_err();
+        assert!(matches!(err, Error::Format { .. }), "{name}: {err}");
+        assert!(message(&err).contains(name), "{err}");
+    }
+    let msg = message(&read_color(&dir.join("cut.pfm")).unwrap_err());
+    let expected = 64 * 48 * 3 * 4;
+    assert!(
+        msg.contains(&format!("expected {expected} bytes of pixel data")),
+        "{msg}"
+    );
+    // A depth EXR cut short is reported the same way.
+    let z = dir.join("cut_z.exr");
+    write_depth_exr(&z, &GrayImage::new(64, 48, 1.0)).unwrap();
+    truncate_to_half(&z);
+    let err = read_depth(&z, &DepthRead::default()).unwrap_err();
+    assert!(message(&err).contains("cut_z.exr"), "{err}");
+}
+
+#[test]
+fn random_bytes_named_exr_png_or_pfm_are_format_errors() {
+    let dir = TempDir::new("random_bytes");
+    // A fixed xorshift sequence: the same "random" file every run.
+    let mut s = 0x9E37_79B9_7F4A_7C15u64;
+    let bytes: Vec<u8> = (0..4096)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 24) as u8
+        })
+        .collect();
+    for name in ["noise.exr", "noise.png", "noise.pfm"] {
+        let path = dir.join(name);
+        std::fs::write(&path, &bytes).unwrap();
+        let err = read_color(&path).unwrap_err();
+        assert!(matches!(err, Error::Format { .. }), "{name}: {err}");
+        assert!(message(&err).contains(name), "{err}");
+    }
+    // An empty file too.
+    let empty = dir.join("empty.exr");
+    std::fs::write(&empty, b"").unwrap();
+    assert!(read_color(&empty).is_err());
+}
+
+#[test]
+fn exr_without_colour_channels_lists_the_channels_it_has() {
+    let dir = TempDir::new("no_rgb");
+    let path = dir.join("zonly.exr");
+    let v = vec![1.0f32; 6];
+    write_exr_layers(&path, 3, 2, &[("Z", &v), ("Mist", &v), ("N.X", &v)]).unwrap();
+    let msg = message(&read_color(&path).unwrap_err());
+    assert!(msg.contains("zonly.exr"), "{msg}");
+    for name in ["Mist", "N.X", "Z"] {
+        assert!(msg.contains(name), "{msg}");
+    }
+    // And a file without depth lists its channels for read_depth.
+    let rgb = dir.join("rgb.exr");
+    write_color(&rgb, &ldr_image(3, 2)).unwrap();
+    let msg = message(&read_depth(&rgb, &DepthRead::default()).unwrap_err());
+    assert!(
+        msg.contains("rgb.exr") && msg.contains("A, B, G, R"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn pfm_header_larger_than_the_pixel_limit_is_refused_before_reading_pixels() {
+    let dir = TempDir::new("huge_pfm");
+    let path = dir.join("huge.pfm");
+    std::fs::write(&path, b"PF\n100000 100000\n-1.0\n\0\0\0\0").unwrap();
+    let msg = message(&read_color(&path).unwrap_err());
+    assert!(
+        msg.contains("huge.pfm") && msg.contains("100000x100000"),
+        "{msg}"
+    );
+    let zero = dir.join("zero.pfm");
+    std::fs::write(&zero, b"Pf\n0 5\n-1.0\n").unwrap();
+    let msg = message(&read_color(&zero).unwrap_err());
+    assert!(msg.contains("zero.pfm") && msg.contains("0x5"), "{msg}");
+    let bad = dir.join("bad.pfm");
+    std::fs::write(&bad, b"PF\n4 four\n-1.0\n").unwrap();
+    let msg = message(&read_color(&bad).unwrap_err());
+    assert!(
+        msg.contains("bad.pfm") && msg.contains("height") && msg.contains("'four'"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn unknown_extension_is_refused_naming_the_path_and_the_supported_formats() {
+    let dir = TempDir::new("unknown_ext");
+    let path = dir.join("out.jpg");
+    let msg = message(&write_color(&path, &ldr_image(2, 2)).unwrap_err());
+    assert!(
+        msg.contains("out.jpg") && msg.contains(".exr, .png, .pfm"),
+        "{msg}"
+    );
+    assert!(dir.listing().is_empty());
+    let msg = message(&read_color(&dir.join("in")).unwrap_err());
+    assert!(msg.contains("no file extension"), "{msg}");
+}
+
+#[test]
+fn writing_into_a_missing_directory_fails_and_leaves_no_file() {
+    let dir = TempDir::new("missing_dir");
+    let path = dir.join("not/here/out.exr");
+    let err = write_color(&path, &ldr_image(2, 2)).unwrap_err();
+    assert!(matches!(err, Error::Io { .. }), "{err}");
+    assert!(message(&err).contains("out.exr"), "{err}");
+    assert!(dir.listing().is_empty());
+}
+
+#[test]
+fn a_failed_write_leaves_no_file_and_no_temporary_file() {
+    let dir = TempDir::new("failed_write");
+    // The target is a directory: the data is written, then the rename fails.
+    let target = dir.join("taken.png");
+    std::fs::create_dir(&target).unwrap();
+    assert!(write_color(&target, &ldr_image(4, 4)).is_err());
+    assert!(target.is_dir());
+    assert_eq!(dir.listing(), vec!["taken.png".to_string()]);
+    // Bad channel data fails before anything is created.
+    let exr = dir.join("bad.exr");
+    let short = vec![1.0f32; 3];
+    let err = write_exr_layers(&exr, 2, 2, &[("R", &short)]).unwrap_err();
+    assert!(message(&err).contains("'R'"), "{err}");
+    let err = write_exr_layers(&exr, 2, 2, &[("Z", &[1.0; 4]), ("Z", &[2.0; 4])]).unwrap_err();
+    assert!(message(&err).contains("twice"), "{err}");
+    // An empty image is refused.
+    let empty = ColorImage::new(0, 3, [0.0; 4]);
+    assert!(write_color(&dir.join("empty.png"), &empty).is_err());
+    assert_eq!(dir.listing(), vec!["taken.png".to_string()]);
+}
+
+#[test]
+fn writing_over_an_existing_file_replaces_it_whole() {
+    let dir = TempDir::new("overwrite");
+    let path = dir.join("c.exr");
+    write_color(&path, &ldr_image(8, 8)).unwrap();
+    let second = ldr_image(3, 5);
+    write_color(&path, &second).unwrap();
+    assert_eq!(read_color(&path).unwrap(), second);
+    assert_eq!(dir.listing(), vec!["c.exr".to_string()]);
+}
+
+#[test]
+fn output_naming_the_input_file_is_refused() {
+    let dir = TempDir::new("same_file");
+    let input = dir.join("in.exr");
+    write_color(&input, &ldr_image(2, 2)).unwrap();
+    let same = dir.0.join(".").join("in.exr");
+    let err = ensure_not_same_file(&input, &same).unwrap_err();
+    assert!(message(&err).contains("in.exr"), "{err}");
+    assert!(ensure_not_same_file(&input, &dir.join("out.exr")).is_ok());
+    write_color(&dir.join("other.exr"), &ldr_image(2, 2)).unwrap();
+    assert!(ensure_not_same_file(&input, &dir.join("other.exr")).is_ok());
+}

@@ -18,3 +18,42 @@ pub fn shared_assets() -> Option<std::path::PathBuf> {
         None
     }
 }
+
+/// A camera at the origin looking down -Z: 50 mm on a 36 mm sensor, `w`x`h` pixels.
+pub fn test_camera(w: usize, h: usize, focus_m: f32, fstop: f32) -> defocus::lens::Camera {
+    defocus::lens::Camera {
+        width_px: w,
+        height_px: h,
+        camera_from_world: glam::Affine3A::IDENTITY,
+        focal_length_mm: 50.0,
+        sensor_width_mm: 36.0,
+        fstop,
+        focus_m,
+        near_m: 0.05,
+        far_m: 1000.0,
+        yfov_rad: None,
+    }
+}
+
+/// Adds a camera-facing rectangle at depth `z_m` covering the raster box `[x0, x1) x [y0, y1)`
+/// of `camera`'s pinhole image, with material `material`.
+pub fn add_screen_rect(
+    scene: &mut defocus::scene::Scene,
+    camera: &defocus::lens::Camera,
+    (x0, y0, x1, y1): (f32, f32, f32, f32),
+    z_m: f32,
+    material: usize,
+) {
+    let lens = camera.thin_lens().unwrap();
+    let (cx, cy) = lens.centre_px();
+    let to_world = |x: f32, y: f32| {
+        glam::Vec3::new((x - cx) * z_m / lens.f_px, -(y - cy) * z_m / lens.f_px, -z_m)
+    };
+    let mut mesh = defocus::scene::Mesh {
+        material,
+        ..Default::default()
+    };
+    let p0 = to_world(x0, y0);
+    mesh.push_quad(p0, to_world(x1, y0) - p0, to_world(x0, y1) - p0);
+    scene.meshes.push(mesh);
+}

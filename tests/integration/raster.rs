@@ -1,1 +1,321 @@
-//! Tests: raster.
+//! Tests: the rasterizer and the G-buffer sink.
+
+use defocus::image::ColorImage;
+use defocus::lens::{Camera, ThinLens};
+use defocus::raster::{
+    render_gbuffer, BinnedView, Fragment, PreparedScene, Sink, TileRect, TileSink, View,
+};
+use defocus::scene::{AlphaMode, Material, Mesh, Scene, Texture, TextureBinding, TextureSampler};
+use glam::{Vec2, Vec3};
+
+use crate::{add_screen_rect, test_camera};
+
+/// Counts fragments per pixel.
+struct CountSink {
+    width: usize,
+    counts: Vec<u32>,
+}
+
+struct CountTile {
+    rect: TileRect,
+    counts: Vec<u32>,
+}
+
+impl TileSink for CountTile {
+    fn fragment(&mut self, f: &Fragment) {
+        let i = (f.y as usize - self.rect.y0) * self.rect.width() + f.x as usize - self.rect.x0;
+        self.counts[i] += 1;
+    }
+}
+
+impl Sink for CountSink {
+    type Tile = CountTile;
+    fn begin_tile(&self, rect: TileRect) -> CountTile {
+        CountTile {
+            rect,
+            counts: vec![0; rect.width() * rect.height()],
+        }
+    }
+    fn end_tile(&mut self, rect: TileRect, tile: CountTile) {
+        for (row, y) in (rect.y0..rect.y1).enumerate() {
+            for x in rect.x0..rect.x1 {
+                self.counts[y * self.width + x] += tile.counts[row * rect.width() + x - rect.x0];
+            }
+        }
+    }
+}
+
+fn count(scene: &Scene, camera: &Camera) -> Vec<u32> {
+    let lens = camera.thin_lens().unwrap();
+    let prepared = PreparedScene::new(scene, &camera.camera_from_world).unwrap();
+    let binned = BinnedView::new(&prepared, &View::pinhole(lens));
+    let mut sink = CountSink {
+        width: lens.width_px,
+        counts: vec![0; lens.width_px * lens.height_px],
+    };
+    binned.rasterize(&prepared, &mut sink);
+    sink.counts
+}
+
+fn one_material_scene(material: Material) -> Scene {
+    let mut scene = Scene::default();
+    scene.add_material(material);
+    scene
+}
+
+#[test]
+fn a_fan_of_triangles_covers_each_pixel_exactly_once() {
+    // A fan of 7 triangles around an off-grid centre, with vertices at awkward sub-pixel
+    // positions: shared edges must be watertight with no double coverage (top-left rule).
+    let camera = test_camera(67, 45, 2.0, 2.8);
+    let lens = camera.thin_lens().unwrap();
+    let mut scene = one_material_scene(Material::color("m", [1.0; 3]));
+    let z = 3.0;
+    let (cx, cy) = lens.centre_px();
+    let world = |x: f32, y: f32| Vec3::new((x - cx) * z / lens.f_px, -(y - cy) * z / lens.f_px, -z);
+    let centre = (33.37, 21.61);
+    let mut mesh = Mesh::default();
+    mesh.positions.push(world(centre.0, centre.1));
+    let k = 7;
+    for i in 0..k {
+        let a = i as f32 / k as f32 * std::f32::consts::TAU + 0.3;
+        mesh.positions.push(world(centre.0 + 28.3 * a.cos(), centre.1 + 19.7 * a.sin()));
+    }
+    for i in 0..k as u32 {
+        mesh.indices.push([0, 1 + i, 1 + (i + 1) % k as u32]);
+    }
+    scene.meshes.push(mesh);
+    let counts = count(&scene, &camera);
+    assert!(counts.iter().all(|&c| c <= 1), "a pixel was covered twice");
+    // Pixels well inside the fan are all covered (no cracks).
+    for y in 10..34 {
+        for x in 22..45 {
+            assert_eq!(counts[y * 67 + x], 1, "crack at ({x}, {y})");
+        }
+    }
+}
+
+#[test]
+fn a_rectangle_covers_the_pixels_whose_centres_it_contains() {
+    let camera = test_camera(40, 30, 2.0, 2.8);
+    let mut scene = one_material_scene(Material::color("m", [1.0; 3]));
+    // Edges at x = 5.5 (through pixel centres: the left edge includes them) and x = 20.5
+    // (right edge excludes them); y from 3.2 to 17.9.
+    add_screen_rect(&mut scene, &camera, (5.5, 3.2, 20.5, 17.9), 4.0, 0);
+    let counts = count(&scene, &camera);
+    let mut expected = 0;
+    for y in 0..30 {
+        for x in 0..40 {
+            let inside = (5..20).contains(&x) && (3..=17).contains(&y);
+            expected += inside as u32;
+            assert_eq!(counts[y * 40 + x], inside as u32, "pixel ({x}, {y})");
+        }
+    }
+    assert_eq!(expected, 15 * 15);
+}
+
+#[test]
+fn a_vertex_lands_on_the_pixel_the_camera_predicts_and_depth_is_view_axis() {
+    // A camera away from the origin, looking at an angle; a small square around a world
+    // point must appear where the thin lens projects that point, with its view depth.
+    let from = Vec3::new(0.3, 0.2, 1.0);
+    let target = Vec3::new(-0.5, 0.1, -3.0);
+    let mut camera = Camera::look_at(from, target, Vec3::Y);
+    camera.width_px = 64;
+    camera.height_px = 48;
+    let lens: ThinLens = camera.thin_lens().unwrap();
+    let p = Vec3::new(-0.2, 0.15, -2.0);
+    let pc = camera.camera_from_world.transform_point3(p);
+    let (px, py, z) = lens.project(pc).unwrap();
+    let mut scene = one_material_scene(Material::color("m", [1.0, 0.5, 0.25]));
+    // A camera-facing square of 1.2 px around p.
+    let half = 0.6 * z / lens.f_px;
+    let right = camera.camera_from_world.inverse().transform_vector3(Vec3::X) * half;
+    let up = camera.camera_from_world.inverse().transform_vector3(Vec3::Y) * half;
+    let mut mesh = Mesh::default();
+    mesh.push_quad(p - right + up, right * 2.0, -up * 2.0);
+    scene.meshes.push(mesh);
+    let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+    let g = render_gbuffer(&prepared, &View::pinhole(lens));
+    let (ix, iy) = (px.floor() as usize, py.floor() as usize);
+    // The pixel containing the projected point is covered only if its centre is within
+    // 0.6 px; pick the pixel whose centre is nearest.
+    let nx = (px - 0.5).round() as usize;
+    let ny = (py - 0.5).round() as usize;
+    assert!(ix.abs_diff(nx) <= 1 && iy.abs_diff(ny) <= 1);
+    let d = g.depth.get(nx, ny);
+    assert!((d - z).abs() < 1e-4 * z, "depth {d}, expected view-axis {z}");
+    assert_eq!(g.color.get(nx, ny), [1.0, 0.5, 0.25, 1.0]);
+    let covered = g.depth.pixels().iter().filter(|d| d.is_finite()).count();
+    assert!((1..=4).contains(&covered), "{covered} pixels covered by a 1.2 px square");
+}
+
+#[test]
+fn depth_on_a_tilted_plane_is_perspective_correct() {
+    // Plane z = 2 + 0.5 * x (camera space X); its depth along each pixel's ray is analytic.
+    let camera = test_camera(50, 40, 2.0, 2.8);
+    let lens = camera.thin_lens().unwrap();
+    let mut scene = one_material_scene(Material::color("m", [1.0; 3]));
+    let plane_z = |x: f32| 2.0 + 0.5 * x;
+    let mut mesh = Mesh::default();
+    let (x0, x1, y) = (-1.0f32, 1.0f32, 1.0f32);
+    mesh.positions = vec![
+        Vec3::new(x0, y, -plane_z(x0)),
+        Vec3::new(x1, y, -plane_z(x1)),
+        Vec3::new(x1, -y, -plane_z(x1)),
+        Vec3::new(x0, -y, -plane_z(x0)),
+    ];
+    mesh.indices = vec![[0, 1, 2], [0, 2, 3]];
+    scene.meshes.push(mesh);
+    let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+    let g = render_gbuffer(&prepared, &View::pinhole(lens));
+    let (cx, _) = lens.centre_px();
+    for px in [3usize, 17, 25, 40, 48] {
+        // Ray through pixel centre: X = t * z, with t = (px + 0.5 - cx) / f. z = 2 + 0.5 t z.
+        let t = (px as f32 + 0.5 - cx) / lens.f_px;
+        let z = 2.0 / (1.0 - 0.5 * t);
+        let got = g.depth.get(px, 20);
+        assert!((got - z).abs() < 1e-4, "pixel {px}: depth {got}, expected {z}");
+    }
+}
+
+#[test]
+fn transparent_surfaces_composite_in_depth_order_whatever_the_submission_order() {
+    let camera = test_camera(16, 16, 2.0, 2.8);
+    let blend = |name: &str, rgb: [f32; 3], a: f32| Material {
+        name: name.into(),
+        base_color: [rgb[0], rgb[1], rgb[2], a],
+        alpha_mode: AlphaMode::Blend,
+        ..Default::default()
+    };
+    let build = |reverse: bool| {
+        let mut scene = Scene::default();
+        let red = scene.add_material(Material::color("red", [1.0, 0.0, 0.0]));
+        let blue = scene.add_material(blend("blue", [0.0, 0.0, 1.0], 0.5));
+        let green = scene.add_material(blend("green", [0.0, 1.0, 0.0], 0.25));
+        let behind = scene.add_material(blend("behind", [1.0, 1.0, 1.0], 0.9));
+        let mut layers = vec![(3.0, red), (2.0, blue), (1.0, green), (5.0, behind)];
+        if reverse {
+            layers.reverse();
+        }
+        for (z, m) in layers {
+            add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), z, m);
+        }
+        let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+        render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()))
+    };
+    let a = build(false);
+    let b = build(true);
+    // Red, then blue at 0.5 over it, then green at 0.25; white behind red is hidden.
+    let blue_over_red = [0.5, 0.0, 0.5];
+    let expected = [
+        0.75 * blue_over_red[0],
+        0.25 + 0.75 * blue_over_red[1],
+        0.75 * blue_over_red[2],
+    ];
+    for g in [&a, &b] {
+        let p = g.color.get(8, 8);
+        for k in 0..3 {
+            assert!((p[k] - expected[k]).abs() < 1e-6, "{p:?} vs {expected:?}");
+        }
+        assert_eq!(p[3], 1.0);
+        assert_eq!(g.depth.get(8, 8), 3.0, "depth is the opaque surface's");
+    }
+}
+
+#[test]
+fn alpha_mask_cutouts_are_holes() {
+    let camera = test_camera(32, 32, 2.0, 2.8);
+    let mut scene = Scene::default();
+    // Texture: left half alpha 0, right half alpha 1.
+    let tex = ColorImage::from_vec(
+        4,
+        4,
+        (0..16).map(|i| if i % 4 < 2 { [1.0, 1.0, 1.0, 0.0] } else { [0.0, 1.0, 0.0, 1.0] }).collect(),
+    )
+    .unwrap();
+    let t = scene.add_texture(Texture::new(tex));
+    let back = scene.add_material(Material::color("back", [1.0, 0.0, 0.0]));
+    let cut = scene.add_material(Material {
+        name: "cut".into(),
+        base_color_texture: Some(TextureBinding {
+            texture: t,
+            sampler: TextureSampler {
+                mag_filter: defocus::scene::FilterMode::Nearest,
+                ..Default::default()
+            },
+            uv_transform: Default::default(),
+        }),
+        alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
+        ..Default::default()
+    });
+    add_screen_rect(&mut scene, &camera, (0.0, 0.0, 32.0, 32.0), 4.0, back);
+    add_screen_rect(&mut scene, &camera, (0.0, 0.0, 32.0, 32.0), 1.0, cut);
+    let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+    let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
+    assert_eq!(g.color.get(4, 16), [1.0, 0.0, 0.0, 1.0], "hole shows the back");
+    assert!((g.depth.get(4, 16) - 4.0).abs() < 1e-5);
+    assert_eq!(g.color.get(28, 16), [0.0, 1.0, 0.0, 1.0], "opaque part stays");
+    assert!((g.depth.get(28, 16) - 1.0).abs() < 1e-5);
+}
+
+#[test]
+fn triangles_crossing_the_near_plane_are_clipped_not_dropped() {
+    // A floor from behind the camera to far ahead: must cover the lower half of the image.
+    let camera = test_camera(40, 30, 2.0, 2.8);
+    let mut scene = one_material_scene(Material::color("m", [1.0; 3]));
+    let mut mesh = Mesh::default();
+    mesh.push_quad(Vec3::new(-50.0, -1.0, 5.0), Vec3::new(100.0, 0.0, 0.0), Vec3::new(0.0, 0.0, -100.0));
+    scene.meshes.push(mesh);
+    let counts = count(&scene, &camera);
+    for x in 0..40 {
+        assert_eq!(counts[29 * 40 + x], 1, "bottom row, pixel {x}");
+        assert_eq!(counts[5 * 40 + x], 0, "top rows stay empty, pixel {x}");
+    }
+}
+
+#[test]
+fn single_sided_back_faces_are_culled() {
+    let camera = test_camera(16, 16, 2.0, 2.8);
+    let mut scene = one_material_scene(Material {
+        double_sided: false,
+        ..Material::color("m", [1.0; 3])
+    });
+    // Wound clockwise as seen from the camera: a back face.
+    let mut mesh = Mesh::default();
+    mesh.positions = vec![Vec3::new(-1.0, -1.0, -2.0), Vec3::new(0.0, 1.0, -2.0), Vec3::new(1.0, -1.0, -2.0)];
+    mesh.indices = vec![[0, 1, 2]];
+    scene.meshes.push(mesh.clone());
+    assert_eq!(count(&scene, &camera).iter().sum::<u32>(), 0);
+    scene.meshes[0].indices = vec![[0, 2, 1]];
+    assert!(count(&scene, &camera).iter().sum::<u32>() > 0);
+}
+
+#[test]
+fn mipmapped_texture_of_a_fine_checker_averages_to_grey_far_away() {
+    // A 256x256 one-texel checker seen at ~16 texels per pixel must not alias: mip filtering
+    // gives ~0.5 everywhere.
+    let camera = test_camera(32, 32, 2.0, 2.8);
+    let mut scene = Scene::default();
+    let tex = ColorImage::from_vec(
+        256,
+        256,
+        (0..256 * 256).map(|i| { let v = ((i % 256 + i / 256) % 2) as f32; [v, v, v, 1.0] }).collect(),
+    )
+    .unwrap();
+    let t = scene.add_texture(Texture::new(tex));
+    let m = scene.add_material(Material {
+        base_color_texture: Some(TextureBinding { texture: t, sampler: TextureSampler::default(), uv_transform: Default::default() }),
+        ..Default::default()
+    });
+    add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 2.0, m);
+    let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+    let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
+    for y in 1..15 {
+        for x in 1..15 {
+            let v = g.color.get(x, y)[0];
+            assert!((v - 0.5).abs() < 0.05, "pixel ({x}, {y}) = {v}");
+        }
+    }
+    let _ = Vec2::ZERO;
+}

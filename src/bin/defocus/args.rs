@@ -1,0 +1,119 @@
+//! Raw command-line flags (clap). Validation and unit conversion happen in `commands`.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// Depth-of-field rendering: a thin-lens ground truth and the methods of the literature.
+///
+/// Units: distances in metres, focal length and sensor width in millimetres (full frame is
+/// 36 mm wide), image sizes and blur radii in pixels. Colour is linear light; PNG output is
+/// sRGB-encoded, EXR output stays linear (HDR kept).
+#[derive(Debug, Parser)]
+#[command(name = "defocus", version, about, long_about)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+    /// Worker threads (default: all cores). Output is bit-identical for any count.
+    #[arg(long, global = true, value_name = "N")]
+    pub threads: Option<usize>,
+    /// No progress bar.
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Render a scene (built-in or file) with a DoF method.
+    Render(RenderArgs),
+    /// Compare two images: MSE (linear), PSNR and SSIM (sRGB, clamped to [0,1]).
+    Compare(CompareArgs),
+}
+
+/// How `--timings` reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum TimingFormat {
+    /// A table on stderr.
+    Table,
+    /// One JSON object on stdout.
+    Json,
+}
+
+/// Methods `render` can run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum RenderMethod {
+    /// No blur: the scene through the lens centre (with --samples N, supersampled).
+    Pinhole,
+    /// Ground truth: average of --samples views through points on the lens.
+    Reference,
+}
+
+/// Flags of `render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Built-in scene name (railing, lights, grass, glass) or a scene file.
+    #[arg(long, default_value = "railing", value_name = "NAME|PATH")]
+    pub scene: String,
+    /// DoF method.
+    #[arg(long, value_enum, default_value_t = RenderMethod::Reference)]
+    pub method: RenderMethod,
+    /// Samples: lens views for `reference` (default 256), samples per pixel for `pinhole`
+    /// (default 1 = pixel centres, no anti-aliasing).
+    #[arg(long, value_name = "N")]
+    pub samples: Option<usize>,
+    /// Image width in pixels [default: the scene's, 1280 for built-in scenes].
+    #[arg(long, value_name = "PX")]
+    pub width: Option<usize>,
+    /// Image height in pixels [default: the scene's, 720 for built-in scenes].
+    #[arg(long, value_name = "PX")]
+    pub height: Option<usize>,
+    /// Focus distance in metres, along the view axis [default: the scene's].
+    #[arg(long, value_name = "M")]
+    pub focus: Option<f32>,
+    /// f-number N; the lens radius is focal length / (2 N) [default: the scene's].
+    #[arg(long, value_name = "N")]
+    pub fstop: Option<f32>,
+    /// Focal length in millimetres [default: the scene's, 50 mm for built-in scenes].
+    #[arg(long, value_name = "MM")]
+    pub focal_length: Option<f32>,
+    /// Sensor width in millimetres, horizontal fit [default: the scene's, 36 mm].
+    #[arg(long, value_name = "MM")]
+    pub sensor_width: Option<f32>,
+    /// Aperture: `disc`, `poly:B[,rot=DEG][,curve=R]` (B blades, rotation in degrees
+    /// counter-clockwise, curved blades of radius R in aperture radii, R >= 1) or
+    /// `image:PATH` (a greyscale image used as density) [default: the scene's].
+    #[arg(long, value_name = "SPEC")]
+    pub aperture: Option<String>,
+    /// Lens sampler: halton (low discrepancy), stratified, random.
+    #[arg(long, default_value = "halton")]
+    pub sampler: String,
+    /// Seed of the lens/pixel sampler.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Output image: .exr (linear float RGBA), .png (8-bit sRGB) or .pfm.
+    #[arg(long, default_value = "render.png", value_name = "FILE")]
+    pub out: PathBuf,
+    /// Also write the pinhole view-axis depth (metres, pixel centres, channel Z) to this EXR.
+    #[arg(long, value_name = "FILE.exr")]
+    pub depth_out: Option<PathBuf>,
+    /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
+    #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
+    pub timings: Option<TimingFormat>,
+}
+
+/// Flags of `compare`.
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// Test image (EXR, PNG or PFM).
+    pub a: PathBuf,
+    /// Reference image (EXR, PNG or PFM), same size.
+    pub b: PathBuf,
+    /// Write a false-colour map of the absolute sRGB difference.
+    #[arg(long, value_name = "FILE.png")]
+    pub diff: Option<PathBuf>,
+    /// Print one JSON object instead of `name: value` lines.
+    #[arg(long)]
+    pub json: bool,
+}

@@ -1,0 +1,122 @@
+//! The `GBuffer` sink: nearest opaque surface per pixel, with alpha-blended surfaces in front
+//! of it composited back to front.
+
+use super::{Fragment, Sink, TileRect, TileSink};
+use crate::image::{ColorImage, GrayImage, Rgba};
+
+/// Colour (linear, premultiplied alpha; transparent black where nothing was drawn) and view
+/// depth in metres of the nearest opaque surface (`f32::INFINITY` where there is none).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GBuffer {
+    /// Linear premultiplied RGBA: opaque surface with transparent surfaces in front composited
+    /// over it.
+    pub color: ColorImage,
+    /// View-axis depth in metres of the nearest opaque surface.
+    pub depth: GrayImage,
+}
+
+impl GBuffer {
+    /// A fresh tile for `rect`, as [`Sink::begin_tile`] gives; other sinks that need the
+    /// G-buffer's depth test and blending reuse it.
+    pub fn tile(rect: TileRect) -> GBufferTile {
+        let n = rect.width() * rect.height();
+        GBufferTile {
+            rect,
+            color: vec![[0.0; 4]; n],
+            depth: vec![f32::INFINITY; n],
+            blended: Vec::new(),
+        }
+    }
+
+    /// An empty buffer: transparent black at infinite depth.
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            color: ColorImage::new(width, height, [0.0; 4]),
+            depth: GrayImage::new(width, height, f32::INFINITY),
+        }
+    }
+}
+
+/// Per-tile state of [`GBuffer`].
+pub struct GBufferTile {
+    rect: TileRect,
+    color: Vec<Rgba>,
+    depth: Vec<f32>,
+    /// Transparent fragments: (pixel index in tile, depth, colour).
+    blended: Vec<(u32, f32, Rgba)>,
+}
+
+impl GBufferTile {
+    #[inline]
+    fn index(&self, x: u32, y: u32) -> usize {
+        (y as usize - self.rect.y0) * self.rect.width() + (x as usize - self.rect.x0)
+    }
+
+    /// Colour of the tile, row-major.
+    pub fn color(&self) -> &[Rgba] {
+        &self.color
+    }
+
+    /// Depth of the tile, row-major.
+    pub fn depth(&self) -> &[f32] {
+        &self.depth
+    }
+}
+
+impl TileSink for GBufferTile {
+    #[inline]
+    fn occluded(&self, x: u32, y: u32, depth_m: f32) -> bool {
+        depth_m >= self.depth[self.index(x, y)]
+    }
+
+    #[inline]
+    fn fragment(&mut self, f: &Fragment) {
+        let i = self.index(f.x, f.y);
+        if f.blend {
+            self.blended.push((i as u32, f.depth_m, f.color));
+        } else if f.depth_m < self.depth[i] {
+            self.depth[i] = f.depth_m;
+            self.color[i] = f.color;
+        }
+    }
+
+    fn finish(&mut self) {
+        if self.blended.is_empty() {
+            return;
+        }
+        let depth = &self.depth;
+        self.blended.retain(|&(i, z, _)| z < depth[i as usize]);
+        // Per pixel, far to near; stable, so equal depths keep scene order.
+        self.blended
+            .sort_by(|a, b| a.0.cmp(&b.0).then(b.1.total_cmp(&a.1)));
+        for &(i, _, src) in &self.blended {
+            // `over` with premultiplied colour: the fragment's colour is straight.
+            let dst = &mut self.color[i as usize];
+            let a = src[3];
+            for k in 0..3 {
+                dst[k] = src[k] * a + dst[k] * (1.0 - a);
+            }
+            dst[3] = a + dst[3] * (1.0 - a);
+        }
+        self.blended.clear();
+    }
+}
+
+impl Sink for GBuffer {
+    type Tile = GBufferTile;
+
+    fn begin_tile(&self, rect: TileRect) -> GBufferTile {
+        GBuffer::tile(rect)
+    }
+
+    fn end_tile(&mut self, rect: TileRect, tile: GBufferTile) {
+        let w = rect.width();
+        for (row, y) in (rect.y0..rect.y1).enumerate() {
+            let dst = y * self.color.width() + rect.x0;
+            self.color.pixels_mut()[dst..dst + w]
+                .copy_from_slice(&tile.color[row * w..(row + 1) * w]);
+            self.depth.pixels_mut()[dst..dst + w]
+                .copy_from_slice(&tile.depth[row * w..(row + 1) * w]);
+        }
+    }
+}

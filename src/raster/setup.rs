@@ -1,0 +1,322 @@
+//! Passes `setup` (clip, cull, snap, edge functions, attribute planes) and `raster`
+//! (coverage, early depth test, shading) for one triangle.
+
+use glam::{Vec2, Vec3};
+
+use super::{shade, Fragment, TileRect, TileSink};
+use crate::lens::ThinLens;
+use crate::scene::Scene;
+
+/// Sub-pixel precision: 1/256 pixel.
+const SUBPIXEL_BITS: u32 = 8;
+const ONE: i64 = 1 << SUBPIXEL_BITS;
+const HALF: i64 = ONE / 2;
+/// Guard band in pixels around the image: triangles are clipped to it so fixed-point
+/// coordinates stay small (products of two coordinates fit in i64 with room to spare).
+const GUARD_PX: f32 = 8192.0;
+
+/// A triangle ready for rasterization: fixed-point edge functions and perspective-correct
+/// attribute planes.
+#[derive(Clone, Debug)]
+pub struct SetupTriangle {
+    /// Inclusive pixel bounding box (x0, y0, x1, y1), clamped to the image.
+    pub bbox: (u32, u32, u32, u32),
+    /// Fixed-point vertices (x, y), 1/256 pixel, ordered so the area is positive.
+    v: [(i64, i64); 3],
+    /// Edge bias for the top-left rule: 0 for top/left edges, -1 otherwise.
+    bias: [i64; 3],
+    /// Plane origin in pixels (vertex 0).
+    origin: Vec2,
+    /// Planes [value at origin, d/dx, d/dy] for 1/w, u/w, v/w.
+    planes: [[f32; 3]; 3],
+    /// Material index.
+    pub material: u32,
+    /// Alpha-blended material.
+    pub blend: bool,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct ClipVertex {
+    h: Vec3,
+    uv: Vec2,
+}
+
+fn lerp(a: ClipVertex, b: ClipVertex, t: f32) -> ClipVertex {
+    ClipVertex {
+        h: a.h + (b.h - a.h) * t,
+        uv: a.uv + (b.uv - a.uv) * t,
+    }
+}
+
+/// Clips the polygon against `dist >= 0` (Sutherland-Hodgman), in place via `scratch`.
+fn clip_plane(
+    poly: &mut Vec<ClipVertex>,
+    scratch: &mut Vec<ClipVertex>,
+    dist: impl Fn(Vec3) -> f32,
+) {
+    scratch.clear();
+    let n = poly.len();
+    for i in 0..n {
+        let a = poly[i];
+        let b = poly[(i + 1) % n];
+        let da = dist(a.h);
+        let db = dist(b.h);
+        if da >= 0.0 {
+            scratch.push(a);
+        }
+        if (da >= 0.0) != (db >= 0.0) {
+            let t = da / (da - db);
+            scratch.push(lerp(a, b, t));
+        }
+    }
+    std::mem::swap(poly, scratch);
+}
+
+/// Sets up one triangle given homogeneous raster coordinates `(x*w, y*w, w)` and UVs, appending
+/// zero or more [`SetupTriangle`]s (clipping may split it).
+pub(crate) fn setup_triangle(
+    verts: &[(Vec3, Vec2); 3],
+    material: u32,
+    double_sided: bool,
+    blend: bool,
+    lens: &ThinLens,
+    out: &mut Vec<SetupTriangle>,
+) {
+    let (w, h) = (lens.width_px as f32, lens.height_px as f32);
+    let planes: [&dyn Fn(Vec3) -> f32; 6] = [
+        &|p: Vec3| p.z - lens.near_m,
+        &|p: Vec3| lens.far_m - p.z,
+        &|p: Vec3| p.x + GUARD_PX * p.z,
+        &|p: Vec3| (w + GUARD_PX) * p.z - p.x,
+        &|p: Vec3| p.y + GUARD_PX * p.z,
+        &|p: Vec3| (h + GUARD_PX) * p.z - p.y,
+    ];
+    // Trivial reject and "needs clipping" test per plane. The near-plane test comes first, so
+    // the side planes are only evaluated with w > 0 once clipping is needed.
+    let mut needs = [false; 6];
+    for (k, plane) in planes.iter().enumerate() {
+        let d = verts.map(|v| plane(v.0));
+        if d.iter().all(|&d| d < 0.0) {
+            return;
+        }
+        needs[k] = d.iter().any(|&d| d < 0.0);
+    }
+    // Quick reject of triangles entirely outside the image (common for off-screen geometry).
+    if !needs[0] {
+        let xs = verts.map(|v| v.0.x / v.0.z);
+        let ys = verts.map(|v| v.0.y / v.0.z);
+        if xs.iter().all(|&x| x < 0.0)
+            || xs.iter().all(|&x| x > w)
+            || ys.iter().all(|&y| y < 0.0)
+            || ys.iter().all(|&y| y > h)
+        {
+            return;
+        }
+    }
+    if !needs.iter().any(|&n| n) {
+        setup_clipped(
+            &verts.map(|(h, uv)| ClipVertex { h, uv }),
+            material,
+            double_sided,
+            blend,
+            lens,
+            out,
+        );
+        return;
+    }
+    let mut poly: Vec<ClipVertex> = verts.iter().map(|&(h, uv)| ClipVertex { h, uv }).collect();
+    let mut scratch = Vec::with_capacity(9);
+    for (k, plane) in planes.iter().enumerate() {
+        if needs[k] {
+            clip_plane(&mut poly, &mut scratch, plane);
+            if poly.len() < 3 {
+                return;
+            }
+        }
+    }
+    for i in 1..poly.len() - 1 {
+        setup_clipped(
+            &[poly[0], poly[i], poly[i + 1]],
+            material,
+            double_sided,
+            blend,
+            lens,
+            out,
+        );
+    }
+}
+
+#[inline]
+fn edge(a: (i64, i64), b: (i64, i64), p: (i64, i64)) -> i64 {
+    (b.0 - a.0) * (p.1 - a.1) - (b.1 - a.1) * (p.0 - a.0)
+}
+
+fn setup_clipped(
+    verts: &[ClipVertex; 3],
+    material: u32,
+    double_sided: bool,
+    blend: bool,
+    lens: &ThinLens,
+    out: &mut Vec<SetupTriangle>,
+) {
+    let mut fixed = [(0i64, 0i64); 3];
+    let mut inv_w = [0f32; 3];
+    for (i, v) in verts.iter().enumerate() {
+        if v.h.z <= 0.0 {
+            return;
+        }
+        let iw = 1.0 / v.h.z;
+        inv_w[i] = iw;
+        let x = v.h.x * iw;
+        let y = v.h.y * iw;
+        if !(x.is_finite() && y.is_finite()) {
+            return;
+        }
+        fixed[i] = (
+            (x as f64 * ONE as f64).round() as i64,
+            (y as f64 * ONE as f64).round() as i64,
+        );
+    }
+    let mut order = [0usize, 1, 2];
+    let area = edge(fixed[0], fixed[1], fixed[2]);
+    if area == 0 {
+        return;
+    }
+    // Counter-clockwise front faces (camera looking down -Z, y up) have negative area in
+    // raster coordinates (y down).
+    if area > 0 {
+        if !double_sided {
+            return;
+        }
+    } else {
+        order.swap(1, 2);
+    }
+    // Now edge(v0, v1, v2) > 0 for the reordered vertices.
+    let v = order.map(|i| fixed[i]);
+    let area = edge(v[0], v[1], v[2]);
+    debug_assert!(area > 0);
+    let min_x = v.iter().map(|p| p.0).min().unwrap_or(0);
+    let max_x = v.iter().map(|p| p.0).max().unwrap_or(0);
+    let min_y = v.iter().map(|p| p.1).min().unwrap_or(0);
+    let max_y = v.iter().map(|p| p.1).max().unwrap_or(0);
+    // Pixels whose centres (i*ONE + HALF) lie in the bounding box.
+    let px0 = (min_x - HALF).div_euclid(ONE) + i64::from((min_x - HALF).rem_euclid(ONE) != 0);
+    let px1 = (max_x - HALF).div_euclid(ONE);
+    let py0 = (min_y - HALF).div_euclid(ONE) + i64::from((min_y - HALF).rem_euclid(ONE) != 0);
+    let py1 = (max_y - HALF).div_euclid(ONE);
+    let px0 = px0.max(0);
+    let py0 = py0.max(0);
+    let px1 = px1.min(lens.width_px as i64 - 1);
+    let py1 = py1.min(lens.height_px as i64 - 1);
+    if px0 > px1 || py0 > py1 {
+        return;
+    }
+    // Top-left rule. With positive area (clockwise on screen, y down), a top edge runs in +x
+    // with dy == 0 and a left edge runs upward (dy < 0).
+    let bias = [(1, 2), (2, 0), (0, 1)].map(|(a, b)| {
+        let dx = v[b].0 - v[a].0;
+        let dy = v[b].1 - v[a].1;
+        if dy < 0 || (dy == 0 && dx > 0) {
+            0
+        } else {
+            -1
+        }
+    });
+    // Attribute planes in float pixels, relative to vertex 0.
+    let pos = v.map(|p| Vec2::new(p.0 as f32 / ONE as f32, p.1 as f32 / ONE as f32));
+    let d1 = pos[1] - pos[0];
+    let d2 = pos[2] - pos[0];
+    let det = d1.x * d2.y - d2.x * d1.y;
+    let attrs = |f: &dyn Fn(usize) -> f32| -> [f32; 3] {
+        let a0 = f(order[0]);
+        let a1 = f(order[1]) - a0;
+        let a2 = f(order[2]) - a0;
+        [
+            a0,
+            (a1 * d2.y - a2 * d1.y) / det,
+            (a2 * d1.x - a1 * d2.x) / det,
+        ]
+    };
+    let planes = [
+        attrs(&|i| inv_w[i]),
+        attrs(&|i| verts[i].uv.x * inv_w[i]),
+        attrs(&|i| verts[i].uv.y * inv_w[i]),
+    ];
+    out.push(SetupTriangle {
+        bbox: (px0 as u32, py0 as u32, px1 as u32, py1 as u32),
+        v,
+        bias,
+        origin: pos[0],
+        planes,
+        material,
+        blend,
+    });
+}
+
+#[inline]
+fn eval(plane: &[f32; 3], dx: f32, dy: f32) -> f32 {
+    plane[0] + plane[1] * dx + plane[2] * dy
+}
+
+/// Rasterizes `tri` within `rect` into `tile` (pass `raster`).
+pub(crate) fn raster_triangle<T: TileSink>(
+    tri: &SetupTriangle,
+    rect: &TileRect,
+    scene: &Scene,
+    tile: &mut T,
+) {
+    let x0 = (tri.bbox.0 as usize).max(rect.x0);
+    let x1 = (tri.bbox.2 as usize).min(rect.x1 - 1);
+    let y0 = (tri.bbox.1 as usize).max(rect.y0);
+    let y1 = (tri.bbox.3 as usize).min(rect.y1 - 1);
+    if x0 > x1 || y0 > y1 {
+        return;
+    }
+    let material = &scene.materials[tri.material as usize];
+    let shader = shade::Shader::new(material, &scene.textures);
+    let v = &tri.v;
+    let edges = [(1usize, 2usize), (2, 0), (0, 1)];
+    // Per-pixel steps of each edge function.
+    let step_x = edges.map(|(a, b)| -(v[b].1 - v[a].1) * ONE);
+    let [pq, pu, pv] = &tri.planes;
+    for y in y0..=y1 {
+        let p = (x0 as i64 * ONE + HALF, y as i64 * ONE + HALF);
+        let mut w = [0i64; 3];
+        for k in 0..3 {
+            w[k] = edge(v[edges[k].0], v[edges[k].1], p) + tri.bias[k];
+        }
+        let fy = y as f32 + 0.5 - tri.origin.y;
+        for x in x0..=x1 {
+            if (w[0] | w[1] | w[2]) >= 0 {
+                let fx = x as f32 + 0.5 - tri.origin.x;
+                let q = eval(pq, fx, fy);
+                let depth_m = 1.0 / q;
+                let occluded = !tri.blend && tile.occluded(x as u32, y as u32, depth_m);
+                if !occluded {
+                    let color = if shader.needs_uv() {
+                        let uv = Vec2::new(eval(pu, fx, fy), eval(pv, fx, fy)) / q;
+                        let qx = q + pq[1];
+                        let qy = q + pq[2];
+                        let uvx = Vec2::new(eval(pu, fx, fy) + pu[1], eval(pv, fx, fy) + pv[1]) / qx;
+                        let uvy = Vec2::new(eval(pu, fx, fy) + pu[2], eval(pv, fx, fy) + pv[2]) / qy;
+                        shader.shade(uv, uvx - uv, uvy - uv)
+                    } else {
+                        shader.shade(Vec2::ZERO, Vec2::ZERO, Vec2::ZERO)
+                    };
+                    if let Some(color) = color {
+                        tile.fragment(&Fragment {
+                            x: x as u32,
+                            y: y as u32,
+                            depth_m,
+                            color,
+                            blend: tri.blend,
+                        });
+                    }
+                }
+            }
+            for k in 0..3 {
+                w[k] += step_x[k];
+            }
+        }
+    }
+}

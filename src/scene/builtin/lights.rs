@@ -1,0 +1,258 @@
+//! `lights`: bokeh shape and HDR highlights.
+//!
+//! Small, very bright emissive bulbs far behind the focus plane each blur into a copy of the
+//! aperture (a hexagon here) whose brightness only stays right if HDR values are kept through
+//! the blur; overlapping bokeh add up. Two bulbs in front of the focus plane show near-field
+//! bokeh, which a real lens turns by 180 degrees (a 6-blade hexagon is symmetric under that
+//! turn, so they match the far ones in shape but are larger). A sharp card at the focus
+//! distance makes the focus plane obvious.
+//!
+//! Layout (view depths along -Z, metres; world Y up, floor at y = 0):
+//! - camera at (0, 1.4, 0), looking horizontally down -Z;
+//! - two bulbs of 4 mm at 0.72 m and 0.8 m, right of centre (near-field bokeh);
+//! - a test card 0.3 x 0.2 m at 1.5 m (the focus plane), left of centre, on a thin post;
+//! - two strings of bulbs (2.4 and 3 cm) sagging across the frame at 10.5 m (warm white) and
+//!   12.5 m (red, green, blue, amber), and six brighter 2 cm lamps low on the wall at 13.5 to
+//!   14.3 m: emission strengths 30 to 200 times a unit colour;
+//! - a dark brick wall at 14.5 m and a dark tiled floor.
+//!
+//! Camera: 50 mm on a 36 mm sensor, f/1.8, 6-blade aperture (vertices up and down), focus
+//! 1.5 m, 1280x720. Far bokeh are about 29 px across, the near ones about 36 px.
+
+use glam::{Vec2, Vec3};
+
+use super::random::SplitMix64;
+use super::shapes::{push_box, push_card, push_disc, Face, ALL_FACES};
+use super::textures::{
+    binding, brick_texture, chart_texture, srgb, tile_texture, Chart,
+};
+use super::{mesh_for, textured};
+use crate::lens::{Aperture, Camera};
+use crate::scene::{AlphaMode, Material, Scene, SceneDefaults, WrapMode};
+
+/// Eye position, metres.
+const EYE: Vec3 = Vec3::new(0.0, 1.4, 0.0);
+/// View depth of the card (the focus distance), metres.
+const CARD_DEPTH_M: f32 = 1.5;
+/// Card width and height, metres.
+const CARD_SIZE_M: Vec2 = Vec2::new(0.3, 0.2);
+/// Centre of the card, metres.
+const CARD_CENTRE: Vec2 = Vec2::new(-0.22, 1.32);
+/// View depth of the back wall, metres.
+const WALL_DEPTH_M: f32 = 14.5;
+
+/// A string of bulbs hanging between two anchors.
+struct LightString {
+    /// View depth, metres.
+    depth_m: f32,
+    /// Horizontal extent, metres.
+    x_range_m: (f32, f32),
+    /// Height of the two anchors, metres.
+    anchor_y_m: f32,
+    /// How far the middle hangs below the anchors, metres.
+    sag_m: f32,
+    /// Distance between bulbs along x, metres.
+    spacing_m: f32,
+    /// Bulb radius, metres.
+    radius_m: f32,
+    /// Emission colours (sRGB design colours), used in turn.
+    colours: &'static [u32],
+    /// Emission strengths, used in turn (cycled at a different rate from the colours).
+    strengths: &'static [f32],
+}
+
+const STRINGS: [LightString; 2] = [
+    LightString {
+        depth_m: 10.5,
+        x_range_m: (-4.5, 4.5),
+        anchor_y_m: 3.9,
+        sag_m: 1.3,
+        spacing_m: 0.7,
+        radius_m: 0.012,
+        colours: &[0xffd9a8],
+        strengths: &[60.0, 45.0, 80.0],
+    },
+    LightString {
+        depth_m: 12.5,
+        x_range_m: (-6.0, 6.0),
+        anchor_y_m: 3.3,
+        sag_m: 1.25,
+        spacing_m: 0.8,
+        radius_m: 0.015,
+        colours: &[0xff3b2a, 0x3cff5a, 0x4a78ff, 0xffaa2a],
+        strengths: &[40.0, 70.0, 55.0],
+    },
+];
+
+/// The `lights` scene: bright emissive bulbs far behind (10.5-14.3 m) and slightly in front
+/// (0.72-0.8 m) of a card in focus at 1.5 m; 50 mm f/1.8, 6-blade aperture.
+pub fn lights() -> Scene {
+    let mut scene = Scene {
+        name: "lights".to_string(),
+        ..Scene::default()
+    };
+    add_room(&mut scene);
+    add_card(&mut scene);
+    add_lights(&mut scene);
+
+    let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * CARD_DEPTH_M, Vec3::Y);
+    camera.focal_length_mm = 50.0;
+    camera.sensor_width_mm = 36.0;
+    camera.fstop = 1.8;
+    camera.focus_m = CARD_DEPTH_M;
+    camera.near_m = 0.1;
+    camera.far_m = 60.0;
+    camera.width_px = 1280;
+    camera.height_px = 720;
+    scene.defaults = Some(SceneDefaults {
+        camera,
+        aperture: Aperture::Polygon {
+            blades: 6,
+            rotation_rad: 0.0,
+            blade_radius: None,
+        },
+    });
+    scene
+}
+
+fn add_room(scene: &mut Scene) {
+    // Dark soot-stained bricks, 24 x 7.5 cm: one repeat is 4 x 16 bricks, 0.96 x 1.2 m.
+    let bricks = scene.add_texture(brick_texture(
+        512,
+        (4, 16),
+        srgb(0x3a2a24),
+        srgb(0x262524),
+        21,
+    ));
+    let (wall_w, wall_h) = (24.0, 9.0);
+    let wall = scene.add_material(textured(
+        "dark brick wall",
+        binding(bricks, WrapMode::Repeat, Vec2::new(wall_w / 0.96, wall_h / 1.2)),
+        [1.0; 4],
+        AlphaMode::Opaque,
+    ));
+    push_card(
+        mesh_for(scene, wall),
+        Vec3::new(-0.5 * wall_w, wall_h, -WALL_DEPTH_M),
+        wall_w,
+        wall_h,
+    );
+
+    let tiles = scene.add_texture(tile_texture(
+        512,
+        4,
+        (srgb(0x2e2d2b), srgb(0x242321)),
+        srgb(0x121212),
+        22,
+    ));
+    let (floor_w, floor_d) = (24.0, WALL_DEPTH_M + 1.0);
+    let floor = scene.add_material(textured(
+        "dark floor",
+        binding(tiles, WrapMode::Repeat, Vec2::new(floor_w / 3.0, floor_d / 3.0)),
+        [1.0; 4],
+        AlphaMode::Opaque,
+    ));
+    mesh_for(scene, floor).push_quad(
+        Vec3::new(-0.5 * floor_w, 0.0, -WALL_DEPTH_M),
+        Vec3::X * floor_w,
+        Vec3::Z * floor_d,
+    );
+}
+
+fn add_card(scene: &mut Scene) {
+    let chart = scene.add_texture(chart_texture(&Chart {
+        width: 600,
+        height: 400,
+        title: "BOKEH",
+        subtitle: "6 blades  f/1.8",
+        caption: "50 mm lens, focus 1.5 m",
+        paper: srgb(0xe9e4d8),
+        ink: srgb(0x17191f),
+        accent: srgb(0x1f5fbf),
+        star: true,
+    }));
+    let face = scene.add_material(textured(
+        "test card",
+        binding(chart, WrapMode::ClampToEdge, Vec2::ONE),
+        [1.0; 4],
+        AlphaMode::Opaque,
+    ));
+    let (w, h) = (CARD_SIZE_M.x, CARD_SIZE_M.y);
+    let top_left = Vec3::new(CARD_CENTRE.x - 0.5 * w, CARD_CENTRE.y + 0.5 * h, -CARD_DEPTH_M);
+    push_card(mesh_for(scene, face), top_left, w, h);
+
+    let stand = scene.add_material(Material::color("card stand", srgb(0x2a2b2e)));
+    let mesh = mesh_for(scene, stand);
+    let bottom = CARD_CENTRE.y - 0.5 * h;
+    push_box(
+        mesh,
+        Vec3::new(top_left.x, bottom, -CARD_DEPTH_M - 0.006),
+        Vec3::new(top_left.x + w, top_left.y, -CARD_DEPTH_M),
+        &[Face::PosX, Face::NegX, Face::PosY, Face::NegY, Face::NegZ],
+    );
+    push_box(
+        mesh,
+        Vec3::new(CARD_CENTRE.x - 0.006, 0.0, -CARD_DEPTH_M - 0.018),
+        Vec3::new(CARD_CENTRE.x + 0.006, bottom + 0.05, -CARD_DEPTH_M - 0.006),
+        &ALL_FACES,
+    );
+}
+
+/// An emissive material per (colour, strength) pair, created on first use.
+fn light_material(scene: &mut Scene, rgb_hex: u32, strength: f32) -> usize {
+    let name = format!("light {rgb_hex:06x} x{strength}");
+    match scene.materials.iter().position(|m| m.name == name) {
+        Some(i) => i,
+        None => scene.add_material(Material::emissive(&name, srgb(rgb_hex), strength)),
+    }
+}
+
+/// A bulb facing the camera (+Z).
+fn add_bulb(scene: &mut Scene, centre: Vec3, radius_m: f32, rgb_hex: u32, strength: f32) {
+    let material = light_material(scene, rgb_hex, strength);
+    push_disc(
+        mesh_for(scene, material),
+        centre,
+        (Vec3::X, Vec3::Y),
+        radius_m,
+        12,
+    );
+}
+
+fn add_lights(scene: &mut Scene) {
+    let mut rng = SplitMix64::new(0x11_6475);
+    for string in &STRINGS {
+        let (x0, x1) = string.x_range_m;
+        let mid = 0.5 * (x0 + x1);
+        let half = 0.5 * (x1 - x0);
+        let count = ((x1 - x0) / string.spacing_m).round() as usize;
+        for i in 0..=count {
+            // A parabola is close enough to the catenary of a light string.
+            let x = x0 + i as f32 * string.spacing_m + rng.range(-0.06, 0.06);
+            let t = (x - mid) / half;
+            let y = string.anchor_y_m - string.sag_m * (1.0 - t * t) + rng.range(-0.03, 0.0);
+            let colour = string.colours[i % string.colours.len()];
+            let strength = string.strengths[(i / 2) % string.strengths.len()];
+            let centre = Vec3::new(x, y, -string.depth_m + rng.range(-0.1, 0.1));
+            add_bulb(scene, centre, string.radius_m, colour, strength);
+        }
+    }
+
+    // Six small, brighter lamps low on the wall: their bokeh overlap the card's side.
+    let lamps = [
+        (-4.1, 0.9, 0xfff1d6),
+        (-1.6, 1.15, 0xffc37a),
+        (0.35, 0.75, 0xfff1d6),
+        (1.6, 1.3, 0x9fd0ff),
+        (2.9, 0.95, 0xffc37a),
+        (4.4, 1.2, 0xfff1d6),
+    ];
+    for (i, &(x, y, colour)) in lamps.iter().enumerate() {
+        let depth = WALL_DEPTH_M - 0.2 - 0.15 * (i % 3) as f32;
+        add_bulb(scene, Vec3::new(x, y, -depth), 0.01, colour, 200.0);
+    }
+
+    // Two bulbs in front of the focus plane, right of the card: near-field bokeh.
+    add_bulb(scene, Vec3::new(0.21, 1.49, -0.72), 0.002, 0xffd9a8, 30.0);
+    add_bulb(scene, Vec3::new(0.17, 1.33, -0.8), 0.002, 0x8fc0ff, 30.0);
+}
