@@ -68,58 +68,66 @@ pub fn compare(a: &ColorImage, b: &ColorImage) -> Result<Metrics> {
     })
 }
 
-/// Fails with [`Error::Mismatch`] naming both sizes unless the images have the same size.
+/// Fails with [`Error::Mismatch`] naming both sizes unless the images have the same size, and
+/// with [`Error::Invalid`] if they are empty.
 fn check_same_size(a: &ColorImage, b: &ColorImage) -> Result<()> {
-    if a.same_size(b) {
-        Ok(())
-    } else {
-        Err(Error::Mismatch(format!(
+    if !a.same_size(b) {
+        return Err(Error::Mismatch(format!(
             "cannot compare images of different sizes: {}x{} and {}x{}",
             a.width(),
             a.height(),
             b.width(),
             b.height()
-        )))
+        )));
     }
+    if a.pixels().is_empty() {
+        return Err(Error::invalid(
+            "image size",
+            format!(
+                "cannot compare empty {}x{} images: expected at least one pixel",
+                a.width(),
+                a.height()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Mean over pixels and R, G, B of `f(a value, b value)`. Rows are summed in parallel and the row
+/// sums added in order, so the result does not depend on the thread count.
+fn mean_over_rgb(a: &ColorImage, b: &ColorImage, f: impl Fn(f32, f32) -> f64 + Sync) -> f64 {
+    let w = a.width();
+    let row_sums: Vec<f64> = a
+        .pixels()
+        .par_chunks(w)
+        .zip(b.pixels().par_chunks(w))
+        .map(|(ra, rb)| {
+            ra.iter()
+                .zip(rb)
+                .map(|(p, q)| f(p[0], q[0]) + f(p[1], q[1]) + f(p[2], q[2]))
+                .sum::<f64>()
+        })
+        .collect();
+    row_sums.iter().sum::<f64>() / (3 * a.pixels().len()) as f64
 }
 
 /// Mean squared difference over R, G, B in linear light, no clamping.
 pub fn mse_linear(a: &ColorImage, b: &ColorImage) -> Result<f64> {
     check_same_size(a, b)?;
-    let sum: f64 = a
-        .pixels()
-        .iter()
-        .zip(b.pixels())
-        .map(|(p, q)| {
-            (0..3)
-                .map(|c| {
-                    let d = p[c] as f64 - q[c] as f64;
-                    d * d
-                })
-                .sum::<f64>()
-        })
-        .sum();
-    Ok(sum / (3 * a.pixels().len()) as f64)
+    Ok(mean_over_rgb(a, b, |p, q| {
+        let d = p as f64 - q as f64;
+        d * d
+    }))
 }
 
 /// Peak signal-to-noise ratio in dB over R, G, B, each clamped to [0, 1] and sRGB-encoded,
 /// peak 1: 10 log10(1 / MSE). `f64::INFINITY` when the encoded images are identical.
 pub fn psnr_srgb(a: &ColorImage, b: &ColorImage) -> Result<f64> {
     check_same_size(a, b)?;
-    let sum: f64 = a
-        .pixels()
-        .iter()
-        .zip(b.pixels())
-        .map(|(p, q)| {
-            (0..3)
-                .map(|c| {
-                    let d = srgb_encode(p[c]) as f64 - srgb_encode(q[c]) as f64;
-                    d * d
-                })
-                .sum::<f64>()
-        })
-        .sum();
-    let mse = sum / (3 * a.pixels().len()) as f64;
+    let mse = mean_over_rgb(a, b, |p, q| {
+        let d = srgb_encode(p) as f64 - srgb_encode(q) as f64;
+        d * d
+    });
     Ok(if mse == 0.0 {
         f64::INFINITY
     } else {
@@ -150,7 +158,7 @@ pub fn ssim_map(a: &ColorImage, b: &ColorImage) -> Result<GrayImage> {
 /// The luma Y = 0.299 R' + 0.587 G' + 0.114 B' of the clamped, sRGB-encoded image, row-major.
 pub fn srgb_luma(img: &ColorImage) -> Vec<f64> {
     img.pixels()
-        .iter()
+        .par_iter()
         .map(|p| {
             (0..3)
                 .map(|c| LUMA_WEIGHTS[c] * srgb_encode(p[c]) as f64)
@@ -180,12 +188,6 @@ fn gaussian_weights(radius: usize) -> Vec<f64> {
 fn ssim_valid(a: &ColorImage, b: &ColorImage) -> Result<(usize, usize, Vec<f64>)> {
     check_same_size(a, b)?;
     let (w, h) = (a.width(), a.height());
-    if w == 0 || h == 0 {
-        return Err(Error::invalid(
-            "image size",
-            format!("SSIM needs at least one pixel, got {w}x{h}"),
-        ));
-    }
     let x = srgb_luma(a);
     let y = srgb_luma(b);
     let r = window_radius(w, h);
@@ -247,7 +249,7 @@ pub fn srgb_abs_diff(a: &ColorImage, b: &ColorImage) -> Result<GrayImage> {
     check_same_size(a, b)?;
     let diff = a
         .pixels()
-        .iter()
+        .par_iter()
         .zip(b.pixels())
         .map(|(p, q)| {
             (0..3)

@@ -315,3 +315,11 @@ fn cycles_pinhole_against_round_aperture_matches_the_published_psnr_and_ssim() {
     assert!((m.psnr_db - PSNR_DB).abs() < 0.01, "PSNR {}", m.psnr_db);
     assert!((m.ssim - SSIM).abs() < 1e-3, "SSIM {}", m.ssim);
 }
+
+#[test]
+fn empty_images_are_refused_rather_than_giving_nan() {
+    let a = ColorImage::new(0, 4, [0.0; 4]);
+    let err = compare(&a, &a).unwrap_err();
+    assert!(matches!(err, Error::Invalid { .. }), "{err}");
+    assert!(err.to_string().contains("0x4"), "{err}");
+}

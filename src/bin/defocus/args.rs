@@ -70,16 +70,16 @@ pub struct RenderArgs {
     #[arg(long, value_name = "PX")]
     pub height: Option<usize>,
     /// Focus distance in metres, along the view axis [default: the scene's].
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
     pub focus: Option<f32>,
     /// f-number N; the lens radius is focal length / (2 N) [default: the scene's].
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", allow_negative_numbers = true)]
     pub fstop: Option<f32>,
     /// Focal length in millimetres [default: the scene's, 50 mm for built-in scenes].
-    #[arg(long, value_name = "MM")]
+    #[arg(long, value_name = "MM", allow_negative_numbers = true)]
     pub focal_length: Option<f32>,
     /// Sensor width in millimetres, horizontal fit [default: the scene's, 36 mm].
-    #[arg(long, value_name = "MM")]
+    #[arg(long, value_name = "MM", allow_negative_numbers = true)]
     pub sensor_width: Option<f32>,
     /// Aperture: `disc`, `poly:B[,rot=DEG][,curve=R]` (B blades, rotation in degrees
     /// counter-clockwise, curved blades of radius R in aperture radii, R >= 1) or

@@ -13,12 +13,15 @@
 //!
 //! Layout (view depths along -Z, metres; world Y up, floor at y = 0, not in view):
 //! - camera at (0, 1.3, 0), looking horizontally down -Z;
-//! - red post, 4 x 4 cm, at 0.58-0.62 m, left of centre, crossing the whole frame height;
-//! - cyan-green pane at 1.2 m, 0.5 x 0.36 m with a 1.5 cm aluminium frame, alpha about 0.3;
-//! - amber pane at 1.5 m, 0.46 x 0.34 m, up and to the right, overlapping the first;
+//! - red post, 2.5 cm square, at 0.6 m, left of centre, crossing the whole frame height and
+//!   the left edge of the first pane;
+//! - teal pane at 1.2 m, 0.3 x 0.26 m with a 1 cm aluminium frame, alpha 0.25-0.37 (faint
+//!   smudges), over the right half of the poster;
+//! - amber pane at 1.5 m, 0.3 x 0.22 m, up and to the right, overlapping the first;
 //! - thin stands under both panes;
 //! - wall at 4 m (the focus plane): 25 cm blue-grey checker squares, 7 x 4.5 m, with a chart
-//!   poster 1.9 x 1.05 m ("THROUGH GLASS", text and a Siemens star) on it.
+//!   poster 1.9 x 1.05 m ("THROUGH GLASS", text and a Siemens star) on it; its left half is
+//!   seen directly, its right half through one or both panes.
 //!
 //! Camera: 50 mm on a 36 mm sensor, f/2, disc aperture, focus 4 m, 1280x720. CoC radius: post
 //! -31 px, first pane -13 px, second pane -9 px, wall 0.
@@ -37,6 +40,12 @@ const EYE: Vec3 = Vec3::new(0.0, 1.3, 0.0);
 const WALL_DEPTH_M: f32 = 4.0;
 /// View depth of the post's axis, metres.
 const POST_DEPTH_M: f32 = 0.6;
+/// X of the post's axis, metres: it crosses the left edge of the first pane.
+const POST_X_M: f32 = -0.057;
+/// Width of the square post, metres.
+const POST_WIDTH_M: f32 = 0.025;
+/// Width of the panes' frames, metres.
+const FRAME_WIDTH_M: f32 = 0.01;
 /// Texels per metre of the pane textures.
 const PANE_TEXELS_PER_M: f32 = 1000.0;
 
@@ -59,21 +68,21 @@ struct Pane {
 
 const PANES: [Pane; 2] = [
     Pane {
-        name: "cyan glass",
+        name: "teal glass",
         depth_m: 1.2,
-        centre: Vec2::new(-0.07, 1.31),
-        size_m: Vec2::new(0.5, 0.36),
-        tint: 0xb9e2da,
-        alpha: 0.3,
+        centre: Vec2::new(0.04, 1.32),
+        size_m: Vec2::new(0.3, 0.26),
+        tint: 0x4f9c8f,
+        alpha: 0.25,
         label: "PANE AT 1.2 M",
     },
     Pane {
         name: "amber glass",
         depth_m: 1.5,
-        centre: Vec2::new(0.2, 1.42),
-        size_m: Vec2::new(0.46, 0.34),
-        tint: 0xf2c27a,
-        alpha: 0.35,
+        centre: Vec2::new(0.26, 1.41),
+        size_m: Vec2::new(0.3, 0.22),
+        tint: 0xb8721c,
+        alpha: 0.3,
         label: "PANE AT 1.5 M",
     },
 ];
@@ -155,7 +164,7 @@ fn add_wall(scene: &mut Scene) {
 
 fn add_post(scene: &mut Scene) {
     let red = scene.add_material(Material::color("red post", srgb(0xb8322a)));
-    let (x, half) = (-0.12, 0.02);
+    let (x, half) = (POST_X_M, 0.5 * POST_WIDTH_M);
     push_box(
         mesh_for(scene, red),
         Vec3::new(x - half, 0.0, -POST_DEPTH_M - half),
@@ -194,7 +203,7 @@ fn add_pane(scene: &mut Scene, pane: &Pane) {
 }
 
 /// The pane's texture: tinted glass whose opacity varies with faint smudges, an opaque
-/// aluminium frame 1.5 cm wide, and a frosted label etched in the lower right corner.
+/// aluminium frame, and a frosted label etched in the lower right corner.
 fn pane_texture(pane: &Pane) -> Texture {
     let w = (pane.size_m.x * PANE_TEXELS_PER_M).round() as usize;
     let h = (pane.size_m.y * PANE_TEXELS_PER_M).round() as usize;
@@ -209,7 +218,7 @@ fn pane_texture(pane: &Pane) -> Texture {
             canvas.set(x, y, [tint[0], tint[1], tint[2], alpha]);
         }
     }
-    let frame = (0.015 * PANE_TEXELS_PER_M).round() as usize;
+    let frame = (FRAME_WIDTH_M * PANE_TEXELS_PER_M).round() as usize;
     let metal = srgb(0x8d939a);
     canvas.fill_rect(0, 0, w, frame, metal);
     canvas.fill_rect(0, h - frame, w, h, metal);
@@ -223,8 +232,8 @@ fn pane_texture(pane: &Pane) -> Texture {
     canvas.fill_rect(w - frame - 1, frame, w - frame, h - frame, edge);
 
     let scale = 2.0;
-    let label_x = w as f32 - frame as f32 - 12.0 - text_width(pane.label, scale);
-    let label_y = h as f32 - frame as f32 - 12.0 - 8.0 * scale;
+    let label_x = w as f32 - frame as f32 - 10.0 - text_width(pane.label, scale);
+    let label_y = h as f32 - frame as f32 - 10.0 - 8.0 * scale;
     canvas.text_rgba((label_x, label_y), scale, pane.label, [0.95, 0.97, 0.98, 0.7]);
     canvas.into_texture()
 }

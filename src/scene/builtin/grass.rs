@@ -343,25 +343,23 @@ fn sky_texture(width_m: f32, height_m: f32, seed: u64) -> Texture {
     let (horizon, zenith) = (srgb(0xdce8f0), srgb(0x6b9bd0));
     let (cloud, trees_near, trees_far) = (srgb(0xf7f8fa), srgb(0x2c4636), srgb(0x5d7a78));
     let mut canvas = Canvas::new(w, h, [0.0, 0.0, 0.0, 1.0]);
+    let texel_m = height_m / h as f32;
     for y in 0..h {
         for x in 0..w {
             let (u, v) = ((x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32);
             let height = (1.0 - v) * height_m;
-            // Back row of trees, lighter with haze, then the front row.
+            // Back row of trees, lighter with haze, then the front row; their outlines are
+            // anti-aliased by the distance to them in texels.
             let far_line = 4.0 + 4.0 * fbm(u * 0.5, 0.3, 24, 4, seed);
             let near_line = 2.5 + 6.5 * smoothstep(0.3, 0.8, fbm(u * 0.5, 0.7, 16, 5, seed + 1));
             let leaves = fbm(u * width_m / 16.0, v * height_m / 16.0, 16, 3, seed + 2);
-            let c = if height < near_line {
-                scale(trees_near, 0.75 + 0.5 * leaves)
-            } else if height < far_line {
-                scale(trees_far, 0.85 + 0.3 * leaves)
-            } else {
-                let t = smoothstep(0.0, height_m, height).sqrt();
-                let sky = mix(horizon, zenith, t);
-                let density = fbm(u * 2.0, v * 0.5, 4, 5, seed + 3);
-                let amount = smoothstep(0.5, 0.75, density) * smoothstep(6.0, 10.0, height);
-                mix(sky, cloud, amount)
-            };
+            let t = smoothstep(0.0, height_m, height).sqrt();
+            let density = fbm(u * 2.0, v * 0.5, 4, 5, seed + 3);
+            let clouds = smoothstep(0.5, 0.75, density) * smoothstep(6.0, 10.0, height);
+            let sky = mix(mix(horizon, zenith, t), cloud, clouds);
+            let cover = |line: f32| ((line - height) / texel_m + 0.5).clamp(0.0, 1.0);
+            let far = mix(sky, scale(trees_far, 0.85 + 0.3 * leaves), cover(far_line));
+            let c = mix(far, scale(trees_near, 0.75 + 0.5 * leaves), cover(near_line));
             canvas.set(x, y, [c[0], c[1], c[2], 1.0]);
         }
     }

@@ -8,11 +8,11 @@
 //! Layout (view depths along -Z, metres; world Y up, floor at y = 0):
 //! - camera at (0, 1.2, 0), looking horizontally down -Z;
 //! - railing at 0.5 m: round bars 1.5 cm thick every 10 cm (four cross the frame, two of them
-//!   the board, one its left edge), a 2.5 cm handrail at y = 1.183 crossing the middle of the
-//!   board, and top and bottom rails outside the frame;
+//!   the board, one its left edge), a 2 cm handrail at y = 1.165 crossing the lower part of
+//!   the board, and top and bottom rails outside the frame;
 //! - board at 2.5 m (the focus plane), 1.25 x 0.75 m centred on the view axis (about 70% of the
 //!   frame width): a focus chart with the title "DEFOCUS", a line of medium text, a
-//!   checkerboard of 4.5 cm squares, a Siemens star and a line of small text; it stands on two
+//!   checkerboard of 5 cm squares, a Siemens star and a line of small text; it stands on two
 //!   legs;
 //! - floor of 0.6 m stone tiles, visible below the board from about 6 m;
 //! - brick wall at 9 m, 15 x 6 m.
@@ -40,10 +40,11 @@ const BAR_RADIUS_M: f32 = 0.0075;
 const BAR_SPACING_M: f32 = 0.10;
 /// X of the bar nearest the view axis, metres (off-centre, so no bar hides the middle).
 const BAR_OFFSET_M: f32 = -0.03;
-/// Height of the handrail axis, metres: it crosses the board's checkerboard.
-const HANDRAIL_Y_M: f32 = 1.183;
+/// Height of the handrail axis, metres: it crosses the lower rows of the board's
+/// checkerboard and star.
+const HANDRAIL_Y_M: f32 = 1.165;
 /// Handrail radius, metres.
-const HANDRAIL_RADIUS_M: f32 = 0.0125;
+const HANDRAIL_RADIUS_M: f32 = 0.01;
 /// View depth of the board's front face (the focus distance), metres.
 const BOARD_DEPTH_M: f32 = 2.5;
 /// Board width and height, metres.
