@@ -19,7 +19,9 @@
 
 use crate::image::{ColorImage, Rgba};
 use crate::lens::{Aperture, Camera, SampleSet, SamplerKind};
-use crate::raster::{BinnedView, GBuffer, PreparedScene, Sink, TileRect, View};
+use std::sync::Mutex;
+
+use crate::raster::{BinnedView, GBuffer, GBufferTile, PreparedScene, Sink, TileRect, View};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::Result;
@@ -61,14 +63,23 @@ impl Default for ReferenceSettings {
 struct Accumulator {
     width: usize,
     sum: Vec<Rgba>,
+    /// Finished tiles kept for reuse, so views do not reallocate (and page-fault) tile memory.
+    pool: Mutex<Vec<GBufferTile>>,
 }
 
 impl Sink for Accumulator {
     type Tile = <GBuffer as Sink>::Tile;
 
     fn begin_tile(&self, rect: TileRect) -> Self::Tile {
-        // The accumulator reuses the G-buffer's tiles: same depth test and blending.
-        GBuffer::tile(rect)
+        // The accumulator uses the G-buffer's tiles: same depth test and blending.
+        let recycled = self.pool.lock().ok().and_then(|mut p| p.pop());
+        match recycled {
+            Some(mut tile) => {
+                tile.reset(rect);
+                tile
+            }
+            None => GBuffer::tile(rect),
+        }
     }
 
     fn end_tile(&mut self, rect: TileRect, tile: Self::Tile) {
@@ -81,6 +92,9 @@ impl Sink for Accumulator {
                     d[k] += s[k];
                 }
             }
+        }
+        if let Ok(mut pool) = self.pool.lock() {
+            pool.push(tile);
         }
     }
 }
@@ -136,12 +150,14 @@ pub fn render(
         let mut acc = Accumulator {
             width: w,
             sum: vec![[0.0; 4]; w * h],
+            pool: Mutex::new(Vec::new()),
         };
         for (i, s) in set.samples.iter().enumerate() {
             let view = View {
                 lens,
                 lens_point: s.lens,
                 pixel_offset: s.pixel_offset,
+                lod_bias: -0.5 * (total as f32).log2(),
             };
             let binned = timings.time(&format!("{method}/setup"), || {
                 BinnedView::new(&prepared, &view)

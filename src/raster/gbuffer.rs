@@ -24,6 +24,7 @@ impl GBuffer {
             rect,
             color: vec![[0.0; 4]; n],
             depth: vec![f32::INFINITY; n],
+            prepass: vec![f32::INFINITY; n],
             blended: Vec::new(),
         }
     }
@@ -42,11 +43,26 @@ pub struct GBufferTile {
     rect: TileRect,
     color: Vec<Rgba>,
     depth: Vec<f32>,
+    /// Nearest opaque depth from the pre-pass.
+    prepass: Vec<f32>,
     /// Transparent fragments: (pixel index in tile, depth, colour).
     blended: Vec<(u32, f32, Rgba)>,
 }
 
 impl GBufferTile {
+    /// Clears the tile for reuse at `rect`, keeping its allocations.
+    pub fn reset(&mut self, rect: TileRect) {
+        let n = rect.width() * rect.height();
+        self.rect = rect;
+        self.color.clear();
+        self.color.resize(n, [0.0; 4]);
+        self.depth.clear();
+        self.depth.resize(n, f32::INFINITY);
+        self.prepass.clear();
+        self.prepass.resize(n, f32::INFINITY);
+        self.blended.clear();
+    }
+
     #[inline]
     fn index(&self, x: u32, y: u32) -> usize {
         (y as usize - self.rect.y0) * self.rect.width() + (x as usize - self.rect.x0)
@@ -66,7 +82,23 @@ impl GBufferTile {
 impl TileSink for GBufferTile {
     #[inline]
     fn occluded(&self, x: u32, y: u32, depth_m: f32) -> bool {
-        depth_m >= self.depth[self.index(x, y)]
+        let i = self.index(x, y);
+        // The pre-pass computed the same depth with the same arithmetic, so the visible
+        // surface passes with equality.
+        depth_m >= self.depth[i] || depth_m > self.prepass[i]
+    }
+
+    #[inline]
+    fn wants_prepass(&self) -> bool {
+        true
+    }
+
+    #[inline]
+    fn prepass(&mut self, x: u32, y: u32, depth_m: f32) {
+        let i = self.index(x, y);
+        if depth_m < self.prepass[i] {
+            self.prepass[i] = depth_m;
+        }
     }
 
     #[inline]

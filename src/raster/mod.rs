@@ -30,7 +30,7 @@ mod shade;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-pub use gbuffer::GBuffer;
+pub use gbuffer::{GBuffer, GBufferTile};
 pub use setup::SetupTriangle;
 
 use crate::image::Rgba;
@@ -91,6 +91,15 @@ pub trait TileSink: Send {
     }
     /// Takes one fragment.
     fn fragment(&mut self, fragment: &Fragment);
+    /// True if the sink wants a depth-only pre-pass of opaque triangles before the shaded
+    /// pass, so that only visible fragments are shaded. The default is false.
+    #[inline]
+    fn wants_prepass(&self) -> bool {
+        false
+    }
+    /// Depth of an opaque surface at a pixel, from the pre-pass. The default ignores it.
+    #[inline]
+    fn prepass(&mut self, _x: u32, _y: u32, _depth_m: f32) {}
     /// Called once after the last fragment, still in parallel with other tiles.
     fn finish(&mut self) {}
 }
@@ -116,6 +125,9 @@ pub struct View {
     pub lens_point: Vec2,
     /// Sample position relative to the pixel centre, in pixels.
     pub pixel_offset: Vec2,
+    /// Added to the texture level of detail: `-0.5 * log2(N)` when each pixel is the mean of N
+    /// views, so each view filters textures over its share of the pixel.
+    pub lod_bias: f32,
 }
 
 impl View {
@@ -125,6 +137,7 @@ impl View {
             lens,
             lens_point: Vec2::ZERO,
             pixel_offset: Vec2::ZERO,
+            lod_bias: 0.0,
         }
     }
 
@@ -172,7 +185,7 @@ impl<'a> PreparedScene<'a> {
             let base = positions.len() as u32;
             positions.extend(mesh.positions.iter().map(|&p| camera_from_world.transform_point3(p)));
             if mesh.uvs.is_empty() {
-                uvs.extend(std::iter::repeat_n(Vec2::ZERO, mesh.positions.len()));
+                uvs.resize(uvs.len() + mesh.positions.len(), Vec2::ZERO);
             } else {
                 uvs.extend_from_slice(&mesh.uvs);
             }
@@ -208,6 +221,7 @@ pub struct BinnedView {
     tiles_y: usize,
     width: usize,
     height: usize,
+    lod_bias: f32,
 }
 
 impl BinnedView {
@@ -260,6 +274,7 @@ impl BinnedView {
             tiles_y,
             width,
             height,
+            lod_bias: view.lod_bias,
         }
     }
 
@@ -287,9 +302,20 @@ impl BinnedView {
             .enumerate()
             .map(|(i, rect)| {
                 let mut tile = shared.begin_tile(*rect);
+                if tile.wants_prepass() {
+                    for &ti in &self.bins[i] {
+                        let tri = &self.triangles[ti as usize];
+                        if !tri.blend
+                            && scene.materials[tri.material as usize].alpha_mode
+                                == AlphaMode::Opaque
+                        {
+                            setup::prepass_triangle(tri, rect, &mut tile);
+                        }
+                    }
+                }
                 for &ti in &self.bins[i] {
                     let tri = &self.triangles[ti as usize];
-                    setup::raster_triangle(tri, rect, scene, &mut tile);
+                    setup::raster_triangle(tri, rect, scene, self.lod_bias, &mut tile);
                 }
                 tile.finish();
                 tile

@@ -258,12 +258,13 @@ fn eval(plane: &[f32; 3], dx: f32, dy: f32) -> f32 {
     plane[0] + plane[1] * dx + plane[2] * dy
 }
 
-/// Rasterizes `tri` within `rect` into `tile` (pass `raster`).
-pub(crate) fn raster_triangle<T: TileSink>(
+/// Calls `f(x, y, fx, fy)` for every pixel of `rect` whose centre `tri` covers (top-left rule),
+/// with `(fx, fy)` the pixel centre relative to the triangle's plane origin.
+#[inline(always)]
+fn for_each_covered(
     tri: &SetupTriangle,
     rect: &TileRect,
-    scene: &Scene,
-    tile: &mut T,
+    mut f: impl FnMut(usize, usize, f32, f32),
 ) {
     let x0 = (tri.bbox.0 as usize).max(rect.x0);
     let x1 = (tri.bbox.2 as usize).min(rect.x1 - 1);
@@ -272,13 +273,10 @@ pub(crate) fn raster_triangle<T: TileSink>(
     if x0 > x1 || y0 > y1 {
         return;
     }
-    let material = &scene.materials[tri.material as usize];
-    let shader = shade::Shader::new(material, &scene.textures);
     let v = &tri.v;
     let edges = [(1usize, 2usize), (2, 0), (0, 1)];
     // Per-pixel steps of each edge function.
     let step_x = edges.map(|(a, b)| -(v[b].1 - v[a].1) * ONE);
-    let [pq, pu, pv] = &tri.planes;
     for y in y0..=y1 {
         let p = (x0 as i64 * ONE + HALF, y as i64 * ONE + HALF);
         let mut w = [0i64; 3];
@@ -288,35 +286,60 @@ pub(crate) fn raster_triangle<T: TileSink>(
         let fy = y as f32 + 0.5 - tri.origin.y;
         for x in x0..=x1 {
             if (w[0] | w[1] | w[2]) >= 0 {
-                let fx = x as f32 + 0.5 - tri.origin.x;
-                let q = eval(pq, fx, fy);
-                let depth_m = 1.0 / q;
-                let occluded = !tri.blend && tile.occluded(x as u32, y as u32, depth_m);
-                if !occluded {
-                    let color = if shader.needs_uv() {
-                        let uv = Vec2::new(eval(pu, fx, fy), eval(pv, fx, fy)) / q;
-                        let qx = q + pq[1];
-                        let qy = q + pq[2];
-                        let uvx = Vec2::new(eval(pu, fx, fy) + pu[1], eval(pv, fx, fy) + pv[1]) / qx;
-                        let uvy = Vec2::new(eval(pu, fx, fy) + pu[2], eval(pv, fx, fy) + pv[2]) / qy;
-                        shader.shade(uv, uvx - uv, uvy - uv)
-                    } else {
-                        shader.shade(Vec2::ZERO, Vec2::ZERO, Vec2::ZERO)
-                    };
-                    if let Some(color) = color {
-                        tile.fragment(&Fragment {
-                            x: x as u32,
-                            y: y as u32,
-                            depth_m,
-                            color,
-                            blend: tri.blend,
-                        });
-                    }
-                }
+                f(x, y, x as f32 + 0.5 - tri.origin.x, fy);
             }
             for k in 0..3 {
                 w[k] += step_x[k];
             }
         }
     }
+}
+
+/// Depth-only rasterization of an opaque triangle for the sink's depth pre-pass.
+pub(crate) fn prepass_triangle<T: TileSink>(tri: &SetupTriangle, rect: &TileRect, tile: &mut T) {
+    let pq = &tri.planes[0];
+    for_each_covered(tri, rect, |x, y, fx, fy| {
+        tile.prepass(x as u32, y as u32, 1.0 / eval(pq, fx, fy));
+    });
+}
+
+/// Rasterizes `tri` within `rect` into `tile` (pass `raster`). `lod_bias` is added to the
+/// texture level of detail (negative when each pixel is supersampled).
+pub(crate) fn raster_triangle<T: TileSink>(
+    tri: &SetupTriangle,
+    rect: &TileRect,
+    scene: &Scene,
+    lod_bias: f32,
+    tile: &mut T,
+) {
+    let material = &scene.materials[tri.material as usize];
+    let shader = shade::Shader::new(material, &scene.textures, lod_bias);
+    let [pq, pu, pv] = &tri.planes;
+    let needs_uv = shader.needs_uv();
+    for_each_covered(tri, rect, |x, y, fx, fy| {
+        let q = eval(pq, fx, fy);
+        let depth_m = 1.0 / q;
+        if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
+            return;
+        }
+        let color = if needs_uv {
+            let u = eval(pu, fx, fy);
+            let v = eval(pv, fx, fy);
+            let uv = Vec2::new(u, v) / q;
+            let uvx = Vec2::new(u + pu[1], v + pv[1]) / (q + pq[1]);
+            let uvy = Vec2::new(u + pu[2], v + pv[2]) / (q + pq[2]);
+            shader.shade(uv, uvx - uv, uvy - uv)
+        } else {
+            shader.shade(Vec2::ZERO, Vec2::ZERO, Vec2::ZERO)
+        };
+        if let Some(color) = color {
+            tile.fragment(&Fragment {
+                x: x as u32,
+                y: y as u32,
+                depth_m,
+                color,
+                blend: tri.blend,
+            });
+        }
+    });
 }

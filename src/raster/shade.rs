@@ -4,6 +4,7 @@
 use glam::Vec2;
 
 use crate::image::Rgba;
+use crate::scene::texture::fast_log2;
 use crate::scene::{AlphaMode, Material, Texture, TextureBinding};
 
 /// A material ready to shade fragments.
@@ -12,16 +13,18 @@ pub(crate) struct Shader<'a> {
     base: Option<(&'a TextureBinding, &'a Texture)>,
     emissive: Option<(&'a TextureBinding, &'a Texture)>,
     emission: [f32; 3],
+    lod_bias: f32,
 }
 
 impl<'a> Shader<'a> {
-    pub(crate) fn new(material: &'a Material, textures: &'a [Texture]) -> Self {
+    pub(crate) fn new(material: &'a Material, textures: &'a [Texture], lod_bias: f32) -> Self {
         let bind = |b: &'a Option<TextureBinding>| b.as_ref().map(|b| (b, &textures[b.texture]));
         Self {
             material,
             base: bind(&material.base_color_texture),
             emissive: bind(&material.emissive_texture),
             emission: material.emissive.map(|e| e * material.emissive_strength),
+            lod_bias,
         }
     }
 
@@ -38,14 +41,14 @@ impl<'a> Shader<'a> {
         let m = self.material;
         let mut c = m.base_color;
         if let Some((b, t)) = self.base {
-            let s = sample(b, t, uv, duv_dx, duv_dy);
+            let s = sample(b, t, uv, duv_dx, duv_dy, self.lod_bias);
             for k in 0..4 {
                 c[k] *= s[k];
             }
         }
         let mut e = self.emission;
         if let Some((b, t)) = self.emissive {
-            let s = sample(b, t, uv, duv_dx, duv_dy);
+            let s = sample(b, t, uv, duv_dx, duv_dy, self.lod_bias);
             for k in 0..3 {
                 e[k] *= s[k];
             }
@@ -65,7 +68,7 @@ impl<'a> Shader<'a> {
 }
 
 #[inline]
-fn sample(b: &TextureBinding, t: &Texture, uv: Vec2, dx: Vec2, dy: Vec2) -> Rgba {
+fn sample(b: &TextureBinding, t: &Texture, uv: Vec2, dx: Vec2, dy: Vec2, lod_bias: f32) -> Rgba {
     let (w, h) = t.size();
     let size = Vec2::new(w as f32, h as f32);
     let (uv, dx, dy) = if b.uv_transform.is_identity() {
@@ -80,6 +83,6 @@ fn sample(b: &TextureBinding, t: &Texture, uv: Vec2, dx: Vec2, dy: Vec2) -> Rgba
     };
     let fx = (dx * size).length_squared();
     let fy = (dy * size).length_squared();
-    let lod = 0.5 * fx.max(fy).max(1e-12).log2();
+    let lod = 0.5 * fast_log2(fx.max(fy).max(1e-12)) + lod_bias;
     t.sample(&b.sampler, uv, lod)
 }

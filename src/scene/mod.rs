@@ -5,7 +5,7 @@
 //! colour; [`AlphaMode`] says how it is used.
 
 pub mod builtin;
-mod texture;
+pub(crate) mod texture;
 
 use glam::{Vec2, Vec3};
 

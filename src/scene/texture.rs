@@ -146,6 +146,7 @@ impl Texture {
         }
     }
 
+    #[inline]
     fn sample_level(
         &self,
         level: usize,
@@ -154,31 +155,32 @@ impl Texture {
         uv: Vec2,
     ) -> Rgba {
         let img = &self.levels[level];
-        let (w, h) = (img.width() as i64, img.height() as i64);
+        let (w, h) = (img.width() as i32, img.height() as i32);
         let x = uv.x * w as f32;
         let y = uv.y * h as f32;
+        if !(x.is_finite() && y.is_finite()) {
+            return img.get(0, 0);
+        }
+        // Far outside the texture, wrap in float first so the integer conversion cannot saturate.
+        let (x, y) = (reduce(x, w, sampler.wrap_u), reduce(y, h, sampler.wrap_v));
         match filter {
             FilterMode::Nearest => {
-                let ix = wrap(x.floor() as i64, w, sampler.wrap_u);
-                let iy = wrap(y.floor() as i64, h, sampler.wrap_v);
+                let ix = wrap(fast_floor(x), w, sampler.wrap_u);
+                let iy = wrap(fast_floor(y), h, sampler.wrap_v);
                 img.get(ix, iy)
             }
             FilterMode::Linear => {
                 let fx = x - 0.5;
                 let fy = y - 0.5;
-                let x0 = fx.floor();
-                let y0 = fy.floor();
-                let tx = fx - x0;
-                let ty = fy - y0;
-                let (x0, y0) = (x0 as i64, y0 as i64);
-                let xa = wrap(x0, w, sampler.wrap_u);
-                let xb = wrap(x0 + 1, w, sampler.wrap_u);
-                let ya = wrap(y0, h, sampler.wrap_v);
-                let yb = wrap(y0 + 1, h, sampler.wrap_v);
-                let p00 = img.get(xa, ya);
-                let p10 = img.get(xb, ya);
-                let p01 = img.get(xa, yb);
-                let p11 = img.get(xb, yb);
+                let x0 = fast_floor(fx);
+                let y0 = fast_floor(fy);
+                let tx = fx - x0 as f32;
+                let ty = fy - y0 as f32;
+                let (xa, xb) = wrap_pair(x0, w, sampler.wrap_u);
+                let (ya, yb) = wrap_pair(y0, h, sampler.wrap_v);
+                let row_a = img.row(ya);
+                let row_b = img.row(yb);
+                let (p00, p10, p01, p11) = (row_a[xa], row_a[xb], row_b[xa], row_b[xb]);
                 std::array::from_fn(|c| {
                     let top = p00[c] + (p10[c] - p00[c]) * tx;
                     let bottom = p01[c] + (p11[c] - p01[c]) * tx;
@@ -189,8 +191,54 @@ impl Texture {
     }
 }
 
+/// `floor` without a libm call (x86-64 without SSE4.1 has no rounding instruction).
 #[inline]
-fn wrap(i: i64, n: i64, mode: WrapMode) -> usize {
+fn fast_floor(x: f32) -> i32 {
+    let i = x as i32;
+    i - i32::from((i as f32) > x)
+}
+
+/// Brings a texel coordinate into a small range around the texture without changing the
+/// texel it wraps to.
+#[inline]
+fn reduce(x: f32, n: i32, mode: WrapMode) -> f32 {
+    let n = n as f32;
+    if x.abs() < 4.0 * n + 4.0 {
+        return x;
+    }
+    match mode {
+        WrapMode::Repeat => x.rem_euclid(n),
+        WrapMode::MirroredRepeat => x.rem_euclid(2.0 * n),
+        WrapMode::ClampToEdge => x.clamp(-1.0, n + 1.0),
+    }
+}
+
+/// Wrapped indices of texels `i` and `i + 1`.
+#[inline]
+fn wrap_pair(i: i32, n: i32, mode: WrapMode) -> (usize, usize) {
+    match mode {
+        WrapMode::Repeat if (0..n - 1).contains(&i) => (i as usize, i as usize + 1),
+        WrapMode::ClampToEdge => (
+            i.clamp(0, n - 1) as usize,
+            (i + 1).clamp(0, n - 1) as usize,
+        ),
+        _ => (wrap(i, n, mode), wrap(i + 1, n, mode)),
+    }
+}
+
+/// log2 accurate to about 0.01, for mip level selection (no libm call).
+#[inline]
+pub(crate) fn fast_log2(x: f32) -> f32 {
+    let bits = x.to_bits();
+    let exponent = ((bits >> 23) & 0xff) as i32 - 127;
+    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000); // mantissa in [1, 2)
+    // Quadratic fit of log2 on [1, 2]; error below 0.005.
+    let t = m - 1.0;
+    exponent as f32 + t * (1.346_555_7 - 0.346_555_7 * t)
+}
+
+#[inline]
+fn wrap(i: i32, n: i32, mode: WrapMode) -> usize {
     let r = match mode {
         WrapMode::Repeat => i.rem_euclid(n),
         WrapMode::ClampToEdge => i.clamp(0, n - 1),

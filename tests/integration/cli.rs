@@ -64,7 +64,13 @@ fn bad_lens_parameters_fail_with_a_clear_error_and_no_output() {
         ("--samples", "0", "samples"),
         ("--aperture", "poly:1", "blades"),
     ] {
-        let o = defocus(&["render", flag, value, "--width", "32", "--height", "18", "--out", s(&out)]);
+        let mut args = vec!["render", flag, value, "--out", s(&out)];
+        for (size_flag, size) in [("--width", "32"), ("--height", "18")] {
+            if flag != size_flag {
+                args.extend([size_flag, size]);
+            }
+        }
+        let o = defocus(&args);
         assert!(!o.status.success(), "{flag} {value} should fail");
         let e = stderr(&o);
         assert!(e.contains(needle), "{flag} {value}: '{e}' should mention {needle}");

@@ -41,7 +41,11 @@ fn vertices_where(scene: &Scene, pick: impl Fn(&defocus::scene::Material) -> boo
 
 fn named(scene: &Scene, name: &str) -> Vec<Vec3> {
     let v = vertices_where(scene, |m| m.name == name);
-    assert!(!v.is_empty(), "scene '{}' has no material '{name}'", scene.name);
+    assert!(
+        !v.is_empty(),
+        "scene '{}' has no material '{name}'",
+        scene.name
+    );
     v
 }
 
@@ -93,7 +97,10 @@ fn unknown_scene_is_an_error_naming_the_valid_scenes() {
 #[test]
 fn the_same_scene_is_built_identically_twice() {
     for &name in NAMES {
-        assert!(builtin::load(name).unwrap() == builtin::load(name).unwrap(), "{name}");
+        assert!(
+            builtin::load(name).unwrap() == builtin::load(name).unwrap(),
+            "{name}"
+        );
     }
 }
 
@@ -134,13 +141,22 @@ fn railing_board_is_in_focus_and_bars_cross_it() {
     let (mut x0, mut x1, mut y0, mut y1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
     for &p in &board {
         let (x, y, z) = project(&cam, &lens, p);
-        assert!(lens.coc_px(z).abs() < 0.01, "board vertex at {z} m is out of focus");
+        assert!(
+            lens.coc_px(z).abs() < 0.01,
+            "board vertex at {z} m is out of focus"
+        );
         (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
     }
     // The board fills most of the frame but leaves the far wall visible around it.
     let (w, h) = (lens.width_px as f32, lens.height_px as f32);
-    assert!(x0 > 0.0 && x1 < w && y0 > 0.0 && y1 < h, "board {x0}..{x1} x {y0}..{y1}");
-    assert!((x1 - x0) > 0.6 * w && (y1 - y0) > 0.6 * h, "board {x0}..{x1} x {y0}..{y1}");
+    assert!(
+        x0 > 0.0 && x1 < w && y0 > 0.0 && y1 < h,
+        "board {x0}..{x1} x {y0}..{y1}"
+    );
+    assert!(
+        (x1 - x0) > 0.6 * w && (y1 - y0) > 0.6 * h,
+        "board {x0}..{x1} x {y0}..{y1}"
+    );
 
     // At least two bars run across the board, top to bottom of the frame.
     let bar_columns: Vec<f32> = named(&scene, "railing metal")
@@ -169,7 +185,12 @@ fn lights_are_bright_emitters_far_behind_focus_and_some_in_front() {
         .collect();
     assert!(emitters.len() >= 3, "{} emissive materials", emitters.len());
     for m in &emitters {
-        assert!(m.emissive_strength >= 10.0, "{}: strength {}", m.name, m.emissive_strength);
+        assert!(
+            m.emissive_strength >= 10.0,
+            "{}: strength {}",
+            m.name,
+            m.emissive_strength
+        );
     }
     // Bulb triangles (12 per bulb) by their centroids.
     let (w, h) = (lens.width_px as f32, lens.height_px as f32);
@@ -193,8 +214,14 @@ fn lights_are_bright_emitters_far_behind_focus_and_some_in_front() {
             }
         }
     }
-    assert!(far_in_frame >= 20 * 12, "{far_in_frame} far light triangles in frame");
-    assert!(near_in_frame >= 12, "{near_in_frame} near light triangles in frame");
+    assert!(
+        far_in_frame >= 20 * 12,
+        "{far_in_frame} far light triangles in frame"
+    );
+    assert!(
+        near_in_frame >= 12,
+        "{near_in_frame} near light triangles in frame"
+    );
 }
 
 #[test]
@@ -216,7 +243,10 @@ fn grass_has_thousands_of_cut_out_tufts_from_near_the_lens_to_far_away() {
         .collect();
     let nearest = depths.iter().copied().fold(f32::MAX, f32::min);
     let farthest = depths.iter().copied().fold(0.0, f32::max);
-    assert!(nearest < 0.5 && lens.coc_px(nearest) < -30.0, "nearest tuft at {nearest} m");
+    assert!(
+        nearest < 0.5 && lens.coc_px(nearest) < -30.0,
+        "nearest tuft at {nearest} m"
+    );
     assert!(farthest > 10.0, "farthest tuft at {farthest} m");
 }
 

@@ -94,11 +94,12 @@ pub fn glass() -> Scene {
         name: "glass".to_string(),
         ..Scene::default()
     };
-    add_wall(&mut scene);
+    // Near to far, for the benefit of an early depth test.
     add_post(&mut scene);
     for pane in &PANES {
         add_pane(&mut scene, pane);
     }
+    add_wall(&mut scene);
 
     let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * WALL_DEPTH_M, Vec3::Y);
     camera.focal_length_mm = 50.0;
@@ -186,7 +187,12 @@ fn add_pane(scene: &mut Scene, pane: &Pane) {
         pane.centre.y + 0.5 * pane.size_m.y,
         -pane.depth_m,
     );
-    push_card(mesh_for(scene, material), top_left, pane.size_m.x, pane.size_m.y);
+    push_card(
+        mesh_for(scene, material),
+        top_left,
+        pane.size_m.x,
+        pane.size_m.y,
+    );
 
     // A 1 cm stand from the floor to the middle of the frame's bottom edge.
     let stand = match scene.materials.iter().position(|m| m.name == "pane stand") {
@@ -234,6 +240,11 @@ fn pane_texture(pane: &Pane) -> Texture {
     let scale = 2.0;
     let label_x = w as f32 - frame as f32 - 10.0 - text_width(pane.label, scale);
     let label_y = h as f32 - frame as f32 - 10.0 - 8.0 * scale;
-    canvas.text_rgba((label_x, label_y), scale, pane.label, [0.95, 0.97, 0.98, 0.7]);
+    canvas.text_rgba(
+        (label_x, label_y),
+        scale,
+        pane.label,
+        [0.95, 0.97, 0.98, 0.7],
+    );
     canvas.into_texture()
 }

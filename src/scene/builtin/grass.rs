@@ -41,6 +41,8 @@ const VIEW_SLOPE: f32 = 0.36;
 const SIDE_MARGIN_M: f32 = 0.5;
 /// View depth of the sky backdrop, metres.
 const SKY_DEPTH_M: f32 = 60.0;
+/// Far ends of the depth bands the tufts are grouped in (meshes near to far), metres.
+const DEPTH_BANDS_M: [f32; 6] = [0.7, 1.4, 2.8, 5.6, 11.0, f32::INFINITY];
 /// Alpha cutoff of the cut-out textures.
 const CUTOFF: f32 = 0.5;
 
@@ -87,9 +89,10 @@ pub fn grass() -> Scene {
         name: "grass".to_string(),
         ..Scene::default()
     };
-    add_ground_and_sky(&mut scene);
+    // Near to far, for the benefit of an early depth test.
     add_tufts(&mut scene);
     add_flowers(&mut scene);
+    add_ground_and_sky(&mut scene);
 
     let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * FOCUS_M, Vec3::Y);
     camera.focal_length_mm = 50.0;
@@ -113,7 +116,11 @@ fn add_ground_and_sky(scene: &mut Scene) {
     let (ground_w, ground_d) = (90.0, SKY_DEPTH_M + 2.0);
     let material = scene.add_material(textured(
         "meadow ground",
-        binding(ground, WrapMode::Repeat, Vec2::new(ground_w / 2.5, ground_d / 2.5)),
+        binding(
+            ground,
+            WrapMode::Repeat,
+            Vec2::new(ground_w / 2.5, ground_d / 2.5),
+        ),
         [1.0; 4],
         AlphaMode::Opaque,
     ));
@@ -156,13 +163,6 @@ fn add_tufts(scene: &mut Scene) {
             materials.push((m, style.weight / tints.len() as f32));
         }
     }
-    let mut meshes: Vec<Mesh> = materials
-        .iter()
-        .map(|&(material, _)| Mesh {
-            material,
-            ..Mesh::default()
-        })
-        .collect();
 
     let (z0, z1) = TUFT_DEPTHS_M;
     let half_width = |z: f32| VIEW_SLOPE * z + SIDE_MARGIN_M;
@@ -170,15 +170,14 @@ fn add_tufts(scene: &mut Scene) {
     let area = (z1 - z0) * (half_width(z0) + half_width(z1));
     let count = (area * TUFTS_PER_M2).round() as usize;
     let mut rng = SplitMix64::new(0x6752_6173);
-    let mut placed = 0;
-    while placed < count {
+    let mut tufts = Vec::with_capacity(count);
+    while tufts.len() < count {
         // Uniform over the trapezoid by rejection from its bounding box.
         let z = rng.range(z0, z1);
         let x = rng.range(-half_width(z1), half_width(z1));
         if x.abs() > half_width(z) {
             continue;
         }
-        placed += 1;
         let pick = rng.next_f32();
         let mut acc = 0.0;
         let slot = materials
@@ -191,9 +190,30 @@ fn add_tufts(scene: &mut Scene) {
         let height = rng.range(0.18, 0.5);
         let width = height * rng.range(0.6, 0.9);
         let yaw = rng.range(0.0, std::f32::consts::PI);
-        push_crossed_quads(&mut meshes[slot], Vec3::new(x, 0.0, -z), width, height, yaw);
+        tufts.push((z, x, slot, width, height, yaw));
     }
-    scene.meshes.extend(meshes.into_iter().filter(|m| !m.indices.is_empty()));
+
+    // Near to far, in depth bands of one mesh per material, so that the rasterizer's early
+    // depth test rejects most of the hidden far grass before shading it.
+    tufts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut band_start = 0;
+    for band_end_m in DEPTH_BANDS_M {
+        let band_len = tufts[band_start..].partition_point(|t| t.0 < band_end_m);
+        let band = &tufts[band_start..band_start + band_len];
+        band_start += band_len;
+        for (slot, &(material, _)) in materials.iter().enumerate() {
+            let mut mesh = Mesh {
+                material,
+                ..Mesh::default()
+            };
+            for &(z, x, _, width, height, yaw) in band.iter().filter(|t| t.2 == slot) {
+                push_crossed_quads(&mut mesh, Vec3::new(x, 0.0, -z), width, height, yaw);
+            }
+            if !mesh.indices.is_empty() {
+                scene.meshes.push(mesh);
+            }
+        }
+    }
 }
 
 /// Two upright quads crossing at `base` (on the ground), the first turned by `yaw_rad` about
@@ -261,7 +281,8 @@ fn tuft_texture(style: &TuftStyle, seed: u64) -> Texture {
         let root_x = rng.range(0.3, 0.7) * SIZE;
         let height = rng.range(0.45, 0.98) * SIZE;
         // Horizontal offset of the tip: blades lean outward from the middle of the tuft.
-        let lean = (root_x / SIZE - 0.5) * rng.range(0.4, 1.0) * SIZE + rng.range(-0.12, 0.12) * SIZE;
+        let lean =
+            (root_x / SIZE - 0.5) * rng.range(0.4, 1.0) * SIZE + rng.range(-0.12, 0.12) * SIZE;
         let half_width = rng.range(0.016, 0.03) * SIZE;
         let brightness = rng.range(0.75, 1.15);
         let lit_side = if rng.next_f32() < 0.5 { -1.0 } else { 1.0 };
@@ -324,7 +345,10 @@ fn ground_texture(seed: u64) -> Texture {
     let mut canvas = Canvas::new(SIZE, SIZE, [0.0, 0.0, 0.0, 1.0]);
     for y in 0..SIZE {
         for x in 0..SIZE {
-            let (u, v) = ((x as f32 + 0.5) / SIZE as f32, (y as f32 + 0.5) / SIZE as f32);
+            let (u, v) = (
+                (x as f32 + 0.5) / SIZE as f32,
+                (y as f32 + 0.5) / SIZE as f32,
+            );
             let cover = smoothstep(0.35, 0.65, fbm(u, v, 4, 4, seed));
             let patch = smoothstep(0.55, 0.75, fbm(u, v, 8, 3, seed + 10));
             let grain = value_noise(u, v, 128, seed + 20);
@@ -359,7 +383,11 @@ fn sky_texture(width_m: f32, height_m: f32, seed: u64) -> Texture {
             let sky = mix(mix(horizon, zenith, t), cloud, clouds);
             let cover = |line: f32| ((line - height) / texel_m + 0.5).clamp(0.0, 1.0);
             let far = mix(sky, scale(trees_far, 0.85 + 0.3 * leaves), cover(far_line));
-            let c = mix(far, scale(trees_near, 0.75 + 0.5 * leaves), cover(near_line));
+            let c = mix(
+                far,
+                scale(trees_near, 0.75 + 0.5 * leaves),
+                cover(near_line),
+            );
             canvas.set(x, y, [c[0], c[1], c[2], 1.0]);
         }
     }

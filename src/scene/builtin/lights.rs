@@ -11,9 +11,10 @@
 //! - camera at (0, 1.4, 0), looking horizontally down -Z;
 //! - two bulbs of 4 mm at 0.72 m and 0.8 m, right of centre (near-field bokeh);
 //! - a test card 0.3 x 0.2 m at 1.5 m (the focus plane), left of centre, on a thin post;
-//! - two strings of bulbs (2.4 and 3 cm) sagging across the frame at 10.5 m (warm white) and
-//!   12.5 m (red, green, blue, amber), and six brighter 2 cm lamps low on the wall at 13.5 to
-//!   14.3 m: emission strengths 30 to 200 times a unit colour;
+//! - three strings of bulbs sagging across the frame: 2.4 cm warm white at 10.5 m, 3 cm red,
+//!   green, blue and amber at 12.5 m, and smaller (2 cm) but brighter white, warm and cold
+//!   bulbs low at 13.8 m, each bulb up to 10 cm nearer or farther; about 40 in view, emission
+//!   strengths 40 to 200 times a unit colour;
 //! - a dark brick wall at 14.5 m and a dark tiled floor.
 //!
 //! Camera: 50 mm on a 36 mm sensor, f/1.8, 6-blade aperture (vertices up and down), focus
@@ -23,9 +24,7 @@ use glam::{Vec2, Vec3};
 
 use super::random::SplitMix64;
 use super::shapes::{push_box, push_card, push_disc, Face, ALL_FACES};
-use super::textures::{
-    binding, brick_texture, chart_texture, srgb, tile_texture, Chart,
-};
+use super::textures::{binding, brick_texture, chart_texture, srgb, tile_texture, Chart};
 use super::{mesh_for, textured};
 use crate::lens::{Aperture, Camera};
 use crate::scene::{AlphaMode, Material, Scene, SceneDefaults, WrapMode};
@@ -61,7 +60,7 @@ struct LightString {
     strengths: &'static [f32],
 }
 
-const STRINGS: [LightString; 2] = [
+const STRINGS: [LightString; 3] = [
     LightString {
         depth_m: 10.5,
         x_range_m: (-4.5, 4.5),
@@ -82,18 +81,29 @@ const STRINGS: [LightString; 2] = [
         colours: &[0xff3b2a, 0x3cff5a, 0x4a78ff, 0xffaa2a],
         strengths: &[40.0, 70.0, 55.0],
     },
+    LightString {
+        depth_m: 13.8,
+        x_range_m: (-6.5, 6.5),
+        anchor_y_m: 2.3,
+        sag_m: 0.8,
+        spacing_m: 0.75,
+        radius_m: 0.01,
+        colours: &[0xfff1d6, 0xffc37a, 0x9fd0ff],
+        strengths: &[200.0, 120.0, 160.0],
+    },
 ];
 
-/// The `lights` scene: bright emissive bulbs far behind (10.5-14.3 m) and slightly in front
+/// The `lights` scene: bright emissive bulbs far behind (10.4-13.9 m) and slightly in front
 /// (0.72-0.8 m) of a card in focus at 1.5 m; 50 mm f/1.8, 6-blade aperture.
 pub fn lights() -> Scene {
     let mut scene = Scene {
         name: "lights".to_string(),
         ..Scene::default()
     };
-    add_room(&mut scene);
+    // Near to far (the far lights before the wall they hang on), for an early depth test.
     add_card(&mut scene);
     add_lights(&mut scene);
+    add_room(&mut scene);
 
     let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * CARD_DEPTH_M, Vec3::Y);
     camera.focal_length_mm = 50.0;
@@ -127,7 +137,11 @@ fn add_room(scene: &mut Scene) {
     let (wall_w, wall_h) = (24.0, 9.0);
     let wall = scene.add_material(textured(
         "dark brick wall",
-        binding(bricks, WrapMode::Repeat, Vec2::new(wall_w / 0.96, wall_h / 1.2)),
+        binding(
+            bricks,
+            WrapMode::Repeat,
+            Vec2::new(wall_w / 0.96, wall_h / 1.2),
+        ),
         [1.0; 4],
         AlphaMode::Opaque,
     ));
@@ -148,7 +162,11 @@ fn add_room(scene: &mut Scene) {
     let (floor_w, floor_d) = (24.0, WALL_DEPTH_M + 1.0);
     let floor = scene.add_material(textured(
         "dark floor",
-        binding(tiles, WrapMode::Repeat, Vec2::new(floor_w / 3.0, floor_d / 3.0)),
+        binding(
+            tiles,
+            WrapMode::Repeat,
+            Vec2::new(floor_w / 3.0, floor_d / 3.0),
+        ),
         [1.0; 4],
         AlphaMode::Opaque,
     ));
@@ -178,7 +196,11 @@ fn add_card(scene: &mut Scene) {
         AlphaMode::Opaque,
     ));
     let (w, h) = (CARD_SIZE_M.x, CARD_SIZE_M.y);
-    let top_left = Vec3::new(CARD_CENTRE.x - 0.5 * w, CARD_CENTRE.y + 0.5 * h, -CARD_DEPTH_M);
+    let top_left = Vec3::new(
+        CARD_CENTRE.x - 0.5 * w,
+        CARD_CENTRE.y + 0.5 * h,
+        -CARD_DEPTH_M,
+    );
     push_card(mesh_for(scene, face), top_left, w, h);
 
     let stand = scene.add_material(Material::color("card stand", srgb(0x2a2b2e)));
@@ -236,20 +258,6 @@ fn add_lights(scene: &mut Scene) {
             let centre = Vec3::new(x, y, -string.depth_m + rng.range(-0.1, 0.1));
             add_bulb(scene, centre, string.radius_m, colour, strength);
         }
-    }
-
-    // Six small, brighter lamps low on the wall: their bokeh overlap the card's side.
-    let lamps = [
-        (-4.1, 0.9, 0xfff1d6),
-        (-1.6, 1.15, 0xffc37a),
-        (0.35, 0.75, 0xfff1d6),
-        (1.6, 1.3, 0x9fd0ff),
-        (2.9, 0.95, 0xffc37a),
-        (4.4, 1.2, 0xfff1d6),
-    ];
-    for (i, &(x, y, colour)) in lamps.iter().enumerate() {
-        let depth = WALL_DEPTH_M - 0.2 - 0.15 * (i % 3) as f32;
-        add_bulb(scene, Vec3::new(x, y, -depth), 0.01, colour, 200.0);
     }
 
     // Two bulbs in front of the focus plane, right of the card: near-field bokeh.

@@ -3,7 +3,7 @@
 //! | scene | stresses | in focus | other depths | lens |
 //! |---|---|---|---|---|
 //! | [`railing`] (default) | near-field partial occlusion | chart board at 2.5 m | bars and handrail at 0.5 m, brick wall at 9 m | 50 mm f/2, disc |
-//! | [`lights`] | bokeh shape, HDR highlights | card at 1.5 m | 2 lights at 0.72-0.8 m, about 35 lights at 10.5-14.3 m, wall at 14.5 m | 50 mm f/1.8, 6 blades |
+//! | [`lights`] | bokeh shape, HDR highlights | card at 1.5 m | 2 lights at 0.72-0.8 m, about 40 lights at 10.4-13.9 m, wall at 14.5 m | 50 mm f/1.8, 6 blades |
 //! | [`grass`] | depth complexity, alpha-tested cut-outs | grass at 2 m | about 4800 tufts from 0.35 to 16 m, sky at 60 m | 50 mm f/2, disc |
 //! | [`glass`] | semi-transparent surfaces between near and far | chart wall at 4 m | post at 0.6 m, panes at 1.2 and 1.5 m | 50 mm f/2, disc |
 //!
@@ -47,7 +47,12 @@ pub fn load(name: &str) -> Result<Scene> {
 }
 
 /// A double-sided material whose base colour is `texture` times `tint` (linear RGBA).
-fn textured(name: &str, texture: TextureBinding, tint: [f32; 4], alpha_mode: AlphaMode) -> Material {
+fn textured(
+    name: &str,
+    texture: TextureBinding,
+    tint: [f32; 4],
+    alpha_mode: AlphaMode,
+) -> Material {
     Material {
         name: name.to_string(),
         base_color: tint,

@@ -59,9 +59,10 @@ pub fn railing() -> Scene {
         name: "railing".to_string(),
         ..Scene::default()
     };
-    add_wall_and_floor(&mut scene);
-    add_board(&mut scene);
+    // Near to far, for the benefit of an early depth test.
     add_railing(&mut scene);
+    add_board(&mut scene);
+    add_wall_and_floor(&mut scene);
 
     let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * BOARD_DEPTH_M, Vec3::Y);
     camera.focal_length_mm = 50.0;
@@ -91,7 +92,11 @@ fn add_wall_and_floor(scene: &mut Scene) {
     let (wall_w, wall_h) = (15.0, 6.0);
     let wall = scene.add_material(textured(
         "brick wall",
-        binding(bricks, WrapMode::Repeat, Vec2::new(wall_w / 0.96, wall_h / 1.2)),
+        binding(
+            bricks,
+            WrapMode::Repeat,
+            Vec2::new(wall_w / 0.96, wall_h / 1.2),
+        ),
         [1.0; 4],
         AlphaMode::Opaque,
     ));
@@ -113,7 +118,11 @@ fn add_wall_and_floor(scene: &mut Scene) {
     let (floor_w, floor_d) = (16.0, WALL_DEPTH_M + 1.0);
     let floor = scene.add_material(textured(
         "stone floor",
-        binding(tiles, WrapMode::Repeat, Vec2::new(floor_w / 2.4, floor_d / 2.4)),
+        binding(
+            tiles,
+            WrapMode::Repeat,
+            Vec2::new(floor_w / 2.4, floor_d / 2.4),
+        ),
         [1.0; 4],
         AlphaMode::Opaque,
     ));

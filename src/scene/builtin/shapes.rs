@@ -88,7 +88,8 @@ pub(crate) fn push_disc(
     mesh.uvs.push(Vec2::splat(0.5));
     for k in 0..segments {
         let (s, c) = (k as f32 * std::f32::consts::TAU / segments as f32).sin_cos();
-        mesh.positions.push(centre + radius_m * (c * right + s * up));
+        mesh.positions
+            .push(centre + radius_m * (c * right + s * up));
         mesh.uvs.push(Vec2::new(0.5 + 0.5 * c, 0.5 - 0.5 * s));
     }
     for k in 0..segments {
@@ -120,7 +121,8 @@ pub(crate) fn push_shaded_cylinder(
         let diffuse = n.dot(light).max(0.0);
         let specular = n.dot(half).max(0.0).powi(24);
         let u = (0.06 + 0.6 * diffuse + 0.5 * specular).clamp(0.0, 1.0);
-        mesh.positions.extend_from_slice(&[a + radius_m * n, b + radius_m * n]);
+        mesh.positions
+            .extend_from_slice(&[a + radius_m * n, b + radius_m * n]);
         mesh.uvs
             .extend_from_slice(&[Vec2::new(u, 0.5), Vec2::new(u, 0.5)]);
     }
@@ -161,7 +163,12 @@ mod tests {
     #[test]
     fn box_faces_point_outward() {
         let mut m = Mesh::default();
-        push_box(&mut m, Vec3::new(-1.0, 0.0, 2.0), Vec3::new(1.0, 3.0, 2.5), &ALL_FACES);
+        push_box(
+            &mut m,
+            Vec3::new(-1.0, 0.0, 2.0),
+            Vec3::new(1.0, 3.0, 2.5),
+            &ALL_FACES,
+        );
         assert_eq!(m.triangle_count(), 12);
         assert_eq!(m.uvs.len(), m.positions.len());
         let centre = Vec3::new(0.0, 1.5, 2.25);

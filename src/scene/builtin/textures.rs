@@ -204,7 +204,13 @@ impl Canvas {
 
     /// A Siemens star: `spokes` dark sectors of colour `ink` inside the circle of radius `r`
     /// around (cx, cy), a classic target for judging focus.
-    pub(crate) fn siemens_star(&mut self, (cx, cy): (f32, f32), r: f32, spokes: u32, ink: [f32; 3]) {
+    pub(crate) fn siemens_star(
+        &mut self,
+        (cx, cy): (f32, f32),
+        r: f32,
+        spokes: u32,
+        ink: [f32; 3],
+    ) {
         let sectors = 2.0 * spokes as f32 / std::f32::consts::TAU;
         self.paint((cx - r, cy - r), (cx + r, cy + r), |px, py| {
             let (dx, dy) = (px - cx, py - cy);
@@ -306,7 +312,11 @@ impl TextBitmap {
         let rows = std::array::from_fn(|row| {
             let mut bits = Vec::with_capacity(width);
             for &ch in &chars {
-                let code = if ch.is_ascii() { ch as usize } else { '?' as usize };
+                let code = if ch.is_ascii() {
+                    ch as usize
+                } else {
+                    '?' as usize
+                };
                 // One byte per row, top row first; bit 0 is the leftmost pixel.
                 let byte = font8x8::legacy::BASIC_LEGACY[code][row];
                 bits.extend((0..8).map(|col| byte >> col & 1 == 1));
@@ -341,7 +351,13 @@ pub(crate) fn value_noise(u: f32, v: f32, cells: i32, seed: u64) -> f32 {
     let (x0, y0) = (x.floor(), y.floor());
     let (tx, ty) = (smoothstep(0.0, 1.0, x - x0), smoothstep(0.0, 1.0, y - y0));
     let (ix, iy) = (x0 as i32, y0 as i32);
-    let h = |dx: i32, dy: i32| hash2((ix + dx).rem_euclid(cells), (iy + dy).rem_euclid(cells), seed);
+    let h = |dx: i32, dy: i32| {
+        hash2(
+            (ix + dx).rem_euclid(cells),
+            (iy + dy).rem_euclid(cells),
+            seed,
+        )
+    };
     let top = h(0, 0) + (h(1, 0) - h(0, 0)) * tx;
     let bottom = h(0, 1) + (h(1, 1) - h(0, 1)) * tx;
     top + (bottom - top) * ty
@@ -418,7 +434,10 @@ pub(crate) fn chart_texture(chart: &Chart) -> Texture {
 
     // Title, as large as fits in 70% of the width and 16% of the height.
     let title_len = chart.title.chars().count().max(1) as f32;
-    let title_scale = (0.7 * w / (8.0 * title_len)).min(0.16 * h / 8.0).floor().max(1.0);
+    let title_scale = (0.7 * w / (8.0 * title_len))
+        .min(0.16 * h / 8.0)
+        .floor()
+        .max(1.0);
     let title_y = 1.6 * margin;
     canvas.text_centred(0.5 * w, title_y, title_scale, chart.title, chart.ink);
 
@@ -493,7 +512,11 @@ pub(crate) fn brick_texture(
             } else {
                 let tone = hash2(index as i32, course as i32, seed ^ 0xb1c5);
                 let tint = hash2(index as i32, course as i32, seed ^ 0x7a3e);
-                let base = mix(brick, mix(brick, [brick[1], brick[1], brick[0]], 0.4), tint * 0.5);
+                let base = mix(
+                    brick,
+                    mix(brick, [brick[1], brick[1], brick[0]], 0.4),
+                    tint * 0.5,
+                );
                 scale(base, 0.7 + 0.45 * tone + 0.25 * (grain - 0.5))
             };
             canvas.set(x, y, [c[0], c[1], c[2], 1.0]);
