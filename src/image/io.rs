@@ -242,6 +242,25 @@ pub fn read_exr_channels(path: &Path) -> Result<ExrChannels> {
     })
 }
 
+/// Names the channels [`read_color`] and [`read_depth`] would use in an EXR file, for
+/// verbose output: `(colour channels, depth channel)`. Either is an error when no channel fits,
+/// listing those available.
+pub fn exr_channel_choice(
+    path: &Path,
+    depth_channel_name: Option<&str>,
+) -> Result<(Result<Vec<String>>, Result<String>)> {
+    let ch = read_exr_channels(path)?;
+    let color = color_prefix(path, &ch).map(|prefix| {
+        ["R", "G", "B", "A", "Y"]
+            .iter()
+            .filter(|c| ch.component(&prefix, c).is_some())
+            .map(|c| format!("{prefix}{c}"))
+            .collect()
+    });
+    let depth = depth_channel(path, &ch, depth_channel_name).map(|(name, _)| name.to_string());
+    Ok((color, depth))
+}
+
 /// How to read a depth file: see [`read_depth`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct DepthRead {

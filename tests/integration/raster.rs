@@ -319,3 +319,58 @@ fn mipmapped_texture_of_a_fine_checker_averages_to_grey_far_away() {
     }
     let _ = Vec2::ZERO;
 }
+
+/// The obvious twin of the fixed-point rasterizer: is the pixel centre inside the triangle,
+/// by signed distances to its edges in floating point? `None` when the centre is within
+/// `eps` pixels of an edge (where rounding decides).
+fn naive_inside(p: Vec2, t: [Vec2; 3], eps: f32) -> Option<bool> {
+    let area = (t[1] - t[0]).perp_dot(t[2] - t[0]);
+    let mut inside = true;
+    for k in 0..3 {
+        let (a, b) = (t[k], t[(k + 1) % 3]);
+        let d = (b - a).perp_dot(p - a) * area.signum() / (b - a).length();
+        if d.abs() < eps {
+            return None;
+        }
+        inside &= d > 0.0;
+    }
+    Some(inside)
+}
+
+#[test]
+fn coverage_agrees_with_a_naive_point_in_triangle_test_on_random_triangles() {
+    // Seeded random triangles on awkward image sizes (odd, 1 pixel wide, 1x1).
+    let mut state = 0x1234_5678_u64;
+    let mut rnd = move || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (state >> 40) as f32 / (1u64 << 24) as f32
+    };
+    for (w, h) in [(37usize, 23usize), (1, 17), (1, 1), (64, 64)] {
+        let camera = test_camera(w, h, 2.0, 2.8);
+        let lens = camera.thin_lens().unwrap();
+        let (cx, cy) = lens.centre_px();
+        let z = 2.5;
+        for _ in 0..40 {
+            let t: [Vec2; 3] = std::array::from_fn(|_| {
+                Vec2::new(rnd() * (w as f32 + 8.0) - 4.0, rnd() * (h as f32 + 8.0) - 4.0)
+            });
+            let mut scene = one_material_scene(Material::color("m", [1.0; 3]));
+            let mut mesh = Mesh::default();
+            mesh.positions = t
+                .iter()
+                .map(|p| Vec3::new((p.x - cx) * z / lens.f_px, -(p.y - cy) * z / lens.f_px, -z))
+                .collect();
+            mesh.indices = vec![[0, 1, 2]];
+            scene.meshes.push(mesh);
+            let counts = count(&scene, &camera);
+            for y in 0..h {
+                for x in 0..w {
+                    let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+                    if let Some(inside) = naive_inside(p, t, 0.01) {
+                        assert_eq!(counts[y * w + x], inside as u32, "{w}x{h} {t:?} pixel ({x}, {y})");
+                    }
+                }
+            }
+        }
+    }
+}
