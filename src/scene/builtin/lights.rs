@@ -4,8 +4,8 @@
 //! aperture (a hexagon here) whose brightness only stays right if HDR values are kept through
 //! the blur; overlapping bokeh add up. Two bulbs in front of the focus plane show near-field
 //! bokeh, which a real lens turns by 180 degrees (a 6-blade hexagon is symmetric under that
-//! turn, so they match the far ones in shape but are larger). A sharp card at the focus
-//! distance makes the focus plane obvious.
+//! turn, so they match the far ones in shape; a 5-blade aperture shows the turn). A sharp card
+//! at the focus distance makes the focus plane obvious, and partly hides the lowest string.
 //!
 //! Layout (view depths along -Z, metres; world Y up, floor at y = 0):
 //! - camera at (0, 1.4, 0), looking horizontally down -Z;
@@ -14,11 +14,12 @@
 //! - three strings of bulbs sagging across the frame: 2.4 cm warm white at 10.5 m, 3 cm red,
 //!   green, blue and amber at 12.5 m, and smaller (2 cm) but brighter white, warm and cold
 //!   bulbs low at 13.8 m, each bulb up to 10 cm nearer or farther; about 40 in view, emission
-//!   strengths 40 to 200 times a unit colour;
+//!   strengths 40 to 200 times a unit colour (30 for the near bulbs);
 //! - a dark brick wall at 14.5 m and a dark tiled floor.
 //!
 //! Camera: 50 mm on a 36 mm sensor, f/1.8, 6-blade aperture (vertices up and down), focus
-//! 1.5 m, 1280x720. Far bokeh are about 29 px across, the near ones about 36 px.
+//! 1.5 m, 1280x720. Far bokeh are about 29 px across (CoC radius 14.1-14.7 px), the near ones
+//! 29 and 36 px.
 
 use glam::{Vec2, Vec3};
 
