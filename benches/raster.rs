@@ -1,6 +1,11 @@
 //! Rasterizer benchmarks: one pinhole frame of each built-in scene.
 //! Ids: `raster/pinhole/<scene>/<w>x<h>`.
 
+#![expect(
+    missing_docs,
+    reason = "criterion_group! generates undocumented functions"
+)]
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use defocus::raster::{render_gbuffer, PreparedScene, View};
 use defocus::scene::builtin;

@@ -2,6 +2,11 @@
 //!
 //! The full 256-sample frame at 1280x720 takes seconds, so criterion runs it 10 times.
 
+#![expect(
+    missing_docs,
+    reason = "criterion_group! generates undocumented functions"
+)]
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use defocus::methods::reference::{render, ReferenceSettings};
 use defocus::scene::builtin;

@@ -179,7 +179,8 @@ impl Aperture {
                 ..
             } => (0..*blades)
                 .map(|k| {
-                    let a = rotation_rad + PI / *blades as f32 + k as f32 * 2.0 * PI / *blades as f32;
+                    let a =
+                        rotation_rad + PI / *blades as f32 + k as f32 * 2.0 * PI / *blades as f32;
                     Vec2::new(a.cos(), -a.sin())
                 })
                 .collect(),
@@ -234,8 +235,7 @@ impl Aperture {
         match self {
             Aperture::Disc => Some(concentric_disc(u)),
             Aperture::Polygon {
-                blade_radius: None,
-                ..
+                blade_radius: None, ..
             } => {
                 let verts = self.vertices();
                 let n = verts.len();

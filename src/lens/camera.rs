@@ -72,7 +72,10 @@ impl Camera {
         if self.fstop < 0.1 {
             return Err(Error::invalid(
                 "f-number",
-                format!("f/{} is not a physical lens: expected at least f/0.1", self.fstop),
+                format!(
+                    "f/{} is not a physical lens: expected at least f/0.1",
+                    self.fstop
+                ),
             ));
         }
         if self.far_m <= self.near_m {
@@ -87,13 +90,19 @@ impl Camera {
         if self.focus_m > self.far_m {
             return Err(Error::invalid(
                 "focus distance",
-                format!("{} m is behind the far plane at {} m", self.focus_m, self.far_m),
+                format!(
+                    "{} m is behind the far plane at {} m",
+                    self.focus_m, self.far_m
+                ),
             ));
         }
         if self.focus_m < self.near_m {
             return Err(Error::invalid(
                 "focus distance",
-                format!("{} m is in front of the near plane at {} m", self.focus_m, self.near_m),
+                format!(
+                    "{} m is in front of the near plane at {} m",
+                    self.focus_m, self.near_m
+                ),
             ));
         }
         let f_px = match self.yfov_rad {

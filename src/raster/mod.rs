@@ -178,12 +178,17 @@ impl<'a> PreparedScene<'a> {
     /// Transforms `scene` into the camera space of `camera_from_world` and validates it.
     pub fn new(scene: &'a Scene, camera_from_world: &glam::Affine3A) -> Result<Self> {
         scene.validate()?;
-        let mut positions = Vec::with_capacity(scene.meshes.iter().map(|m| m.positions.len()).sum());
+        let mut positions =
+            Vec::with_capacity(scene.meshes.iter().map(|m| m.positions.len()).sum());
         let mut uvs = Vec::with_capacity(positions.capacity());
         let mut triangles = Vec::with_capacity(scene.triangle_count());
         for mesh in &scene.meshes {
             let base = positions.len() as u32;
-            positions.extend(mesh.positions.iter().map(|&p| camera_from_world.transform_point3(p)));
+            positions.extend(
+                mesh.positions
+                    .iter()
+                    .map(|&p| camera_from_world.transform_point3(p)),
+            );
             if mesh.uvs.is_empty() {
                 uvs.resize(uvs.len() + mesh.positions.len(), Vec2::ZERO);
             } else {

@@ -202,10 +202,11 @@ fn fast_floor(x: f32) -> i32 {
 /// texel it wraps to.
 #[inline]
 fn reduce(x: f32, n: i32, mode: WrapMode) -> f32 {
-    let n = n as f32;
-    if x.abs() < 4.0 * n + 4.0 {
+    // Integer texel indices are exact up to 2^24; only beyond that is a float reduction needed.
+    if x.abs() < 16_777_216.0 {
         return x;
     }
+    let n = n as f32;
     match mode {
         WrapMode::Repeat => x.rem_euclid(n),
         WrapMode::MirroredRepeat => x.rem_euclid(2.0 * n),
@@ -218,10 +219,7 @@ fn reduce(x: f32, n: i32, mode: WrapMode) -> f32 {
 fn wrap_pair(i: i32, n: i32, mode: WrapMode) -> (usize, usize) {
     match mode {
         WrapMode::Repeat if (0..n - 1).contains(&i) => (i as usize, i as usize + 1),
-        WrapMode::ClampToEdge => (
-            i.clamp(0, n - 1) as usize,
-            (i + 1).clamp(0, n - 1) as usize,
-        ),
+        WrapMode::ClampToEdge => (i.clamp(0, n - 1) as usize, (i + 1).clamp(0, n - 1) as usize),
         _ => (wrap(i, n, mode), wrap(i + 1, n, mode)),
     }
 }
@@ -232,7 +230,7 @@ pub(crate) fn fast_log2(x: f32) -> f32 {
     let bits = x.to_bits();
     let exponent = ((bits >> 23) & 0xff) as i32 - 127;
     let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000); // mantissa in [1, 2)
-    // Quadratic fit of log2 on [1, 2]; error below 0.005.
+                                                                // Quadratic fit of log2 on [1, 2]; error below 0.005.
     let t = m - 1.0;
     exponent as f32 + t * (1.346_555_7 - 0.346_555_7 * t)
 }
@@ -240,6 +238,8 @@ pub(crate) fn fast_log2(x: f32) -> f32 {
 #[inline]
 fn wrap(i: i32, n: i32, mode: WrapMode) -> usize {
     let r = match mode {
+        // Power-of-two sizes (the common case) wrap with a mask instead of a division.
+        WrapMode::Repeat if n & (n - 1) == 0 => i & (n - 1),
         WrapMode::Repeat => i.rem_euclid(n),
         WrapMode::ClampToEdge => i.clamp(0, n - 1),
         WrapMode::MirroredRepeat => {
@@ -252,6 +252,5 @@ fn wrap(i: i32, n: i32, mode: WrapMode) -> usize {
             }
         }
     };
-    // Guard against non-finite uv that became i64::MIN etc.
     r.clamp(0, n - 1) as usize
 }

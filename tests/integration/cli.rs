@@ -35,8 +35,19 @@ fn render_writes_the_default_scene_with_depth_and_json_timings() {
     let out = dir.join("r.exr");
     let depth = dir.join("z.exr");
     let o = defocus(&[
-        "render", "--width", "64", "--height", "36", "--samples", "4", "--out", s(&out),
-        "--depth-out", s(&depth), "--timings", "json",
+        "render",
+        "--width",
+        "64",
+        "--height",
+        "36",
+        "--samples",
+        "4",
+        "--out",
+        s(&out),
+        "--depth-out",
+        s(&depth),
+        "--timings",
+        "json",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let img = io::read_color(&out).unwrap();
@@ -46,7 +57,11 @@ fn render_writes_the_default_scene_with_depth_and_json_timings() {
     let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
     assert_eq!(json["method"], "reference");
     assert_eq!(json["width"], 64);
-    assert!(json["passes"].as_array().unwrap().iter().any(|p| p["name"] == "reference/raster"));
+    assert!(json["passes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|p| p["name"] == "reference/raster"));
     assert!(json["total_ms"].as_f64().unwrap() > 0.0);
     std::fs::remove_dir_all(dir).unwrap();
 }
@@ -73,7 +88,10 @@ fn bad_lens_parameters_fail_with_a_clear_error_and_no_output() {
         let o = defocus(&args);
         assert!(!o.status.success(), "{flag} {value} should fail");
         let e = stderr(&o);
-        assert!(e.contains(needle), "{flag} {value}: '{e}' should mention {needle}");
+        assert!(
+            e.contains(needle),
+            "{flag} {value}: '{e}' should mention {needle}"
+        );
         assert!(!e.contains("panicked"), "{e}");
         assert!(!out.exists(), "no output after an error");
     }
@@ -95,7 +113,17 @@ fn unsupported_output_format_is_refused_before_rendering() {
 fn compare_of_an_image_with_itself_is_infinite_psnr_and_ssim_one() {
     let dir = temp_dir("compare");
     let a = dir.join("a.exr");
-    let o = defocus(&["render", "--method", "pinhole", "--width", "48", "--height", "32", "--out", s(&a)]);
+    let o = defocus(&[
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        "48",
+        "--height",
+        "32",
+        "--out",
+        s(&a),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let o = defocus(&["compare", s(&a), s(&a)]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -115,8 +143,32 @@ fn compare_reports_size_mismatch_and_corrupt_files_without_writing_the_diff() {
     let a = dir.join("a.png");
     let b = dir.join("b.png");
     let diff = dir.join("d.png");
-    assert!(defocus(&["render", "--method", "pinhole", "--width", "40", "--height", "30", "--out", s(&a)]).status.success());
-    assert!(defocus(&["render", "--method", "pinhole", "--width", "30", "--height", "40", "--out", s(&b)]).status.success());
+    assert!(defocus(&[
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        "40",
+        "--height",
+        "30",
+        "--out",
+        s(&a)
+    ])
+    .status
+    .success());
+    assert!(defocus(&[
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        "30",
+        "--height",
+        "40",
+        "--out",
+        s(&b)
+    ])
+    .status
+    .success());
     let o = defocus(&["compare", s(&a), s(&b), "--diff", s(&diff)]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("mismatch"), "{}", stderr(&o));
@@ -140,7 +192,19 @@ fn compare_reports_size_mismatch_and_corrupt_files_without_writing_the_diff() {
 fn the_diff_map_never_overwrites_an_input() {
     let dir = temp_dir("overwrite");
     let a = dir.join("a.png");
-    assert!(defocus(&["render", "--method", "pinhole", "--width", "40", "--height", "30", "--out", s(&a)]).status.success());
+    assert!(defocus(&[
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        "40",
+        "--height",
+        "30",
+        "--out",
+        s(&a)
+    ])
+    .status
+    .success());
     let before = std::fs::read(&a).unwrap();
     let o = defocus(&["compare", s(&a), s(&a), "--diff", s(&a)]);
     assert!(!o.status.success());

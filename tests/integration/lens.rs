@@ -25,8 +25,14 @@ fn coc_has_analytic_values_sign_zero_at_focus_and_limit_at_infinity() {
     assert!((coc_px(1000.0, 0.01, 2.0, 4.0) - 2.5).abs() < 1e-6);
     assert!((coc_px(1000.0, 0.01, 2.0, 1.0) + 5.0).abs() < 1e-6);
     assert_eq!(coc_px(1000.0, 0.01, 2.0, 2.0), 0.0);
-    assert!(coc_px(1000.0, 0.01, 2.0, 1.999) < 0.0, "in front of focus is negative");
-    assert!(coc_px(1000.0, 0.01, 2.0, 2.001) > 0.0, "behind focus is positive");
+    assert!(
+        coc_px(1000.0, 0.01, 2.0, 1.999) < 0.0,
+        "in front of focus is negative"
+    );
+    assert!(
+        coc_px(1000.0, 0.01, 2.0, 2.001) > 0.0,
+        "behind focus is positive"
+    );
     assert!((coc_px(1000.0, 0.01, 2.0, 1e12) - 5.0).abs() < 1e-5);
 }
 
@@ -36,9 +42,20 @@ fn thin_lens_matches_the_cycles_calibration_table() {
     let lens = cycles_camera().thin_lens().unwrap();
     assert!((lens.f_px - 466.6667).abs() < 1e-3);
     assert!((lens.lens_radius_m - 0.00875).abs() < 1e-7);
-    for (z, d) in [(0.6, 9.528), (0.8, 6.125), (1.2, 2.722), (4.0, 2.042), (8.0, 3.063), (16.0, 3.573), (20.0, 3.675)] {
+    for (z, d) in [
+        (0.6, 9.528),
+        (0.8, 6.125),
+        (1.2, 2.722),
+        (4.0, 2.042),
+        (8.0, 3.063),
+        (16.0, 3.573),
+        (20.0, 3.675),
+    ] {
         let got = 2.0 * lens.coc_px(z).abs();
-        assert!((got - d).abs() < 2e-3, "z = {z}: 2|C| = {got}, expected {d}");
+        assert!(
+            (got - d).abs() < 2e-3,
+            "z = {z}: 2|C| = {got}, expected {d}"
+        );
     }
     assert!((2.0 * lens.coc_at_infinity_px() - 4.083).abs() < 1e-3);
 }
@@ -56,7 +73,11 @@ fn camera_rejects_bad_lens_parameters() {
     assert!(c.thin_lens().unwrap_err().to_string().contains("far plane"));
     let mut c = cycles_camera();
     c.width_px = 0;
-    assert!(c.thin_lens().unwrap_err().to_string().contains("image size"));
+    assert!(c
+        .thin_lens()
+        .unwrap_err()
+        .to_string()
+        .contains("image size"));
     let mut c = cycles_camera();
     c.fstop = f32::NAN;
     assert!(c.thin_lens().is_err());
@@ -66,25 +87,47 @@ fn camera_rejects_bad_lens_parameters() {
 fn polygon_vertices_follow_the_cycles_convention() {
     // 5 blades, rotation 0: a vertex at 180 degrees (pointing left), none up.
     let five = Aperture::parse("poly:5").unwrap().vertices();
-    assert!(five.iter().any(|v| (*v - Vec2::new(-1.0, 0.0)).length() < 1e-6));
-    assert!(five.iter().all(|v| (*v - Vec2::new(0.0, -1.0)).length() > 0.1));
+    assert!(five
+        .iter()
+        .any(|v| (*v - Vec2::new(-1.0, 0.0)).length() < 1e-6));
+    assert!(five
+        .iter()
+        .all(|v| (*v - Vec2::new(0.0, -1.0)).length() > 0.1));
     // 6 blades: vertices straight up and down (y down in image axes).
     let six = Aperture::parse("poly:6").unwrap().vertices();
-    assert!(six.iter().any(|v| (*v - Vec2::new(0.0, -1.0)).length() < 1e-6));
-    assert!(six.iter().any(|v| (*v - Vec2::new(0.0, 1.0)).length() < 1e-6));
+    assert!(six
+        .iter()
+        .any(|v| (*v - Vec2::new(0.0, -1.0)).length() < 1e-6));
+    assert!(six
+        .iter()
+        .any(|v| (*v - Vec2::new(0.0, 1.0)).length() < 1e-6));
     // Positive rotation turns counter-clockwise on screen: rot=18 moves the left vertex
     // (180 degrees) to 198 degrees, i.e. below the x axis on screen (y down is positive).
     let rotated = Aperture::parse("poly:5,rot=18").unwrap().vertices();
     let a = 198f32.to_radians();
-    assert!(rotated.iter().any(|v| (*v - Vec2::new(a.cos(), -a.sin())).length() < 1e-5));
+    assert!(rotated
+        .iter()
+        .any(|v| (*v - Vec2::new(a.cos(), -a.sin())).length() < 1e-5));
 }
 
 #[test]
 fn aperture_parse_errors_name_the_problem() {
-    assert!(Aperture::parse("poly:2").unwrap_err().to_string().contains("blades"));
-    assert!(Aperture::parse("poly:x").unwrap_err().to_string().contains("whole number"));
-    assert!(Aperture::parse("poly:6,curve=0.5").unwrap_err().to_string().contains("blade radius"));
-    assert!(Aperture::parse("square").unwrap_err().to_string().contains("expected disc"));
+    assert!(Aperture::parse("poly:2")
+        .unwrap_err()
+        .to_string()
+        .contains("blades"));
+    assert!(Aperture::parse("poly:x")
+        .unwrap_err()
+        .to_string()
+        .contains("whole number"));
+    assert!(Aperture::parse("poly:6,curve=0.5")
+        .unwrap_err()
+        .to_string()
+        .contains("blade radius"));
+    assert!(Aperture::parse("square")
+        .unwrap_err()
+        .to_string()
+        .contains("expected disc"));
 }
 
 #[test]
@@ -103,7 +146,12 @@ fn check_even_cover(aperture: &Aperture, kind: SamplerKind) {
     assert_eq!(set.samples.len(), n);
     let mut mean = Vec2::ZERO;
     for s in &set.samples {
-        assert!(aperture.density(s.lens * 0.9999) > 0.0, "{:?} outside {:?}", s.lens, aperture);
+        assert!(
+            aperture.density(s.lens * 0.9999) > 0.0,
+            "{:?} outside {:?}",
+            s.lens,
+            aperture
+        );
         assert!(s.pixel_offset.abs().max_element() <= 0.5);
         mean += s.lens;
     }

@@ -79,7 +79,8 @@ fn a_fan_of_triangles_covers_each_pixel_exactly_once() {
     let k = 7;
     for i in 0..k {
         let a = i as f32 / k as f32 * std::f32::consts::TAU + 0.3;
-        mesh.positions.push(world(centre.0 + 28.3 * a.cos(), centre.1 + 19.7 * a.sin()));
+        mesh.positions
+            .push(world(centre.0 + 28.3 * a.cos(), centre.1 + 19.7 * a.sin()));
     }
     for i in 0..k as u32 {
         mesh.indices.push([0, 1 + i, 1 + (i + 1) % k as u32]);
@@ -130,8 +131,16 @@ fn a_vertex_lands_on_the_pixel_the_camera_predicts_and_depth_is_view_axis() {
     let mut scene = one_material_scene(Material::color("m", [1.0, 0.5, 0.25]));
     // A camera-facing square of 1.2 px around p.
     let half = 0.6 * z / lens.f_px;
-    let right = camera.camera_from_world.inverse().transform_vector3(Vec3::X) * half;
-    let up = camera.camera_from_world.inverse().transform_vector3(Vec3::Y) * half;
+    let right = camera
+        .camera_from_world
+        .inverse()
+        .transform_vector3(Vec3::X)
+        * half;
+    let up = camera
+        .camera_from_world
+        .inverse()
+        .transform_vector3(Vec3::Y)
+        * half;
     let mut mesh = Mesh::default();
     mesh.push_quad(p - right + up, right * 2.0, -up * 2.0);
     scene.meshes.push(mesh);
@@ -144,10 +153,16 @@ fn a_vertex_lands_on_the_pixel_the_camera_predicts_and_depth_is_view_axis() {
     let ny = (py - 0.5).round() as usize;
     assert!(ix.abs_diff(nx) <= 1 && iy.abs_diff(ny) <= 1);
     let d = g.depth.get(nx, ny);
-    assert!((d - z).abs() < 1e-4 * z, "depth {d}, expected view-axis {z}");
+    assert!(
+        (d - z).abs() < 1e-4 * z,
+        "depth {d}, expected view-axis {z}"
+    );
     assert_eq!(g.color.get(nx, ny), [1.0, 0.5, 0.25, 1.0]);
     let covered = g.depth.pixels().iter().filter(|d| d.is_finite()).count();
-    assert!((1..=4).contains(&covered), "{covered} pixels covered by a 1.2 px square");
+    assert!(
+        (1..=4).contains(&covered),
+        "{covered} pixels covered by a 1.2 px square"
+    );
 }
 
 #[test]
@@ -175,7 +190,10 @@ fn depth_on_a_tilted_plane_is_perspective_correct() {
         let t = (px as f32 + 0.5 - cx) / lens.f_px;
         let z = 2.0 / (1.0 - 0.5 * t);
         let got = g.depth.get(px, 20);
-        assert!((got - z).abs() < 1e-4, "pixel {px}: depth {got}, expected {z}");
+        assert!(
+            (got - z).abs() < 1e-4,
+            "pixel {px}: depth {got}, expected {z}"
+        );
     }
 }
 
@@ -231,7 +249,15 @@ fn alpha_mask_cutouts_are_holes() {
     let tex = ColorImage::from_vec(
         4,
         4,
-        (0..16).map(|i| if i % 4 < 2 { [1.0, 1.0, 1.0, 0.0] } else { [0.0, 1.0, 0.0, 1.0] }).collect(),
+        (0..16)
+            .map(|i| {
+                if i % 4 < 2 {
+                    [1.0, 1.0, 1.0, 0.0]
+                } else {
+                    [0.0, 1.0, 0.0, 1.0]
+                }
+            })
+            .collect(),
     )
     .unwrap();
     let t = scene.add_texture(Texture::new(tex));
@@ -253,9 +279,17 @@ fn alpha_mask_cutouts_are_holes() {
     add_screen_rect(&mut scene, &camera, (0.0, 0.0, 32.0, 32.0), 1.0, cut);
     let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
     let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
-    assert_eq!(g.color.get(4, 16), [1.0, 0.0, 0.0, 1.0], "hole shows the back");
+    assert_eq!(
+        g.color.get(4, 16),
+        [1.0, 0.0, 0.0, 1.0],
+        "hole shows the back"
+    );
     assert!((g.depth.get(4, 16) - 4.0).abs() < 1e-5);
-    assert_eq!(g.color.get(28, 16), [0.0, 1.0, 0.0, 1.0], "opaque part stays");
+    assert_eq!(
+        g.color.get(28, 16),
+        [0.0, 1.0, 0.0, 1.0],
+        "opaque part stays"
+    );
     assert!((g.depth.get(28, 16) - 1.0).abs() < 1e-5);
 }
 
@@ -265,7 +299,11 @@ fn triangles_crossing_the_near_plane_are_clipped_not_dropped() {
     let camera = test_camera(40, 30, 2.0, 2.8);
     let mut scene = one_material_scene(Material::color("m", [1.0; 3]));
     let mut mesh = Mesh::default();
-    mesh.push_quad(Vec3::new(-50.0, -1.0, 5.0), Vec3::new(100.0, 0.0, 0.0), Vec3::new(0.0, 0.0, -100.0));
+    mesh.push_quad(
+        Vec3::new(-50.0, -1.0, 5.0),
+        Vec3::new(100.0, 0.0, 0.0),
+        Vec3::new(0.0, 0.0, -100.0),
+    );
     scene.meshes.push(mesh);
     let counts = count(&scene, &camera);
     for x in 0..40 {
@@ -283,7 +321,11 @@ fn single_sided_back_faces_are_culled() {
     });
     // Wound clockwise as seen from the camera: a back face.
     let mut mesh = Mesh::default();
-    mesh.positions = vec![Vec3::new(-1.0, -1.0, -2.0), Vec3::new(0.0, 1.0, -2.0), Vec3::new(1.0, -1.0, -2.0)];
+    mesh.positions = vec![
+        Vec3::new(-1.0, -1.0, -2.0),
+        Vec3::new(0.0, 1.0, -2.0),
+        Vec3::new(1.0, -1.0, -2.0),
+    ];
     mesh.indices = vec![[0, 1, 2]];
     scene.meshes.push(mesh.clone());
     assert_eq!(count(&scene, &camera).iter().sum::<u32>(), 0);
@@ -300,12 +342,21 @@ fn mipmapped_texture_of_a_fine_checker_averages_to_grey_far_away() {
     let tex = ColorImage::from_vec(
         256,
         256,
-        (0..256 * 256).map(|i| { let v = ((i % 256 + i / 256) % 2) as f32; [v, v, v, 1.0] }).collect(),
+        (0..256 * 256)
+            .map(|i| {
+                let v = ((i % 256 + i / 256) % 2) as f32;
+                [v, v, v, 1.0]
+            })
+            .collect(),
     )
     .unwrap();
     let t = scene.add_texture(Texture::new(tex));
     let m = scene.add_material(Material {
-        base_color_texture: Some(TextureBinding { texture: t, sampler: TextureSampler::default(), uv_transform: Default::default() }),
+        base_color_texture: Some(TextureBinding {
+            texture: t,
+            sampler: TextureSampler::default(),
+            uv_transform: Default::default(),
+        }),
         ..Default::default()
     });
     add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 2.0, m);
@@ -342,7 +393,9 @@ fn coverage_agrees_with_a_naive_point_in_triangle_test_on_random_triangles() {
     // Seeded random triangles on awkward image sizes (odd, 1 pixel wide, 1x1).
     let mut state = 0x1234_5678_u64;
     let mut rnd = move || {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (state >> 40) as f32 / (1u64 << 24) as f32
     };
     for (w, h) in [(37usize, 23usize), (1, 17), (1, 1), (64, 64)] {
@@ -352,7 +405,10 @@ fn coverage_agrees_with_a_naive_point_in_triangle_test_on_random_triangles() {
         let z = 2.5;
         for _ in 0..40 {
             let t: [Vec2; 3] = std::array::from_fn(|_| {
-                Vec2::new(rnd() * (w as f32 + 8.0) - 4.0, rnd() * (h as f32 + 8.0) - 4.0)
+                Vec2::new(
+                    rnd() * (w as f32 + 8.0) - 4.0,
+                    rnd() * (h as f32 + 8.0) - 4.0,
+                )
             });
             let mut scene = one_material_scene(Material::color("m", [1.0; 3]));
             let mut mesh = Mesh::default();
@@ -367,7 +423,11 @@ fn coverage_agrees_with_a_naive_point_in_triangle_test_on_random_triangles() {
                 for x in 0..w {
                     let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
                     if let Some(inside) = naive_inside(p, t, 0.01) {
-                        assert_eq!(counts[y * w + x], inside as u32, "{w}x{h} {t:?} pixel ({x}, {y})");
+                        assert_eq!(
+                            counts[y * w + x],
+                            inside as u32,
+                            "{w}x{h} {t:?} pixel ({x}, {y})"
+                        );
                     }
                 }
             }

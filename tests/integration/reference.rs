@@ -41,7 +41,13 @@ fn point_light_scene(camera: &Camera, z: f32) -> Scene {
     let mut scene = Scene::default();
     let m = scene.add_material(Material::emissive("light", [1.0; 3], 1000.0));
     let c = SIZE as f32 / 2.0;
-    add_screen_rect(&mut scene, camera, (c - 1.0, c - 1.0, c + 1.0, c + 1.0), z, m);
+    add_screen_rect(
+        &mut scene,
+        camera,
+        (c - 1.0, c - 1.0, c + 1.0, c + 1.0),
+        z,
+        m,
+    );
     scene
 }
 
@@ -88,13 +94,20 @@ fn point_light_far_behind_focus_becomes_a_disc_of_diameter_two_coc() {
     let z = 50.0;
     let coc = camera.thin_lens().unwrap().coc_px(z);
     assert!(coc > 15.0 && coc < 45.0, "test setup: C = {coc}");
-    let out = run(&point_light_scene(&camera, z), &camera, &settings(Aperture::Disc, SAMPLES));
+    let out = run(
+        &point_light_scene(&camera, z),
+        &camera,
+        &settings(Aperture::Disc, SAMPLES),
+    );
     let e = extents(&out.image);
     // The light sits at the corner between four pixels; the walk starts at pixel centre
     // (c + 0.5), so the edge at distance |C| from the light is |C| - 0.5 from there.
     for (i, d) in e.iter().enumerate() {
         let radius = *d;
-        assert!((radius - coc).abs() < 1.0, "direction {i}: radius {radius}, |C| = {coc}");
+        assert!(
+            (radius - coc).abs() < 1.0,
+            "direction {i}: radius {radius}, |C| = {coc}"
+        );
     }
     // Energy: the bokeh carries the light of the pinhole square.
     let pin = pinhole::render(&point_light_scene(&camera, z), &camera, 64, 0, false).unwrap();
@@ -103,9 +116,17 @@ fn point_light_far_behind_focus_becomes_a_disc_of_diameter_two_coc() {
     assert!((a / b - 1.0).abs() < 0.01, "bokeh energy {a}, pinhole {b}");
     // Area above half the plateau close to pi C^2.
     let plateau = out.image.get(SIZE / 2, SIZE / 2)[0];
-    let lit = out.image.pixels().iter().filter(|p| p[0] > 0.5 * plateau).count() as f32;
+    let lit = out
+        .image
+        .pixels()
+        .iter()
+        .filter(|p| p[0] > 0.5 * plateau)
+        .count() as f32;
     let area = std::f32::consts::PI * coc * coc;
-    assert!((lit / area - 1.0).abs() < 0.1, "lit {lit} px, pi C^2 = {area}");
+    assert!(
+        (lit / area - 1.0).abs() < 0.1,
+        "lit {lit} px, pi C^2 = {area}"
+    );
 }
 
 #[test]
@@ -121,8 +142,14 @@ fn point_light_through_six_blades_becomes_a_hexagon() {
     let [right, left, down, up] = extents(&out.image);
     // Vertices up and down (extent |C|), flat sides left and right (|C| cos 30).
     let flat = coc * (30f32).to_radians().cos();
-    assert!((up - coc).abs() < 1.0 && (down - coc).abs() < 1.0, "up {up} down {down} C {coc}");
-    assert!((left - flat).abs() < 1.0 && (right - flat).abs() < 1.0, "left {left} right {right} flat {flat}");
+    assert!(
+        (up - coc).abs() < 1.0 && (down - coc).abs() < 1.0,
+        "up {up} down {down} C {coc}"
+    );
+    assert!(
+        (left - flat).abs() < 1.0 && (right - flat).abs() < 1.0,
+        "left {left} right {right} flat {flat}"
+    );
 }
 
 #[test]
@@ -138,12 +165,26 @@ fn near_field_bokeh_is_the_aperture_turned_half_a_turn() {
     let near_z = 1.0 / (1.0 / lens.focus_m + c_far / (lens.f_px * lens.lens_radius_m));
     assert!((lens.coc_px(near_z) + c_far).abs() < 1e-3);
     let side = c_far * (36f32).to_radians().cos();
-    let far = run(&point_light_scene(&camera, far_z), &camera, &settings(five.clone(), SAMPLES));
-    let near = run(&point_light_scene(&camera, near_z), &camera, &settings(five, SAMPLES));
+    let far = run(
+        &point_light_scene(&camera, far_z),
+        &camera,
+        &settings(five.clone(), SAMPLES),
+    );
+    let near = run(
+        &point_light_scene(&camera, near_z),
+        &camera,
+        &settings(five, SAMPLES),
+    );
     let [fr, fl, _, _] = extents(&far.image);
     let [nr, nl, _, _] = extents(&near.image);
-    assert!((fl - c_far).abs() < 1.0 && (fr - side).abs() < 1.0, "far: left {fl} right {fr}");
-    assert!((nr - c_far).abs() < 1.0 && (nl - side).abs() < 1.0, "near: left {nl} right {nr}");
+    assert!(
+        (fl - c_far).abs() < 1.0 && (fr - side).abs() < 1.0,
+        "far: left {fl} right {fr}"
+    );
+    assert!(
+        (nr - c_far).abs() < 1.0 && (nl - side).abs() < 1.0,
+        "near: left {nl} right {nr}"
+    );
 }
 
 fn checker_plane_scene(camera: &Camera, z: f32) -> Scene {
@@ -189,7 +230,10 @@ fn in_focus_plane_is_as_sharp_as_the_pinhole_image() {
         .zip(pin.image.pixels())
         .map(|(a, b)| (a[0] - b[0]).abs())
         .fold(0.0f32, f32::max);
-    assert!(diff > 0.2, "out-of-focus plane should blur (max difference {diff})");
+    assert!(
+        diff > 0.2,
+        "out-of-focus plane should blur (max difference {diff})"
+    );
 }
 
 #[test]
@@ -221,7 +265,11 @@ fn output_is_bit_identical_with_one_and_two_threads() {
     };
     let a = in_pool(1);
     let b = in_pool(2);
-    let bits = |img: &ColorImage| img.pixels().iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
+    let bits = |img: &ColorImage| {
+        img.pixels()
+            .iter()
+            .flat_map(|p| p.map(f32::to_bits))
+            .collect::<Vec<_>>()
+    };
     assert_eq!(bits(&a), bits(&b));
 }
-
