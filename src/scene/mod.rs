@@ -4,7 +4,9 @@
 //! emission (factor times texture times strength), in linear light. Alpha comes from the base
 //! colour; [`AlphaMode`] says how it is used.
 
+pub mod autofocus;
 pub mod builtin;
+pub mod load;
 pub(crate) mod texture;
 
 use glam::{Vec2, Vec3};
@@ -265,7 +267,10 @@ impl Scene {
             }
         }
         for m in &self.materials {
-            for b in [&m.base_color_texture, &m.emissive_texture].into_iter().flatten() {
+            for b in [&m.base_color_texture, &m.emissive_texture]
+                .into_iter()
+                .flatten()
+            {
                 if b.texture >= self.textures.len() {
                     return Err(Error::invalid(
                         "scene",

@@ -1,11 +1,14 @@
 //! Behaviour tests of defocus: one binary, one module per area.
 
 mod cli;
+mod hammon;
 mod image_io;
 mod lens;
+mod lowrank;
 mod metrics;
 mod raster;
 mod reference;
+mod scene_files;
 mod scenes;
 
 /// Path of the shared assets folder, or `None` (with a printed reason) when it is absent.
@@ -47,7 +50,11 @@ pub fn add_screen_rect(
     let lens = camera.thin_lens().unwrap();
     let (cx, cy) = lens.centre_px();
     let to_world = |x: f32, y: f32| {
-        glam::Vec3::new((x - cx) * z_m / lens.f_px, -(y - cy) * z_m / lens.f_px, -z_m)
+        glam::Vec3::new(
+            (x - cx) * z_m / lens.f_px,
+            -(y - cy) * z_m / lens.f_px,
+            -z_m,
+        )
     };
     let mut mesh = defocus::scene::Mesh {
         material,

@@ -320,13 +320,15 @@ fn single_sided_back_faces_are_culled() {
         ..Material::color("m", [1.0; 3])
     });
     // Wound clockwise as seen from the camera: a back face.
-    let mut mesh = Mesh::default();
-    mesh.positions = vec![
-        Vec3::new(-1.0, -1.0, -2.0),
-        Vec3::new(0.0, 1.0, -2.0),
-        Vec3::new(1.0, -1.0, -2.0),
-    ];
-    mesh.indices = vec![[0, 1, 2]];
+    let mesh = Mesh {
+        positions: vec![
+            Vec3::new(-1.0, -1.0, -2.0),
+            Vec3::new(0.0, 1.0, -2.0),
+            Vec3::new(1.0, -1.0, -2.0),
+        ],
+        indices: vec![[0, 1, 2]],
+        ..Mesh::default()
+    };
     scene.meshes.push(mesh.clone());
     assert_eq!(count(&scene, &camera).iter().sum::<u32>(), 0);
     scene.meshes[0].indices = vec![[0, 2, 1]];
@@ -411,12 +413,14 @@ fn coverage_agrees_with_a_naive_point_in_triangle_test_on_random_triangles() {
                 )
             });
             let mut scene = one_material_scene(Material::color("m", [1.0; 3]));
-            let mut mesh = Mesh::default();
-            mesh.positions = t
-                .iter()
-                .map(|p| Vec3::new((p.x - cx) * z / lens.f_px, -(p.y - cy) * z / lens.f_px, -z))
-                .collect();
-            mesh.indices = vec![[0, 1, 2]];
+            let mesh = Mesh {
+                positions: t
+                    .iter()
+                    .map(|p| Vec3::new((p.x - cx) * z / lens.f_px, -(p.y - cy) * z / lens.f_px, -z))
+                    .collect(),
+                indices: vec![[0, 1, 2]],
+                ..Mesh::default()
+            };
             scene.meshes.push(mesh);
             let counts = count(&scene, &camera);
             for y in 0..h {

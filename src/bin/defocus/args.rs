@@ -53,7 +53,7 @@ pub enum RenderMethod {
 /// Flags of `render`.
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// Built-in scene name (railing, lights, grass, glass) or a scene file.
+    /// Built-in scene name (railing, lights, grass, glass) or a scene file (.gltf, .glb, .obj).
     #[arg(long, default_value = "railing", value_name = "NAME|PATH")]
     pub scene: String,
     /// DoF method.
@@ -69,16 +69,21 @@ pub struct RenderArgs {
     /// Image height in pixels [default: the scene's, 720 for built-in scenes].
     #[arg(long, value_name = "PX")]
     pub height: Option<usize>,
-    /// Focus distance in metres, along the view axis [default: the scene's].
-    #[arg(long, value_name = "M", allow_negative_numbers = true)]
-    pub focus: Option<f32>,
+    /// Focus distance in metres, along the view axis, or `auto`: the depth at the image centre
+    /// (median of a small window of a pinhole render; the distance is printed)
+    /// [default: the scene's].
+    #[arg(long, value_name = "M|auto", value_parser = parse_focus, allow_negative_numbers = true)]
+    pub focus: Option<Focus>,
     /// f-number N; the lens radius is focal length / (2 N) [default: the scene's].
     #[arg(long, value_name = "N", allow_negative_numbers = true)]
     pub fstop: Option<f32>,
-    /// Focal length in millimetres [default: the scene's, 50 mm for built-in scenes].
+    /// Focal length in millimetres [default: the scene's, 50 mm for built-in scenes]. When the
+    /// field of view comes from the scene file's camera or --fov, that field of view sets the
+    /// projection and the focal length only sets the lens radius F / (2 N).
     #[arg(long, value_name = "MM", allow_negative_numbers = true)]
     pub focal_length: Option<f32>,
-    /// Sensor width in millimetres, horizontal fit [default: the scene's, 36 mm].
+    /// Sensor width in millimetres, horizontal fit [default: the scene's, 36 mm]. No effect on
+    /// the projection when the field of view comes from the scene file's camera or --fov.
     #[arg(long, value_name = "MM", allow_negative_numbers = true)]
     pub sensor_width: Option<f32>,
     /// Aperture: `disc`, `poly:B[,rot=DEG][,curve=R]` (B blades, rotation in degrees
@@ -101,6 +106,9 @@ pub struct RenderArgs {
     /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
     pub timings: Option<TimingFormat>,
+    /// Camera choice and placement (listed under their own heading).
+    #[command(flatten)]
+    pub view: Box<ViewArgs>,
 }
 
 /// Flags of `compare`.
@@ -116,4 +124,77 @@ pub struct CompareArgs {
     /// Print one JSON object instead of `name: value` lines.
     #[arg(long)]
     pub json: bool,
+}
+
+/// Flags of `render` that choose and place the camera (boxed in [`RenderArgs`] to keep
+/// [`Command`] small).
+#[derive(Debug, Args)]
+#[command(next_help_heading = "Camera (scene files and views)")]
+pub struct ViewArgs {
+    /// Camera of the scene file: its index in the file's camera list or its name (node or
+    /// camera) [default: the file's first camera, else a view of the whole scene from its +Z
+    /// side].
+    #[arg(long, value_name = "N|NAME")]
+    pub camera: Option<String>,
+    /// Camera position in metres, world space; the camera then looks at --look-at, else at the
+    /// centre of the scene [default: the scene's camera].
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub look_from: Option<[f32; 3]>,
+    /// Point the camera looks at, in metres, world space; also the focus distance unless
+    /// --focus is given.
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub look_at: Option<[f32; 3]>,
+    /// World direction that is up on screen, with --look-from / --look-at [default: 0,1,0].
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub up: Option<[f32; 3]>,
+    /// Vertical field of view in degrees; it then sets the projection and the focal length only
+    /// the lens radius [default: the scene file camera's, else from --focal-length].
+    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    pub fov: Option<f32>,
+    /// Focus on the surface at pixel X,Y (column, row from the top left), as --focus auto does
+    /// at the centre.
+    #[arg(long, value_name = "X,Y", value_parser = parse_pixel, conflicts_with = "focus")]
+    pub focus_pixel: Option<(usize, usize)>,
+}
+
+/// `--focus`: a distance or `auto`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Focus {
+    /// Focus distance in metres.
+    Metres(f32),
+    /// The depth at the image centre.
+    Auto,
+}
+
+fn parse_focus(s: &str) -> Result<Focus, String> {
+    if s.trim() == "auto" {
+        return Ok(Focus::Auto);
+    }
+    s.trim()
+        .parse()
+        .map(Focus::Metres)
+        .map_err(|_| format!("'{s}': expected a distance in metres or 'auto'"))
+}
+
+/// Parses `X,Y,Z` (three finite numbers).
+fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
+        .collect::<Option<_>>()
+        .ok_or_else(|| format!("'{s}': expected three numbers X,Y,Z"))?;
+    <[f32; 3]>::try_from(v).map_err(|_| format!("'{s}': expected three numbers X,Y,Z"))
+}
+
+/// Parses `X,Y` (two pixel indices).
+fn parse_pixel(s: &str) -> Result<(usize, usize), String> {
+    let (x, y) = s
+        .split_once(',')
+        .ok_or_else(|| format!("'{s}': expected a pixel column and row X,Y"))?;
+    match (x.trim().parse(), y.trim().parse()) {
+        (Ok(x), Ok(y)) => Ok((x, y)),
+        _ => Err(format!(
+            "'{s}': expected a pixel column and row X,Y (whole numbers from 0)"
+        )),
+    }
 }

@@ -8,11 +8,12 @@ use defocus::lens::{Aperture, ApertureImage, Camera, SamplerKind};
 use defocus::methods::reference::{self, ReferenceSettings};
 use defocus::methods::MethodOutput;
 use defocus::metrics;
-use defocus::scene::{builtin, Scene};
+use defocus::scene::{autofocus, builtin, load, Scene};
 use defocus::timing::Timings;
+use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::args::{Cli, Command, CompareArgs, RenderArgs, RenderMethod, TimingFormat};
+use crate::args::{Cli, Command, CompareArgs, Focus, RenderArgs, RenderMethod, TimingFormat};
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
@@ -34,10 +35,10 @@ pub fn run(cli: Cli) -> Result<()> {
     }
 }
 
-const IMAGE_EXTENSIONS: &[&str] = &["exr", "png", "pfm"];
+pub(crate) const IMAGE_EXTENSIONS: &[&str] = &["exr", "png", "pfm"];
 
 /// Checks an output path before any work is done: a supported extension and an existing folder.
-fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> {
+pub(crate) fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -74,17 +75,20 @@ struct RenderJob {
     inputs: Vec<PathBuf>,
 }
 
-fn load_scene(spec: &str) -> Result<Scene> {
+fn load_scene(spec: &str, camera: Option<&str>) -> Result<Scene> {
     if builtin::NAMES.contains(&spec) {
+        if camera.is_some() {
+            bail!("invalid --camera: the built-in scene '{spec}' has one camera; --camera picks a camera of a scene file");
+        }
         return Ok(builtin::load(spec)?);
     }
     let path = Path::new(spec);
     if path.exists() {
-        bail!(
-            "scene file {}: loading scene files (glTF, OBJ) is not available yet; built-in scenes: {}",
-            path.display(),
-            builtin::NAMES.join(", ")
-        );
+        let mut file = load::read_scene_file(path)?;
+        if let Some(c) = camera {
+            file.use_camera(c).context("invalid --camera")?;
+        }
+        return Ok(file.scene);
     }
     bail!(
         "unknown scene '{spec}': not a built-in scene ({}) and no such file",
@@ -113,7 +117,7 @@ impl TryFrom<RenderArgs> for RenderJob {
         if let Some(d) = &a.depth_out {
             check_output(d, "--depth-out", &["exr"])?;
         }
-        let scene = load_scene(&a.scene)?;
+        let scene = load_scene(&a.scene, a.view.camera.as_deref())?;
         let defaults = scene
             .defaults
             .clone()
@@ -125,7 +129,15 @@ impl TryFrom<RenderArgs> for RenderJob {
         if let Some(h) = a.height {
             camera.height_px = h;
         }
-        if let Some(f) = a.focus {
+        let view = load::ViewOverride {
+            look_from_m: a.view.look_from.map(Vec3::from),
+            look_at_m: a.view.look_at.map(Vec3::from),
+            up: a.view.up.map(Vec3::from),
+            yfov_rad: a.view.fov.map(f32::to_radians),
+        };
+        view.apply(&mut camera, &scene)
+            .context("invalid camera view (check --look-from, --look-at, --up, --fov)")?;
+        if let Some(Focus::Metres(f)) = a.focus {
             camera.focus_m = f;
         }
         if let Some(n) = a.fstop {
@@ -136,6 +148,24 @@ impl TryFrom<RenderArgs> for RenderJob {
         }
         if let Some(s) = a.sensor_width {
             camera.sensor_width_mm = s;
+        }
+        // Autofocus last: it renders with the final pose, size and lens.
+        let focus_pixel = match (a.focus, a.view.focus_pixel) {
+            (Some(Focus::Auto), _) => Some((camera.width_px / 2, camera.height_px / 2)),
+            (_, pixel) => pixel,
+        };
+        if let Some((x, y)) = focus_pixel {
+            let pick = autofocus::focus_at_pixel(&scene, &camera, x, y)
+                .context("invalid --focus auto / --focus-pixel")?
+                .with_context(|| {
+                    format!("--focus: no surface near pixel ({x}, {y}) to focus on")
+                })?;
+            camera.focus_m = pick.depth_m;
+            eprintln!(
+                "focus: {:.4} m (median depth of the {w}x{w} pixels around ({x}, {y}))",
+                pick.depth_m,
+                w = pick.window_px
+            );
         }
         // Validate the camera now, with the flag names in the message.
         camera.thin_lens().context(
@@ -223,14 +253,16 @@ fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(total);
-    let template = format!("{{spinner}} [{{elapsed_precise}}] {{wide_bar}} {{pos}}/{{len}} {unit} (eta {{eta}})");
+    let template = format!(
+        "{{spinner}} [{{elapsed_precise}}] {{wide_bar}} {{pos}}/{{len}} {unit} (eta {{eta}})"
+    );
     if let Ok(style) = ProgressStyle::with_template(&template) {
         bar.set_style(style);
     }
     bar
 }
 
-fn report_timings(
+pub(crate) fn report_timings(
     format: Option<TimingFormat>,
     method: &str,
     width: usize,
@@ -262,7 +294,10 @@ fn report_timings(
                 "passes": timings.passes,
                 "total_ms": timings.total_ms(),
             });
-            #[expect(clippy::print_stdout, reason = "--timings json is the command's output")]
+            #[expect(
+                clippy::print_stdout,
+                reason = "--timings json is the command's output"
+            )]
             {
                 println!("{value}");
             }

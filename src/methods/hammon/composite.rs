@@ -1,0 +1,315 @@
+//! Pass `composite` (section 28.5.2, Listing 28-4 `ApplyDepthOfField`): the variable-width blur
+//! as a piecewise-linear blend of four blur levels.
+//!
+//! Reads the full-resolution colour and signed blur amounts `s` (pass `coc`), the medium image
+//! (pass `near_coc`: colour and near CoC) and the large image (pass `blur`); writes the output.
+//! Per pixel:
+//! 1. near = the medium image's CoC, sampled bilinearly; far = `max(s, 0)` (already multiplied
+//!    by `far_to_near_ratio`, and 0 for sky: pass `coc`); `t = max(near, far)`.
+//! 2. Weights of unblurred, small, medium, large: `saturate(t * dofLerpScale + dofLerpBias)`,
+//!    then `w_small = min(w_small, 1 - w_unblurred)`, `w_medium = min(w_medium, 1 - w_small)`
+//!    (with the values before this step): they sum to 1 and rise and fall linearly in `t`, and
+//!    at most two adjacent levels are non-zero: unblurred and small for `t < d0`, small and
+//!    medium up to `d0 + d1`, medium and large up to 1, large alone beyond. The fast pass
+//!    computes exactly that: it finds the segment of `t` and lerps its two levels (branches on
+//!    `t`, which varies smoothly along a row, predict well); [`naive`] keeps the listing's form.
+//! 3. Small blur = the mean of the 17 pixels of fig. 28-5, which the listing reads as four
+//!    bilinear taps at (+0.5, -1.5), (-1.5, -0.5), (-0.5, +1.5), (+1.5, +0.5) pixels (2x2 pixels
+//!    each, weight 4/17) plus the unblurred centre (1/17, through the frame-buffer blend). With
+//!    y down, the pixels are, per row dy = -2..=2: dx in {0, 1}, {-2..=1}, {-2..=2}, {-1..=2},
+//!    {-1, 0}. Medium and large are the quarter-res images sampled bilinearly.
+//! 4. Output = `w_unblurred colour + w_small small + w_medium medium + w_large large`.
+//!
+//! A pixel with `t <= 0` is copied unchanged, and only the two levels of its segment are
+//! read. (The listing's four clamped weights, written out per pixel, compiled to about 270
+//! instructions per blurred pixel; the segment form to a fraction of that: see `mod.rs`.)
+
+use rayon::prelude::*;
+
+use super::{quarter_size, saturate, Constants, LerpDistances, QuarterImage};
+use crate::image::{ColorImage, GrayImage, Rgba};
+use crate::{Error, Result};
+
+/// Fails unless the inputs have the sizes of the frame of `k` and of its quarter-res images.
+fn check_sizes(
+    color: &ColorImage,
+    coc: &GrayImage,
+    medium: &QuarterImage,
+    large: &QuarterImage,
+    k: &Constants,
+) -> Result<()> {
+    let (w, h) = (k.width(), k.height());
+    for (what, size) in [
+        ("colour image", (color.width(), color.height())),
+        ("CoC image", (coc.width(), coc.height())),
+    ] {
+        if size != (w, h) {
+            return Err(Error::Mismatch(format!(
+                "{what} is {}x{} but the constants are for {w}x{h}",
+                size.0, size.1
+            )));
+        }
+    }
+    let (qw, qh) = quarter_size(w, h);
+    for (what, q) in [("medium image", medium), ("large image", large)] {
+        q.check()?;
+        if (q.width(), q.height()) != (qw, qh) {
+            return Err(Error::Mismatch(format!(
+                "{what} is {}x{} but a {w}x{h} frame needs {qw}x{qh}",
+                q.width(),
+                q.height()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Bilinear sampling of a quarter-res axis of `n` texels at full-res pixel `i`: texel j is
+/// centred at full-res position 4j + 2, so the texel coordinate is `(i + 0.5) / 4 - 0.5`,
+/// clamped to the edge. Returns the two texels and the weight of the second.
+#[inline]
+fn quarter_tap(i: usize, n: usize) -> (usize, usize, f32) {
+    let u = ((i as f32 + 0.5) * 0.25 - 0.5).max(0.0);
+    let i0 = (u as usize).min(n - 1);
+    let i1 = (i0 + 1).min(n - 1);
+    (i0, i1, u - i0 as f32)
+}
+
+/// `a + f (b - a)` per channel (exact when `a == b`).
+#[inline(always)]
+fn lerp4(a: Rgba, b: Rgba, f: f32) -> Rgba {
+    [
+        a[0] + f * (b[0] - a[0]),
+        a[1] + f * (b[1] - a[1]),
+        a[2] + f * (b[2] - a[2]),
+        a[3] + f * (b[3] - a[3]),
+    ]
+}
+
+/// The larger of `a` and `b`, without `f32::max`'s NaN handling (one `maxss`).
+#[inline(always)]
+fn max(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The blend segments of `t`: boundaries `d0`, `d0 + d1` (and 1) and the inverse widths.
+#[derive(Clone, Copy, Debug)]
+struct Segments {
+    d0: f32,
+    d01: f32,
+    inv_d0: f32,
+    inv_d1: f32,
+    inv_d2: f32,
+}
+
+impl Segments {
+    fn new(d: LerpDistances) -> Self {
+        Self {
+            d0: d.d0,
+            d01: d.d0 + d.d1,
+            inv_d0: 1.0 / d.d0,
+            inv_d1: 1.0 / d.d1,
+            inv_d2: 1.0 / d.d2,
+        }
+    }
+}
+
+/// `acc += w p` per channel.
+#[inline(always)]
+fn add_scaled(acc: &mut Rgba, w: f32, p: Rgba) {
+    for (a, v) in acc.iter_mut().zip(p) {
+        *a += w * v;
+    }
+}
+
+/// The 17-pixel small blur of fig. 28-5 at column `x`, from rows `y - 2..=y + 2` (clamped).
+#[inline(always)]
+fn small_blur(rows: &[&[Rgba]; 5], x: usize) -> Rgba {
+    let last = rows[0].len() - 1;
+    let (xm2, xm1) = (x.saturating_sub(2), x.saturating_sub(1));
+    let (xp1, xp2) = ((x + 1).min(last), (x + 2).min(last));
+    let mut sum = [0.0f32; 4];
+    let mut add = |p: Rgba| add_scaled(&mut sum, 1.0, p);
+    add(rows[0][x]);
+    add(rows[0][xp1]);
+    add(rows[1][xm2]);
+    add(rows[1][xm1]);
+    add(rows[1][x]);
+    add(rows[1][xp1]);
+    add(rows[2][xm2]);
+    add(rows[2][xm1]);
+    add(rows[2][x]);
+    add(rows[2][xp1]);
+    add(rows[2][xp2]);
+    add(rows[3][xm1]);
+    add(rows[3][x]);
+    add(rows[3][xp1]);
+    add(rows[3][xp2]);
+    add(rows[4][xm1]);
+    add(rows[4][x]);
+    sum.map(|v| v * (1.0 / 17.0))
+}
+
+/// Horizontal bilinear upsampling by 4 in groups: output pixel `4q + j` lies between texels
+/// `q - 1 + UPSAMPLE_LEFT[j]` and the next, at fraction `UPSAMPLE_FRACTION[j]` (texel coordinate
+/// `(4q + j + 0.5) / 4 - 0.5`). Indices are into a row padded with one clamped texel at each end,
+/// so group q reads padded texels `q..q + 3` and never needs a clamp.
+const UPSAMPLE_LEFT: [usize; 4] = [0, 0, 1, 1];
+/// See [`UPSAMPLE_LEFT`].
+const UPSAMPLE_FRACTION: [f32; 4] = [0.625, 0.875, 0.125, 0.375];
+
+/// Fills `padded` (length `n + 2`) with `lerp(a, b, f)` and one copy of the first and last
+/// values at the ends (clamp to edge).
+#[inline(always)]
+fn pad_lerp<T: Copy>(padded: &mut [T], a: &[T], b: &[T], lerp: impl Fn(T, T) -> T) {
+    let n = a.len();
+    for ((p, &a), &b) in padded[1..=n].iter_mut().zip(a).zip(b) {
+        *p = lerp(a, b);
+    }
+    padded[0] = padded[1];
+    padded[n + 1] = padded[n];
+}
+
+/// Blends unblurred, small, medium and large blur per pixel by the blur amount (Listing 28-4).
+pub fn composite(
+    color: &ColorImage,
+    coc: &GrayImage,
+    medium: &QuarterImage,
+    large: &QuarterImage,
+    k: &Constants,
+) -> Result<ColorImage> {
+    check_sizes(color, coc, medium, large, k)?;
+    let (w, h) = (color.width(), color.height());
+    let (qw, qh) = (medium.width(), medium.height());
+    let seg = Segments::new(k.lerp_distances());
+    let mut out = vec![[0.0f32; 4]; w * h];
+    out.par_chunks_mut(w).enumerate().for_each_init(
+        || {
+            (
+                vec![[0.0f32; 4]; qw + 2],
+                vec![0.0f32; qw + 2],
+                vec![[0.0f32; 4]; qw + 2],
+            )
+        },
+        |(med_c, med_k, large_c), (y, out_row)| {
+            // The quarter-res rows interpolated vertically at this row, padded.
+            let (y0, y1, fy) = quarter_tap(y, qh);
+            let lerp1 = |a: f32, b: f32| a + fy * (b - a);
+            let lerp = |a: Rgba, b: Rgba| lerp4(a, b, fy);
+            pad_lerp(med_c, medium.color.row(y0), medium.color.row(y1), lerp);
+            pad_lerp(med_k, medium.coc.row(y0), medium.coc.row(y1), lerp1);
+            pad_lerp(large_c, large.color.row(y0), large.color.row(y1), lerp);
+            let rows = [-2isize, -1, 0, 1, 2]
+                .map(|dy| color.row((y as isize + dy).clamp(0, h as isize - 1) as usize));
+            let groups = out_row
+                .chunks_mut(4)
+                .zip(coc.row(y).chunks(4))
+                .zip(rows[2].chunks(4))
+                .zip(
+                    med_c
+                        .windows(3)
+                        .zip(med_k.windows(3))
+                        .zip(large_c.windows(3)),
+                );
+            for (q, (((out4, s4), unblurred4), ((mc, mk), lc))) in groups.enumerate() {
+                for (j, (o, (&s, &unblurred))) in
+                    out4.iter_mut().zip(s4.iter().zip(unblurred4)).enumerate()
+                {
+                    let (l, f) = (UPSAMPLE_LEFT[j], UPSAMPLE_FRACTION[j]);
+                    let near = mk[l] + f * (mk[l + 1] - mk[l]);
+                    let t = max(near, s);
+                    if t.is_nan() || t <= 0.0 {
+                        *o = unblurred;
+                        continue;
+                    }
+                    let small = || small_blur(&rows, 4 * q + j);
+                    let med = || lerp4(mc[l], mc[l + 1], f);
+                    let big = || lerp4(lc[l], lc[l + 1], f);
+                    // The segment of t gives the two levels with non-zero weight.
+                    let acc = if t < seg.d0 {
+                        lerp4(unblurred, small(), t * seg.inv_d0)
+                    } else if t < seg.d01 {
+                        lerp4(small(), med(), (t - seg.d0) * seg.inv_d1)
+                    } else if t < 1.0 {
+                        lerp4(med(), big(), (t - seg.d01) * seg.inv_d2)
+                    } else {
+                        big()
+                    };
+                    *o = acc;
+                }
+            }
+        },
+    );
+    ColorImage::from_vec(w, h, out)
+}
+
+/// Bilinear sample of `img` at (`u`, `v`) in texel units (texel i covers [i, i + 1)), clamped
+/// to the edge as a GPU sampler with clamp addressing.
+fn bilinear<const N: usize>(img: &crate::image::Image<[f32; N]>, u: f32, v: f32) -> [f32; N] {
+    let (fu, fv) = (u - 0.5, v - 0.5);
+    let (i0, j0) = (fu.floor(), fv.floor());
+    let (ax, ay) = (fu - i0, fv - j0);
+    let (i0, j0) = (i0 as isize, j0 as isize);
+    let mut out = [0.0f32; N];
+    for (dj, wy) in [(0, 1.0 - ay), (1, ay)] {
+        for (di, wx) in [(0, 1.0 - ax), (1, ax)] {
+            let p = img.get_clamped(i0 + di, j0 + dj);
+            for (o, v) in out.iter_mut().zip(p) {
+                *o += wx * wy * v;
+            }
+        }
+    }
+    out
+}
+
+/// The straightforward twin of [`composite`], written from Listing 28-4: four bilinear taps
+/// for the small blur, bilinear medium and large samples, `dofLerpScale/Bias` rebuilt from d0,
+/// d1, d2, and the frame-buffer blend `out = colour + (1 - alpha) unblurred` with
+/// `alpha = 16/17 w_small + w_medium + w_large`. Kept to test the fast version against.
+pub fn naive(
+    color: &ColorImage,
+    coc: &GrayImage,
+    medium: &QuarterImage,
+    large: &QuarterImage,
+    k: &Constants,
+) -> Result<ColorImage> {
+    check_sizes(color, coc, medium, large, k)?;
+    let (w, h) = (color.width(), color.height());
+    let (scale, bias) = k.lerp_distances().scale_bias();
+    let near_image = medium.coc.map(|v| [v]);
+    let mut out = ColorImage::new(w, h, [0.0; 4]);
+    for y in 0..h {
+        for x in 0..w {
+            let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
+            let mut small = [0.0f32; 4];
+            for (ox, oy) in [(0.5, -1.5), (-1.5, -0.5), (-0.5, 1.5), (1.5, 0.5)] {
+                let tap = bilinear(color, px + ox, py + oy);
+                for (s, v) in small.iter_mut().zip(tap) {
+                    *s += 4.0 / 17.0 * v;
+                }
+            }
+            let (qu, qv) = (px / 4.0, py / 4.0);
+            let med = bilinear(&medium.color, qu, qv);
+            let big = bilinear(&large.color, qu, qv);
+            let near = bilinear(&near_image, qu, qv)[0];
+            let t = near.max(coc.get(x, y).max(0.0));
+            let mut wt = [0.0f32; 4];
+            for i in 0..4 {
+                wt[i] = saturate(t * scale[i] + bias[i]);
+            }
+            let (wy, wz) = (wt[1].min(1.0 - wt[0]), wt[2].min(1.0 - wt[1]));
+            let alpha = wy * 16.0 / 17.0 + wz + wt[3];
+            let unblurred = color.get(x, y);
+            let mut o = [0.0f32; 4];
+            for c in 0..4 {
+                o[c] = wy * small[c] + wz * med[c] + wt[3] * big[c] + (1.0 - alpha) * unblurred[c];
+            }
+            *out.get_mut(x, y) = o;
+        }
+    }
+    Ok(out)
+}

@@ -1,0 +1,641 @@
+//! The spatially varying low-rank filter of depth of field and tilt-shift (McGraw section 4,
+//! "Tilt-shift postprocessing" and "Depth-of-field", fig. 15).
+//!
+//! The paper filters each pixel with the low-rank kernel scaled to the pixel's CoC diameter, as a
+//! horizontal then a vertical 1D pass (accepting the artifacts of a spatially varying separable
+//! filter where the CoC changes slowly), and flags pixels near depth discontinuities for a full
+//! 2D solution.
+//!
+//! # How a kernel is scaled per pixel
+//! One base kernel is decomposed ([`super::decompose`]); its scaled singular vectors are read as
+//! piecewise-constant functions on the unit aperture [-1, 1] (base pixel `k` of `N` covers
+//! `[-1 + 2k/N, -1 + 2(k+1)/N]`). For a CoC radius `R`, the weight of the tap at offset `d`
+//! pixels is the integral of that function over the tap's footprint `[d - 1/2, d + 1/2] / R`.
+//! The product of the horizontal and vertical taps is then exactly the rank-r approximation of
+//! the base kernel box-filtered onto the pixels of a kernel of radius `R` (diameter `2R`, as
+//! `reference`), so the bokeh edge stays anti-aliased at every size. Radii are quantised to
+//! 1/[`LEVELS_PER_PX`] pixel, and the taps of every level are tabulated once per frame
+//! ([`KernelBank`]). A pixel with a negative CoC (in front of the focal plane) uses the taps
+//! mirrored, `w(-d)`: its bokeh is the aperture turned 180 degrees.
+//!
+//! The horizontal taps are divided by the sum of the rank-r kernel, `sum_i (sum u'_i)(sum
+//! v'_i)`, so that every pixel's rank-r kernel sums to exactly 1 whatever its radius: a
+//! constant image stays constant through a spatially varying filter.
+//!
+//! # Gather, per receiving pixel
+//! Both passes use the kernel of the pixel being written: `U_i(x, y) = sum_d h_i(d; C(x, y))
+//! img(x - d, y)`, then `out(x, y) = sum_i sum_d v_i(d; C(x, y)) U_i(x, y - d)`, with
+//! clamp-to-edge borders. Where the CoC is constant this is exactly the convolution with the
+//! rank-r kernel of that radius. Pixels whose kernel lies inside the pixel itself (radius at
+//! most 1/2 px) are copied unchanged.
+//!
+//! # Depth-discontinuity mask (fig. 15)
+//! [`edges`] marks the pixels whose CoC differs from a 4-neighbour's by more than a threshold
+//! (finite differences of the CoC, which is an affine function of inverse depth, so one
+//! threshold in pixels suits every scene). The edge image is filtered with the colour, as a
+//! fifth channel of the same passes, so each pixel learns how much of its own kernel lies on
+//! depth edges; thresholding that gives the mask.
+//!
+//! # Cache use
+//! Neighbouring pixels mostly share a kernel (a surface at one depth has one CoC level), so
+//! both passes split each row into runs of pixels with the same kernel and apply each tap to a
+//! whole run at once, `acc[a..b] += w * src[..]` over contiguous floats, which the compiler
+//! vectorises. The horizontal pass reads a clamp-padded copy of the row; the vertical pass reads,
+//! for each tap, the same columns of an intermediate row, so it needs no transpose, and walks
+//! blocks of rows in column strips as [`super::filter`] does, so its source rows stay in cache.
+//! [`naive`] is the straightforward per-pixel twin, with its own tap integration.
+
+use rayon::prelude::*;
+
+use super::filter::{filter_span, filter_span_add, ROW_BLOCK, STRIP_PX};
+use super::svd::LowRank;
+use crate::image::{ColorImage, GrayImage, Rgba};
+use crate::timing::Timings;
+use crate::{Error, Result};
+
+/// Largest tap table of a [`KernelBank`], in floats (each of the two tables: 256 MB).
+pub const MAX_BANK_FLOATS: usize = 1 << 26;
+
+/// CoC radii are quantised to steps of 1 / `LEVELS_PER_PX` pixel.
+pub const LEVELS_PER_PX: f32 = 4.0;
+
+/// Number of taps on each side of the centre for a kernel of radius `radius_px`: the taps whose
+/// footprint `[d - 1/2, d + 1/2]` overlaps `(-R, R)`.
+pub fn half_taps(radius_px: f32) -> usize {
+    if radius_px <= 0.5 {
+        0
+    } else {
+        (radius_px + 0.5).ceil() as usize - 1
+    }
+}
+
+/// Number of quantised radius levels needed for radii up to `max_radius_px`.
+pub fn level_count(max_radius_px: f32) -> usize {
+    (max_radius_px.max(0.0) * LEVELS_PER_PX).ceil() as usize + 1
+}
+
+/// Level of a CoC radius `|coc_px|` (0 to `levels - 1`).
+#[inline]
+pub fn level_of(coc_px: f32, levels: usize) -> usize {
+    ((coc_px.abs() * LEVELS_PER_PX).round() as usize).min(levels - 1)
+}
+
+/// Radius in pixels of level `level`.
+#[inline]
+pub fn level_radius_px(level: usize) -> f32 {
+    level as f32 / LEVELS_PER_PX
+}
+
+/// The tap tables of every radius level for one decomposed kernel at one rank.
+#[derive(Clone, Debug)]
+pub struct KernelBank {
+    rank: usize,
+    levels: usize,
+    nmax: usize,
+    stride: usize,
+    half: Vec<usize>,
+    /// `[(sign * levels + level) * rank + i] * stride + j`, the weight of offset `nmax - j`
+    /// (far field, sign 0) or `j - nmax` (near field, sign 1), 0 beyond the level's taps.
+    horizontal: Vec<f32>,
+    vertical: Vec<f32>,
+}
+
+/// Integral of the piecewise-constant function `base` on [-1, 1] from -1 to `t`, by the
+/// cumulative sums `cum` (`cum[k]` = sum of the first `k` entries).
+fn integral_to(base: &[f64], cum: &[f64], t: f64) -> f64 {
+    let n = base.len() as f64;
+    let tau = ((t + 1.0) * 0.5 * n).clamp(0.0, n);
+    let k = tau.floor() as usize;
+    if k >= base.len() {
+        cum[base.len()]
+    } else {
+        cum[k] + (tau - k as f64) * base[k]
+    }
+}
+
+/// Far-field taps `w(d)`, `d = -n..=n`, of `base` scaled to radius `radius_px`.
+fn far_taps(base: &[f64], radius_px: f64, n: usize) -> Vec<f64> {
+    let mut cum = vec![0.0; base.len() + 1];
+    for (k, &b) in base.iter().enumerate() {
+        cum[k + 1] = cum[k] + b;
+    }
+    if radius_px <= 0.0 {
+        return vec![cum[base.len()]];
+    }
+    (-(n as i64)..=n as i64)
+        .map(|d| {
+            let t0 = (d as f64 - 0.5) / radius_px;
+            let t1 = (d as f64 + 0.5) / radius_px;
+            integral_to(base, &cum, t1) - integral_to(base, &cum, t0)
+        })
+        .collect()
+}
+
+/// The sum of the rank-`rank` kernel, checked to be usable as a divisor.
+fn rank_sum(lr: &LowRank, rank: usize) -> Result<f64> {
+    let sum = lr.approximation_sum(rank);
+    if sum.abs() < 1e-6 {
+        return Err(Error::invalid(
+            "rank",
+            format!("the rank-{rank} kernel sums to {sum}: it cannot be normalised"),
+        ));
+    }
+    Ok(sum)
+}
+
+impl KernelBank {
+    /// Tabulates the taps of `lr` at rank `rank` (1 to [`LowRank::len`]) for CoC radii up to
+    /// `max_radius_px` pixels.
+    pub fn new(lr: &LowRank, rank: usize, max_radius_px: f32) -> Result<Self> {
+        if rank == 0 || rank > lr.len() {
+            return Err(Error::invalid(
+                "rank",
+                format!("{rank}: expected 1 to {} for this kernel", lr.len()),
+            ));
+        }
+        if !(max_radius_px.is_finite() && max_radius_px >= 0.0) {
+            return Err(Error::invalid(
+                "max CoC",
+                format!("{max_radius_px} px: expected a finite radius >= 0"),
+            ));
+        }
+        let norm = rank_sum(lr, rank)?;
+        let levels = level_count(max_radius_px);
+        let half: Vec<usize> = (0..levels).map(|l| half_taps(level_radius_px(l))).collect();
+        let nmax = half[levels - 1];
+        let stride = 2 * nmax + 1;
+        let floats = 2 * levels * rank * stride;
+        if floats > MAX_BANK_FLOATS {
+            return Err(Error::invalid(
+                "rank",
+                format!(
+                    "rank {rank} with CoC radii up to {max_radius_px} px needs {} MB of tap tables: \
+                     lower the rank or the max CoC",
+                    2 * floats * 4 / (1 << 20)
+                ),
+            ));
+        }
+        let mut horizontal = vec![0.0f32; floats];
+        let mut vertical = vec![0.0f32; floats];
+        for (level, &n) in half.iter().enumerate() {
+            let radius = level_radius_px(level) as f64;
+            for i in 0..rank {
+                let (Some(hv), Some(vv)) = (lr.horizontal(i), lr.vertical(i)) else {
+                    break;
+                };
+                let h_taps = far_taps(hv, radius, n);
+                let v_taps = far_taps(vv, radius, n);
+                for sign in 0..2 {
+                    let row = ((sign * levels + level) * rank + i) * stride;
+                    for (t, (&hw, &vw)) in h_taps.iter().zip(&v_taps).enumerate() {
+                        // t indexes d = t - n; far field: j = nmax - d; near field: j = nmax + d.
+                        let d = t as i64 - n as i64;
+                        let j = if sign == 0 {
+                            nmax as i64 - d
+                        } else {
+                            nmax as i64 + d
+                        } as usize;
+                        horizontal[row + j] = (hw / norm) as f32;
+                        vertical[row + j] = vw as f32;
+                    }
+                }
+            }
+        }
+        Ok(Self {
+            rank,
+            levels,
+            nmax,
+            stride,
+            half,
+            horizontal,
+            vertical,
+        })
+    }
+
+    /// The rank the bank was built for.
+    pub fn rank(&self) -> usize {
+        self.rank
+    }
+
+    /// Number of radius levels.
+    pub fn levels(&self) -> usize {
+        self.levels
+    }
+
+    /// Taps on each side of the centre at the largest level.
+    pub fn max_half_taps(&self) -> usize {
+        self.nmax
+    }
+
+    /// Table key of a pixel with signed CoC `coc_px`: `sign * levels + level`.
+    #[inline]
+    pub fn key(&self, coc_px: f32) -> u32 {
+        let level = level_of(coc_px, self.levels);
+        (usize::from(coc_px < 0.0) * self.levels + level) as u32
+    }
+
+    /// Half taps of the pixel with table key `key`.
+    #[inline]
+    fn half_of(&self, key: u32) -> usize {
+        self.half[key as usize % self.levels]
+    }
+}
+
+/// Pass `edges`: 1 where the CoC differs from a 4-neighbour's by more than `threshold_px`
+/// pixels, else 0.
+pub fn edges(coc_px: &GrayImage, threshold_px: f32) -> GrayImage {
+    let (w, h) = (coc_px.width(), coc_px.height());
+    let mut out = GrayImage::new(w, h, 0.0);
+    if w == 0 || h == 0 {
+        return out;
+    }
+    out.pixels_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let c = coc_px.row(y);
+            for (x, e) in row.iter_mut().enumerate() {
+                let mut d = 0.0f32;
+                if x > 0 {
+                    d = d.max((c[x] - c[x - 1]).abs());
+                }
+                if x + 1 < w {
+                    d = d.max((c[x] - c[x + 1]).abs());
+                }
+                if y > 0 {
+                    d = d.max((c[x] - coc_px.get(x, y - 1)).abs());
+                }
+                if y + 1 < h {
+                    d = d.max((c[x] - coc_px.get(x, y + 1)).abs());
+                }
+                *e = f32::from(u8::from(d > threshold_px));
+            }
+        });
+    out
+}
+
+/// The intermediate image `U_i` of one rank (colour, and the edge channel when there is an edge
+/// image), reused from rank to rank, with each pixel's table key.
+#[derive(Clone, Debug)]
+pub struct Intermediate {
+    width: usize,
+    height: usize,
+    keys: Vec<u32>,
+    colour: Vec<Rgba>,
+    edges: Vec<f32>,
+}
+
+impl Intermediate {
+    /// Buffers for `color`'s size and the table keys of `coc_px` in `bank`.
+    pub fn new(coc_px: &GrayImage, bank: &KernelBank, with_edges: bool) -> Self {
+        let (w, h) = (coc_px.width(), coc_px.height());
+        Self {
+            width: w,
+            height: h,
+            keys: coc_px.pixels().iter().map(|&c| bank.key(c)).collect(),
+            colour: vec![[0.0; 4]; w * h],
+            edges: vec![0.0; if with_edges { w * h } else { 0 }],
+        }
+    }
+}
+
+/// Passes `horizontal` and `vertical` for every rank, one rank after the other (fig. 2: one
+/// intermediate image, the vertical results accumulated into the output), then the final
+/// touch: pixels with no taps beyond their own get `color` back exactly, and negative results
+/// of the low-rank kernel's ringing are clamped to 0. Returns the image and, with an edge
+/// image, the filtered edge image. `edge_image` and `coc_px` must have the size of `color`.
+pub fn filter(
+    color: &ColorImage,
+    edge_image: Option<&GrayImage>,
+    coc_px: &GrayImage,
+    bank: &KernelBank,
+    timings: &mut Timings,
+) -> (ColorImage, Option<GrayImage>) {
+    let (w, h) = (color.width(), color.height());
+    let mut inter = Intermediate::new(coc_px, bank, edge_image.is_some());
+    let mut out = ColorImage::new(w, h, [0.0; 4]);
+    let mut edge_out = edge_image.map(|_| GrayImage::new(w, h, 0.0));
+    for i in 0..bank.rank {
+        timings.time("lowrank/horizontal", || {
+            horizontal(color, edge_image, bank, i, &mut inter)
+        });
+        timings.time("lowrank/vertical", || {
+            vertical(&inter, bank, i, &mut out, edge_out.as_mut())
+        });
+    }
+    timings.time("lowrank/vertical", || finish(color, &inter, bank, &mut out));
+    (out, edge_out)
+}
+
+/// Pass `horizontal` for rank `i`: `U_i(x, y) = sum_d h_i(d; C(x, y)) img(x - d, y)`, and the
+/// same for the edge image when given, into `inter`.
+pub fn horizontal(
+    color: &ColorImage,
+    edge_image: Option<&GrayImage>,
+    bank: &KernelBank,
+    i: usize,
+    inter: &mut Intermediate,
+) {
+    let w = inter.width;
+    if w == 0 || inter.height == 0 || i >= bank.rank {
+        return;
+    }
+    let keys = &inter.keys;
+    let row =
+        |y: usize, out_c: &mut [Rgba], out_e: Option<&mut [f32]>, bufs: &mut HorizontalScratch| {
+            let keys = &keys[y * w..(y + 1) * w];
+            let edge_row = edge_image.map(|e| e.row(y));
+            horizontal_row(bank, i, keys, color.row(y), edge_row, out_c, out_e, bufs);
+        };
+    if edge_image.is_some() && !inter.edges.is_empty() {
+        inter
+            .colour
+            .par_chunks_mut(w)
+            .zip(inter.edges.par_chunks_mut(w))
+            .enumerate()
+            .for_each_init(
+                || (Vec::new(), Vec::new(), Vec::new()),
+                |bufs, (y, (c, e))| row(y, c, Some(e), bufs),
+            );
+    } else {
+        inter.colour.par_chunks_mut(w).enumerate().for_each_init(
+            || (Vec::new(), Vec::new(), Vec::new()),
+            |bufs, (y, c)| row(y, c, None, bufs),
+        );
+    }
+}
+
+/// Copies `row` into `buf` with `n` clamped copies of its ends on each side.
+fn pad<T: Copy>(row: &[T], n: usize, buf: &mut Vec<T>) {
+    buf.clear();
+    buf.extend(std::iter::repeat(row[0]).take(n));
+    buf.extend_from_slice(row);
+    buf.extend(std::iter::repeat(row[row.len() - 1]).take(n));
+}
+
+/// Splits `keys` into maximal runs of equal keys: `(start, end, key)`.
+fn runs(keys: &[u32]) -> impl Iterator<Item = (usize, usize, u32)> + '_ {
+    let mut start = 0;
+    std::iter::from_fn(move || {
+        let &key = keys.get(start)?;
+        let len = keys[start..].iter().take_while(|&&k| k == key).count();
+        let run = (start, start + len, key);
+        start += len;
+        Some(run)
+    })
+}
+
+/// Scratch buffers of one thread of the horizontal pass: padded colour and edge rows, and a
+/// tap list.
+type HorizontalScratch = (Vec<Rgba>, Vec<f32>, Vec<(f32, usize)>);
+
+/// One row of the horizontal pass for rank `i`, with the edge row when there is an edge
+/// image. Each run of pixels `[a, b)` sharing a kernel is one [`filter_span`]: tap `j` reads
+/// `padded[a + j..]`.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "one row of one rank: inputs, outputs and scratch, all used once"
+)]
+fn horizontal_row(
+    bank: &KernelBank,
+    i: usize,
+    keys: &[u32],
+    colour_row: &[Rgba],
+    edge_row: Option<&[f32]>,
+    out_c: &mut [Rgba],
+    out_e: Option<&mut [f32]>,
+    (padded_c, padded_e, list): &mut HorizontalScratch,
+) {
+    let (nmax, stride, r) = (bank.nmax, bank.stride, bank.rank);
+    pad(colour_row, nmax, padded_c);
+    if let Some(e) = edge_row {
+        pad(e, nmax, padded_e);
+    }
+    let mut out_e = out_e;
+    for (a, b, key) in runs(keys) {
+        let n = bank.half_of(key);
+        let table = (key as usize * r + i) * stride;
+        list.clear();
+        for j in nmax - n..=nmax + n {
+            let wt = bank.horizontal[table + j];
+            if wt != 0.0 {
+                list.push((wt, a + j));
+            }
+        }
+        if let Some(e) = out_e.as_deref_mut() {
+            filter_span(&mut e[a..b], list, padded_e);
+        }
+        for t in list.iter_mut() {
+            t.1 *= 4;
+        }
+        filter_span(
+            out_c[a..b].as_flattened_mut(),
+            list,
+            padded_c.as_flattened(),
+        );
+    }
+}
+
+/// Pass `vertical` for rank `i`: `out(x, y) (+)= sum_d v_i(d; C(x, y)) U_i(x, y - d)`,
+/// overwriting `out` for rank 0 and accumulating for the others, and the same for the edge
+/// channel into `edge_out`. Rows are walked in blocks and column strips as in the separable
+/// filter, and each run of pixels sharing a kernel within a strip is one [`filter_span`].
+pub fn vertical(
+    inter: &Intermediate,
+    bank: &KernelBank,
+    i: usize,
+    out: &mut ColorImage,
+    edge_out: Option<&mut GrayImage>,
+) {
+    let (w, h, r) = (inter.width, inter.height, bank.rank);
+    if w == 0 || h == 0 || i >= r || (out.width(), out.height()) != (w, h) {
+        return;
+    }
+    let edge_out = edge_out.filter(|e| e.same_size(out) && !inter.edges.is_empty());
+    let first = i == 0;
+    let row = |y: usize,
+               x0: usize,
+               out_c: &mut [Rgba],
+               mut out_e: Option<&mut [f32]>,
+               list: &mut Vec<(f32, usize)>| {
+        let x1 = x0 + out_c.len();
+        let keys = &inter.keys[y * w + x0..y * w + x1];
+        let (nmax, stride) = (bank.nmax, bank.stride);
+        for (a, b, key) in runs(keys) {
+            let n = bank.half_of(key);
+            list.clear();
+            for j in nmax - n..=nmax + n {
+                let yy = (y + j).saturating_sub(nmax).min(h - 1);
+                let wt = bank.vertical[(key as usize * r + i) * stride + j];
+                if wt != 0.0 {
+                    list.push((wt, yy * w + x0 + a));
+                }
+            }
+            if let Some(e) = out_e.as_deref_mut() {
+                if first {
+                    filter_span(&mut e[a..b], list, &inter.edges);
+                } else {
+                    filter_span_add(&mut e[a..b], list, &inter.edges);
+                }
+            }
+            for t in list.iter_mut() {
+                t.1 *= 4;
+            }
+            let acc = out_c[a..b].as_flattened_mut();
+            if first {
+                filter_span(acc, list, inter.colour.as_flattened());
+            } else {
+                filter_span_add(acc, list, inter.colour.as_flattened());
+            }
+        }
+    };
+    let block = |list: &mut Vec<(f32, usize)>,
+                 index: usize,
+                 colour_rows: &mut [Rgba],
+                 mut edge_rows: Option<&mut [f32]>| {
+        let y0 = index * ROW_BLOCK;
+        for x0 in (0..w).step_by(STRIP_PX) {
+            let x1 = (x0 + STRIP_PX).min(w);
+            for (dy, c) in colour_rows.chunks_mut(w).enumerate() {
+                let e = edge_rows
+                    .as_deref_mut()
+                    .map(|e| &mut e[dy * w + x0..dy * w + x1]);
+                row(y0 + dy, x0, &mut c[x0..x1], e, list);
+            }
+        }
+    };
+    match edge_out {
+        Some(e) => out
+            .pixels_mut()
+            .par_chunks_mut(ROW_BLOCK * w)
+            .zip(e.pixels_mut().par_chunks_mut(ROW_BLOCK * w))
+            .enumerate()
+            .for_each_init(Vec::new, |list, (i, (c, e))| block(list, i, c, Some(e))),
+        None => out
+            .pixels_mut()
+            .par_chunks_mut(ROW_BLOCK * w)
+            .enumerate()
+            .for_each_init(Vec::new, |list, (i, c)| block(list, i, c, None)),
+    }
+}
+
+/// After the last rank: pixels whose kernel lies inside the pixel (no taps beyond their own)
+/// get `color` back exactly; the others are clamped to 0 from below.
+fn finish(color: &ColorImage, inter: &Intermediate, bank: &KernelBank, out: &mut ColorImage) {
+    let w = inter.width;
+    if w == 0 || !out.same_size(color) {
+        return;
+    }
+    out.pixels_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let keys = &inter.keys[y * w..(y + 1) * w];
+            for (x, (o, &key)) in row.iter_mut().zip(keys).enumerate() {
+                if bank.half_of(key) == 0 {
+                    *o = color.get(x, y);
+                } else {
+                    *o = o.map(|v| v.max(0.0));
+                }
+            }
+        });
+}
+
+/// Taps of `base` scaled to `radius_px`, by summing the overlap of each base cell with each
+/// tap's footprint (the naive twin of the cumulative-sum integration of [`KernelBank`]).
+fn naive_taps(base: &[f64], radius_px: f64, n: usize) -> Vec<f64> {
+    let nb = base.len() as f64;
+    if radius_px <= 0.0 {
+        return vec![base.iter().sum()];
+    }
+    (-(n as i64)..=n as i64)
+        .map(|d| {
+            let a = ((d as f64 - 0.5) / radius_px).max(-1.0);
+            let b = ((d as f64 + 0.5) / radius_px).min(1.0);
+            base.iter()
+                .enumerate()
+                .map(|(k, &v)| {
+                    let c0 = -1.0 + 2.0 * k as f64 / nb;
+                    let c1 = -1.0 + 2.0 * (k + 1) as f64 / nb;
+                    let overlap = (b.min(c1) - a.max(c0)).max(0.0);
+                    v * overlap / (2.0 / nb)
+                })
+                .sum()
+        })
+        .collect()
+}
+
+/// Per-pixel twin of [`horizontal`] followed by [`vertical`], written from the equations in
+/// f64 with the same quantisation of radii: returns the image and the filtered edge image.
+pub fn naive(
+    color: &ColorImage,
+    edge_image: Option<&GrayImage>,
+    coc_px: &GrayImage,
+    lr: &LowRank,
+    rank: usize,
+    max_radius_px: f32,
+) -> Result<(ColorImage, Option<GrayImage>)> {
+    let (w, h) = (color.width(), color.height());
+    let norm = rank_sum(lr, rank)?;
+    let levels = level_count(max_radius_px);
+    // Taps of pixel (x, y) for rank i: (horizontal, vertical), index d + n.
+    let taps = |x: usize, y: usize, i: usize| -> (Vec<f64>, Vec<f64>, usize) {
+        let c = coc_px.get(x, y);
+        let level = level_of(c, levels);
+        let radius = level_radius_px(level) as f64;
+        let n = half_taps(level_radius_px(level));
+        let mut ht = naive_taps(lr.horizontal(i).unwrap_or(&[]), radius, n);
+        let mut vt = naive_taps(lr.vertical(i).unwrap_or(&[]), radius, n);
+        if c < 0.0 {
+            ht.reverse();
+            vt.reverse();
+        }
+        (ht, vt, n)
+    };
+    let clamp = |v: i64, n: usize| v.clamp(0, n as i64 - 1) as usize;
+    let mut u = vec![vec![[0.0f64; 5]; w * h]; rank];
+    for y in 0..h {
+        for x in 0..w {
+            for (i, ui) in u.iter_mut().enumerate() {
+                let (ht, _, n) = taps(x, y, i);
+                for (t, &wt) in ht.iter().enumerate() {
+                    let d = t as i64 - n as i64;
+                    let sx = clamp(x as i64 - d, w);
+                    let p = color.get(sx, y);
+                    let e = edge_image.map_or(0.0, |e| e.get(sx, y));
+                    let acc = &mut ui[y * w + x];
+                    for k in 0..4 {
+                        acc[k] += wt / norm * p[k] as f64;
+                    }
+                    acc[4] += wt / norm * e as f64;
+                }
+            }
+        }
+    }
+    let mut out = ColorImage::new(w, h, [0.0; 4]);
+    let mut edge_out = GrayImage::new(w, h, 0.0);
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = [0.0f64; 5];
+            let mut n_here = 0;
+            for (i, ui) in u.iter().enumerate() {
+                let (_, vt, n) = taps(x, y, i);
+                n_here = n;
+                for (t, &wt) in vt.iter().enumerate() {
+                    let d = t as i64 - n as i64;
+                    let p = ui[clamp(y as i64 - d, h) * w + x];
+                    for k in 0..5 {
+                        acc[k] += wt * p[k];
+                    }
+                }
+            }
+            *out.get_mut(x, y) = if n_here == 0 {
+                color.get(x, y)
+            } else {
+                [acc[0], acc[1], acc[2], acc[3]].map(|v| v.max(0.0) as f32)
+            };
+            *edge_out.get_mut(x, y) = acc[4] as f32;
+        }
+    }
+    Ok((out, edge_image.map(|_| edge_out)))
+}

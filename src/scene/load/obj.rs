@@ -1,0 +1,294 @@
+//! Wavefront OBJ + MTL (read with `tobj`) to a [`Scene`].
+//!
+//! Materials, as unlit glTF-style ones:
+//! - `Kd` base colour (default 0.8 grey, or white under a `map_Kd`), `map_Kd` its sRGB texture;
+//! - `d` opacity, or `Tr` (transparency, 1 - d) when `d` is absent; `map_d` an opacity texture
+//!   (its alpha channel if it has transparency, else its grey level, linear);
+//! - alpha mode: blend when the opacity factor is below 1, else alpha test at 0.5 when there is a
+//!   `map_d`, else opaque;
+//! - `Ke` emission, `map_Ke` its sRGB texture.
+//!
+//! OBJ texture coordinates have v = 0 at the bottom of the image; they are flipped to glTF's
+//! top-left convention. Faces are triangulated and all materials are double-sided (OBJ says
+//! nothing about culling). Texture options before a map's file name (`-s`, `-o`, `-bm`, ...) are
+//! skipped.
+
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+use super::image_file::{self, Encoding};
+use super::SceneFile;
+use crate::image::ColorImage;
+use crate::scene::{
+    AlphaMode, Material, Mesh, Scene, Texture, TextureBinding, TextureSampler, UvTransform,
+};
+use crate::{Error, Result};
+
+/// A texture to build: colour from one image, alpha (optionally) from another.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+struct TextureJob {
+    color: Option<PathBuf>,
+    alpha: Option<PathBuf>,
+}
+
+/// Loads an OBJ file and the MTL libraries it names.
+pub(super) fn load(path: &Path) -> Result<SceneFile> {
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let dir = path.parent().unwrap_or(Path::new(""));
+    let mtl_error: RefCell<Option<String>> = RefCell::new(None);
+    let options = tobj::LoadOptions {
+        single_index: true,
+        triangulate: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let (models, materials) =
+        tobj::load_obj_buf(&mut BufReader::new(file), &options, |mtl: &Path| {
+            let full = dir.join(mtl);
+            let result = File::open(&full).map_err(|e| e.to_string()).and_then(|f| {
+                tobj::load_mtl_buf(&mut BufReader::new(f)).map_err(|e| e.to_string())
+            });
+            result.map_err(|message| {
+                mtl_error
+                    .borrow_mut()
+                    .get_or_insert(format!("material library {}: {message}", full.display()));
+                tobj::LoadError::OpenFileFailed
+            })
+        })
+        .map_err(|e| Error::format(path, format!("not a readable OBJ file: {e}")))?;
+    if let Some(message) = mtl_error.into_inner() {
+        return Err(Error::format(path, message));
+    }
+    let materials = materials.map_err(|e| Error::format(path, format!("material library: {e}")))?;
+
+    let mut scene = Scene {
+        name: path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        ..Scene::default()
+    };
+    let mut jobs: Vec<TextureJob> = Vec::new();
+    let mut job_index: HashMap<TextureJob, usize> = HashMap::new();
+    let mut bind = |job: TextureJob| {
+        let next = jobs.len();
+        let i = *job_index.entry(job.clone()).or_insert(next);
+        if i == next {
+            jobs.push(job);
+        }
+        TextureBinding {
+            texture: i,
+            sampler: TextureSampler::default(),
+            uv_transform: UvTransform::default(),
+        }
+    };
+    for m in &materials {
+        let what = format!("material '{}'", m.name);
+        let map_kd = m.diffuse_texture.as_deref().map(|s| dir.join(map_file(s)));
+        let map_d = m.dissolve_texture.as_deref().map(|s| dir.join(map_file(s)));
+        let map_ke = m.unknown_param.get("map_Ke").map(|s| dir.join(map_file(s)));
+        let kd = m
+            .diffuse
+            .unwrap_or(if map_kd.is_some() { [1.0; 3] } else { [0.8; 3] });
+        let opacity = match (m.dissolve, m.unknown_param.get("Tr")) {
+            (Some(d), _) => d,
+            (None, Some(tr)) => {
+                let tr: f32 = tr.trim().parse().map_err(|_| {
+                    Error::format(path, format!("{what}: Tr '{tr}': expected a number"))
+                })?;
+                1.0 - tr
+            }
+            (None, None) => 1.0,
+        };
+        let ke = m
+            .emissive
+            .unwrap_or(if map_ke.is_some() { [1.0; 3] } else { [0.0; 3] });
+        for (field, values) in [("Kd", &kd[..]), ("Ke", &ke[..]), ("d", &[opacity][..])] {
+            if !values.iter().all(|v| v.is_finite() && *v >= 0.0) {
+                return Err(Error::format(
+                    path,
+                    format!("{what}: {field} {values:?}: expected finite values of at least 0"),
+                ));
+            }
+        }
+        let alpha_mode = if opacity < 1.0 {
+            AlphaMode::Blend
+        } else if map_d.is_some() {
+            AlphaMode::Mask { cutoff: 0.5 }
+        } else {
+            AlphaMode::Opaque
+        };
+        let base_color_texture = (map_kd.is_some() || map_d.is_some()).then(|| {
+            bind(TextureJob {
+                color: map_kd,
+                alpha: map_d,
+            })
+        });
+        let emissive_texture = map_ke.map(|p| {
+            bind(TextureJob {
+                color: Some(p),
+                alpha: None,
+            })
+        });
+        scene.add_material(Material {
+            name: m.name.clone(),
+            base_color: [kd[0], kd[1], kd[2], opacity.min(1.0)],
+            base_color_texture,
+            emissive: ke,
+            emissive_strength: 1.0,
+            emissive_texture,
+            alpha_mode,
+            double_sided: true,
+        });
+    }
+    let mut default_material = None;
+    for model in &models {
+        let mesh = &model.mesh;
+        let material = match mesh.material_id.filter(|&i| i < scene.materials.len()) {
+            Some(i) => i,
+            None => *default_material
+                .get_or_insert_with(|| scene.add_material(Material::color("default", [0.8; 3]))),
+        };
+        let what = format!("object '{}'", model.name);
+        let positions: Vec<Vec3> = mesh
+            .positions
+            .chunks_exact(3)
+            .map(Vec3::from_slice)
+            .collect();
+        let n = positions.len();
+        let uvs: Vec<Vec2> = if mesh.texcoords.len() == 2 * n {
+            mesh.texcoords
+                .chunks_exact(2)
+                .map(|t| Vec2::new(t[0], 1.0 - t[1]))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        if mesh.indices.len() % 3 != 0 {
+            return Err(Error::format(
+                path,
+                format!(
+                    "{what}: {} indices after triangulation: expected a multiple of 3",
+                    mesh.indices.len()
+                ),
+            ));
+        }
+        if let Some(&i) = mesh.indices.iter().find(|&&i| i as usize >= n) {
+            return Err(Error::format(
+                path,
+                format!("{what}: vertex index {i} is out of range: it has {n} vertices"),
+            ));
+        }
+        scene.meshes.push(Mesh {
+            positions,
+            uvs,
+            indices: mesh
+                .indices
+                .chunks_exact(3)
+                .map(|t| [t[0], t[1], t[2]])
+                .collect(),
+            material,
+        });
+    }
+    let textures: Vec<Result<Texture>> = jobs
+        .par_iter()
+        .map(|job| build_texture(path, job).map(Texture::new))
+        .collect();
+    for t in textures {
+        scene.add_texture(t?);
+    }
+    Ok(SceneFile {
+        scene,
+        cameras: Vec::new(),
+    })
+}
+
+/// The file name of a `map_*` statement, after any options (`-s 1 1 1`, `-bm 0.5`, ...).
+fn map_file(spec: &str) -> &str {
+    let mut rest = spec.trim();
+    while let Some(option) = rest.strip_prefix('-') {
+        let (name, after) = option
+            .split_once(char::is_whitespace)
+            .unwrap_or((option, ""));
+        // Options with up to three numbers (-o, -s, -t) take as many as follow; the others
+        // take a fixed count.
+        let (min_args, max_args) = match name {
+            "o" | "s" | "t" => (1, 3),
+            "mm" => (2, 2),
+            _ => (1, 1),
+        };
+        rest = after.trim_start();
+        for k in 0..max_args {
+            let (word, after) = rest.split_once(char::is_whitespace).unwrap_or((rest, ""));
+            if k >= min_args && word.parse::<f32>().is_err() {
+                break;
+            }
+            rest = after.trim_start();
+        }
+    }
+    rest
+}
+
+fn read_image(obj: &Path, file: &Path, encoding: Encoding) -> Result<ColorImage> {
+    let bytes = std::fs::read(file).map_err(|e| {
+        Error::format(
+            obj,
+            format!("texture {}: could not read it: {e}", file.display()),
+        )
+    })?;
+    image_file::decode(&bytes, encoding)
+        .map_err(|m| Error::format(obj, format!("texture {}: {m}", file.display())))
+}
+
+/// Builds a straight-alpha linear texture image: colour from `job.color` (sRGB, white if none),
+/// alpha from `job.alpha` (nearest texel when the sizes differ).
+fn build_texture(obj: &Path, job: &TextureJob) -> Result<ColorImage> {
+    let color = job
+        .color
+        .as_deref()
+        .map(|p| read_image(obj, p, Encoding::Srgb))
+        .transpose()?;
+    let alpha = job
+        .alpha
+        .as_deref()
+        .map(|p| read_image(obj, p, Encoding::Linear))
+        .transpose()?;
+    match (color, alpha) {
+        (Some(c), None) => Ok(c),
+        (color, Some(a)) => {
+            let use_alpha = a.pixels().iter().any(|p| p[3] < 1.0);
+            let opacity = |p: [f32; 4]| if use_alpha { p[3] } else { p[0] };
+            let mut out = color.unwrap_or_else(|| ColorImage::new(a.width(), a.height(), [1.0; 4]));
+            let (w, h) = (out.width(), out.height());
+            for y in 0..h {
+                let ay = y * a.height() / h;
+                for x in 0..w {
+                    let ax = x * a.width() / w;
+                    out.get_mut(x, y)[3] = opacity(a.get(ax, ay));
+                }
+            }
+            Ok(out)
+        }
+        (None, None) => Ok(ColorImage::new(1, 1, [1.0; 4])),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::map_file;
+
+    #[test]
+    fn map_options_are_skipped_and_names_with_spaces_kept() {
+        assert_eq!(map_file("tex.png"), "tex.png");
+        assert_eq!(map_file("-s 2 2 1 -o 0.5 tex.png"), "tex.png");
+        assert_eq!(map_file("-s 2 tex.png"), "tex.png");
+        assert_eq!(map_file("-bm 0.3 my bump.png"), "my bump.png");
+        assert_eq!(map_file("-clamp on -mm 0 1 leaf.png"), "leaf.png");
+    }
+}
