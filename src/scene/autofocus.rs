@@ -8,6 +8,7 @@
 //! the whole image.
 
 use super::Scene;
+use crate::image::GrayImage;
 use crate::lens::Camera;
 use crate::raster::{render_gbuffer, PreparedScene, View};
 use crate::{Error, Result};
@@ -57,8 +58,23 @@ pub fn focus_at_pixel(
     let lens = pinhole.thin_lens()?.pinhole();
     let prepared = PreparedScene::new(scene, &camera.camera_from_world)?;
     let depth = render_gbuffer(&prepared, &View::pinhole(lens)).depth;
+    Ok(focus_in_depth(&depth, x_px, y_px))
+}
+
+/// Depths at and beyond this many metres are background ("no hit"): renderers write a large
+/// finite value there (Blender 1e10), and our own depth passes write +inf.
+pub const BACKGROUND_DEPTH_M: f32 = 1e9;
+
+/// The median view-axis depth of the window around (`x_px`, `y_px`) of a depth image in
+/// metres, skipping holes (NaN, infinite, background and non-positive values); the window
+/// starts at [`WINDOW_PX`] and doubles until it finds a surface. `None` when the image has
+/// none, or the pixel is outside it.
+pub fn focus_in_depth(depth: &GrayImage, x_px: usize, y_px: usize) -> Option<FocusPick> {
+    if x_px >= depth.width() || y_px >= depth.height() {
+        return None;
+    }
     let mut window_px = WINDOW_PX;
-    let whole_image = 2 * camera.width_px.max(camera.height_px) + 1;
+    let whole_image = 2 * depth.width().max(depth.height()) + 1;
     loop {
         let r = window_px / 2;
         let mut values: Vec<f32> = (y_px.saturating_sub(r)..(y_px + r + 1).min(depth.height()))
@@ -68,7 +84,7 @@ pub fn focus_at_pixel(
                 let x1 = (x_px + r + 1).min(depth.width());
                 row[x0..x1].iter().copied()
             })
-            .filter(|z| z.is_finite())
+            .filter(|z| z.is_finite() && *z > 0.0 && *z < BACKGROUND_DEPTH_M)
             .collect();
         if !values.is_empty() {
             values.sort_by(f32::total_cmp);
@@ -78,15 +94,15 @@ pub fn focus_at_pixel(
             } else {
                 0.5 * (values[n / 2 - 1] + values[n / 2])
             };
-            return Ok(Some(FocusPick {
+            return Some(FocusPick {
                 depth_m,
                 x_px,
                 y_px,
                 window_px,
-            }));
+            });
         }
         if window_px >= whole_image {
-            return Ok(None);
+            return None;
         }
         window_px = 2 * window_px - 1;
     }

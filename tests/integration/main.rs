@@ -1,6 +1,7 @@
 //! Behaviour tests of defocus: one binary, one module per area.
 
 mod cli;
+mod cli_post;
 mod hammon;
 mod image_io;
 mod lens;

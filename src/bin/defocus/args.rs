@@ -28,8 +28,12 @@ pub struct Cli {
 pub enum Command {
     /// Render a scene (built-in or file) with a DoF method.
     Render(RenderArgs),
+    /// Depth of field for a rendered colour image with a depth pass (or tilt-shift on a photo).
+    Blur(Box<crate::blur::BlurArgs>),
     /// Compare two images: MSE (linear), PSNR and SSIM (sRGB, clamped to [0,1]).
     Compare(CompareArgs),
+    /// Aperture kernels: singular values and low-rank approximation errors (McGraw eq. 4).
+    Kernel(crate::kernel::KernelArgs),
 }
 
 /// How `--timings` reports.
@@ -48,6 +52,37 @@ pub enum RenderMethod {
     Pinhole,
     /// Ground truth: average of --samples views through points on the lens.
     Reference,
+    /// Hammon (GPU Gems 3 ch. 28) on the pinhole colour and depth.
+    Hammon,
+    /// McGraw's low-rank separable bokeh filters on the pinhole colour and depth.
+    Lowrank,
+    /// Baseline separable Gaussian gather on the pinhole colour and depth.
+    Gaussian,
+    /// Baseline Poisson-disc gather with depth rejection on the pinhole colour and depth.
+    Poisson,
+}
+
+impl RenderMethod {
+    /// The post-process method, for the methods that blur a pinhole frame.
+    pub fn post(self) -> Option<crate::post::PostMethod> {
+        use crate::post::PostMethod;
+        match self {
+            RenderMethod::Pinhole | RenderMethod::Reference => None,
+            RenderMethod::Hammon => Some(PostMethod::Hammon),
+            RenderMethod::Lowrank => Some(PostMethod::Lowrank),
+            RenderMethod::Gaussian => Some(PostMethod::Gaussian),
+            RenderMethod::Poisson => Some(PostMethod::Poisson),
+        }
+    }
+
+    /// The method id used in timings and reports.
+    pub fn id(self) -> &'static str {
+        match (self, self.post()) {
+            (_, Some(p)) => p.id(),
+            (RenderMethod::Pinhole, _) => "pinhole",
+            _ => "reference",
+        }
+    }
 }
 
 /// Flags of `render`.
@@ -59,8 +94,9 @@ pub struct RenderArgs {
     /// DoF method.
     #[arg(long, value_enum, default_value_t = RenderMethod::Reference)]
     pub method: RenderMethod,
-    /// Samples: lens views for `reference` (default 256), samples per pixel for `pinhole`
-    /// (default 1 = pixel centres, no anti-aliasing).
+    /// Samples: lens views for `reference` (default 256); samples per pixel for `pinhole` and
+    /// for the pinhole frame the post-process methods blur (default 1 = pixel centres, no
+    /// anti-aliasing).
     #[arg(long, value_name = "N")]
     pub samples: Option<usize>,
     /// Image width in pixels [default: the scene's, 1280 for built-in scenes].
@@ -87,8 +123,9 @@ pub struct RenderArgs {
     #[arg(long, value_name = "MM", allow_negative_numbers = true)]
     pub sensor_width: Option<f32>,
     /// Aperture: `disc`, `poly:B[,rot=DEG][,curve=R]` (B blades, rotation in degrees
-    /// counter-clockwise, curved blades of radius R in aperture radii, R >= 1) or
-    /// `image:PATH` (a greyscale image used as density) [default: the scene's].
+    /// counter-clockwise, curved blades of radius R in aperture radii, R >= 1), `star[:N[,INNER]]`,
+    /// `heart`, `ring[:INNER]` or `image:PATH` (a greyscale image used as density, as the
+    /// far-field bokeh appears) [default: the scene's]. hammon and gaussian have no shape.
     #[arg(long, value_name = "SPEC")]
     pub aperture: Option<String>,
     /// Lens sampler: halton (low discrepancy), stratified, random.
@@ -109,6 +146,9 @@ pub struct RenderArgs {
     /// Camera choice and placement (listed under their own heading).
     #[command(flatten)]
     pub view: Box<ViewArgs>,
+    /// Options of the post-process methods (listed under their own heading).
+    #[command(flatten)]
+    pub post: Box<crate::post::PostArgs>,
 }
 
 /// Flags of `compare`.

@@ -1,31 +1,19 @@
 //! `defocus blur`: depth of field for a rendered colour image with a depth pass.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use defocus::image::io::{self, DepthRead};
 use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::{Camera, ThinLens};
+use defocus::methods::lowrank::{self, tilt_shift_coc, TiltShift};
 use defocus::methods::MethodOutput;
+use defocus::scene::autofocus::focus_in_depth;
 
 use crate::args::TimingFormat;
-use crate::commands::{check_output, report_timings, IMAGE_EXTENSIONS};
-
-/// Methods `blur` can run (single-image methods: colour + depth in, colour out).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum BlurMethod {
-    /// Hammon, GPU Gems 3 ch. 28: post-process gather with a blurred near CoC.
-    Hammon,
-}
-
-impl BlurMethod {
-    fn id(self) -> &'static str {
-        match self {
-            BlurMethod::Hammon => "hammon",
-        }
-    }
-}
+use crate::commands::{check_output, parse_aperture, report_timings, IMAGE_EXTENSIONS};
+use crate::post::{self, PostArgs, PostMethod, PostSettings};
 
 /// What the depth values measure.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -43,16 +31,17 @@ pub struct BlurArgs {
     #[arg(long, value_name = "FILE")]
     pub color: PathBuf,
     /// Depth image in metres: EXR channel Z / depth / <layer>.Depth.Z (may be the colour file
-    /// itself), 8/16-bit PNG or PFM (times --depth-scale).
-    #[arg(long, value_name = "FILE")]
-    pub depth: PathBuf,
+    /// itself), 8/16-bit PNG or PFM (times --depth-scale). Not needed with --tilt-shift.
+    #[arg(long, value_name = "FILE", required_unless_present = "tilt_shift")]
+    pub depth: Option<PathBuf>,
     /// EXR depth channel (full name or unique suffix) [default: searched: Z, depth, *.Depth.Z].
     #[arg(long, value_name = "NAME")]
     pub depth_channel: Option<String>,
     /// Whether depth is view-axis distance or radial distance from the eye.
     #[arg(long, value_enum, default_value_t = DepthKind::View)]
     pub depth_kind: DepthKind,
-    /// Metres per stored depth unit (e.g. for a 16-bit PNG read as value/65535).
+    /// Metres per stored depth unit (a 16-bit PNG is read as value / 65535, an 8-bit one as
+    /// value / 255, before this scale).
     #[arg(
         long,
         default_value_t = 1.0,
@@ -60,9 +49,9 @@ pub struct BlurArgs {
         allow_negative_numbers = true
     )]
     pub depth_scale: f32,
-    /// DoF method.
-    #[arg(long, value_enum, default_value_t = BlurMethod::Hammon)]
-    pub method: BlurMethod,
+    /// DoF method [default: hammon; lowrank with --tilt-shift].
+    #[arg(long, value_enum)]
+    pub method: Option<PostMethod>,
     /// Focus distance in metres, or `auto` (median depth of a small window at the image centre).
     #[arg(
         long,
@@ -95,6 +84,20 @@ pub struct BlurArgs {
         allow_negative_numbers = true
     )]
     pub sensor_width: f32,
+    /// Aperture (lowrank, poisson): `disc`, `poly:B[,rot=DEG][,curve=R]`, `star[:N[,INNER]]`,
+    /// `heart`, `ring[:INNER]` or `image:PATH` (greyscale density as the far-field bokeh appears).
+    #[arg(long, default_value = "disc", value_name = "SPEC")]
+    pub aperture: String,
+    /// Seed of the methods that draw random taps (lowrank's fallback, poisson).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Tilt-shift instead of depth (lowrank): a sharp band across the image, blur growing
+    /// away from it. Optional keys, comma-separated: `centre=Y` (band centre, fraction of the
+    /// height from the top, 0.5), `width=W` (band width, fraction of the height, 0.15),
+    /// `angle=DEG` (counter-clockwise, 0), `blur=PX` (largest CoC radius, 12), `ramp=R`
+    /// (distance over which the blur grows, fraction of the height, 0.3).
+    #[arg(long, value_name = "KEY=VALUE,...", num_args = 0..=1, default_missing_value = "")]
+    pub tilt_shift: Option<String>,
     /// Output image: .exr (linear float RGBA), .png (8-bit sRGB) or .pfm.
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
@@ -104,35 +107,51 @@ pub struct BlurArgs {
     /// Say which channels and parameters were used (on stderr).
     #[arg(long, short)]
     pub verbose: bool,
+    /// Options of the methods.
+    #[command(flatten)]
+    pub post: PostArgs,
 }
 
-/// Half-size of the window used by `--focus auto`, as a fraction of the image width.
-const AUTOFOCUS_WINDOW: f32 = 0.01;
-
-/// Median depth of the finite depths in a window around `(x, y)` whose half-size is 1% of the
-/// image width (at least 1 pixel): robust to holes and thin foreground objects.
-pub fn autofocus_depth(depth: &GrayImage, x: usize, y: usize) -> Option<f32> {
-    let r = ((depth.width() as f32 * AUTOFOCUS_WINDOW).round() as usize).max(1);
-    let mut values: Vec<f32> = (y.saturating_sub(r)..(y + r + 1).min(depth.height()))
-        .flat_map(|yy| {
-            (x.saturating_sub(r)..(x + r + 1).min(depth.width())).map(move |xx| (xx, yy))
-        })
-        .map(|(xx, yy)| depth.get(xx, yy))
-        .filter(|z| z.is_finite() && *z > 0.0 && *z < f32::MAX)
-        .collect();
-    if values.is_empty() {
-        return None;
+/// Parses a `--tilt-shift` spec (see its help).
+pub fn parse_tilt_shift(spec: &str) -> Result<TiltShift> {
+    let mut ts = TiltShift::default();
+    for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let (key, value) = part.split_once('=').with_context(|| {
+            format!("invalid --tilt-shift '{spec}': expected KEY=VALUE, got '{part}'")
+        })?;
+        let v: f32 = value.trim().parse().map_err(|_| {
+            anyhow::anyhow!("invalid --tilt-shift '{spec}': value of '{key}' is not a number")
+        })?;
+        match key.trim() {
+            "centre" | "center" => ts.centre_y = v,
+            "width" => ts.width = v,
+            "angle" => ts.angle_deg = v,
+            "blur" => ts.max_coc_px = v,
+            "ramp" => ts.ramp = v,
+            other => bail!(
+                "invalid --tilt-shift '{spec}': unknown key '{other}' (expected centre, width, angle, blur or ramp)"
+            ),
+        }
     }
-    values.sort_by(f32::total_cmp);
-    Some(values[values.len() / 2])
+    ts.validate()
+        .with_context(|| format!("invalid --tilt-shift '{spec}'"))?;
+    Ok(ts)
 }
 
-/// A validated `blur` job: images read, sizes checked, lens derived.
+/// What the blur is driven by.
+enum Input {
+    /// A depth map and the lens that turns it into a CoC.
+    Depth { depth: GrayImage, lens: ThinLens },
+    /// A tilt-shift CoC map (signed radius in pixels per pixel).
+    TiltShift { coc_px: GrayImage },
+}
+
+/// A validated `blur` job: images read, sizes checked, lens derived, settings validated.
 pub struct BlurJob {
     color: ColorImage,
-    depth: GrayImage,
-    lens: ThinLens,
-    method: BlurMethod,
+    input: Input,
+    method: PostMethod,
+    settings: PostSettings,
     out: PathBuf,
     timings: Option<TimingFormat>,
 }
@@ -143,7 +162,26 @@ impl TryFrom<&BlurArgs> for BlurJob {
     fn try_from(a: &BlurArgs) -> Result<Self> {
         check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
         io::ensure_not_same_file(&a.color, &a.out)?;
-        io::ensure_not_same_file(&a.depth, &a.out)?;
+        if let Some(d) = &a.depth {
+            io::ensure_not_same_file(d, &a.out)?;
+        }
+        let tilt_shift = a.tilt_shift.as_deref().map(parse_tilt_shift).transpose()?;
+        let method = match (a.method, &tilt_shift) {
+            (None, None) => PostMethod::Hammon,
+            (None, Some(_)) | (Some(PostMethod::Lowrank), Some(_)) => PostMethod::Lowrank,
+            (Some(m), None) => m,
+            (Some(m), Some(_)) => bail!(
+                "--tilt-shift works with --method lowrank (McGraw section 4), not {}",
+                m.id()
+            ),
+        };
+        if tilt_shift.is_some() && a.depth.is_some() {
+            bail!("--tilt-shift paints the blur itself: give no --depth with it");
+        }
+        let aperture = parse_aperture(&a.aperture)?;
+        if let Some(p) = a.aperture.strip_prefix("image:") {
+            io::ensure_not_same_file(Path::new(p), &a.out)?;
+        }
         if a.verbose
             && a.color
                 .extension()
@@ -158,30 +196,54 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 );
             }
         }
+        let color = io::read_color(&a.color)?;
+        if let Some(ts) = tilt_shift {
+            let mut post = a.post.clone();
+            post.max_coc = post.max_coc.max(ts.max_coc_px);
+            let settings = post.settings(method, &aperture, a.seed, color.height(), None)?;
+            let coc_px = tilt_shift_coc(color.width(), color.height(), &ts)?;
+            if a.verbose {
+                eprintln!(
+                    "tilt-shift: band centre {} of the height, width {}, angle {} deg, blur up to {} px over {} of the height",
+                    ts.centre_y, ts.width, ts.angle_deg, ts.max_coc_px, ts.ramp
+                );
+            }
+            return Ok(Self {
+                color,
+                input: Input::TiltShift { coc_px },
+                method,
+                settings,
+                out: a.out.clone(),
+                timings: a.timings,
+            });
+        }
+        let depth_path = a
+            .depth
+            .as_ref()
+            .context("--depth FILE is needed (or --tilt-shift)")?;
         if a.verbose
-            && a.depth
+            && depth_path
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
         {
-            let (_, depth) = io::exr_channel_choice(&a.depth, a.depth_channel.as_deref())?;
+            let (_, depth) = io::exr_channel_choice(depth_path, a.depth_channel.as_deref())?;
             if let Ok(name) = depth {
-                eprintln!("depth: {} channel {name}", a.depth.display());
+                eprintln!("depth: {} channel {name}", depth_path.display());
             }
         }
-        let color = io::read_color(&a.color)?;
         let opts = DepthRead {
             channel: a.depth_channel.clone(),
             scale: a.depth_scale,
             radial: a.depth_kind == DepthKind::Radial,
         };
-        let mut depth = io::read_depth(&a.depth, &opts)?;
+        let mut depth = io::read_depth(depth_path, &opts)?;
         if !color.same_size(&depth) {
             bail!(
                 "size mismatch: colour {} is {}x{} but depth {} is {}x{}",
                 a.color.display(),
                 color.width(),
                 color.height(),
-                a.depth.display(),
+                depth_path.display(),
                 depth.width(),
                 depth.height()
             );
@@ -198,23 +260,34 @@ impl TryFrom<&BlurArgs> for BlurJob {
             far_m: f32::MAX,
             yfov_rad: None,
         };
+        // Check the lens flags before they are used to convert radial depth.
+        camera
+            .thin_lens()
+            .context("invalid camera (check --fstop, --focal-length, --sensor-width)")?;
         if a.depth_kind == DepthKind::Radial {
             let f_px = a.focal_length / a.sensor_width * color.width() as f32;
             io::radial_to_view_depth(&mut depth, f_px);
         }
-        camera.focus_m = if a.focus == "auto" {
-            let z = autofocus_depth(&depth, color.width() / 2, color.height() / 2)
-                .context("--focus auto: no finite depth near the image centre; give --focus M")?;
-            eprintln!("focus: {z:.4} m (auto, median depth at the image centre)");
-            z
+        camera.focus_m = if a.focus.trim() == "auto" {
+            let pick = focus_in_depth(&depth, color.width() / 2, color.height() / 2)
+                .context("--focus auto: the depth image has no surface (only holes or background); give --focus M")?;
+            eprintln!(
+                "focus: {:.4} m (median depth of the {w}x{w} pixels at the image centre)",
+                pick.depth_m,
+                w = pick.window_px
+            );
+            pick.depth_m
         } else {
-            a.focus.parse::<f32>().map_err(|_| {
+            a.focus.trim().parse::<f32>().map_err(|_| {
                 anyhow::anyhow!("invalid --focus '{}': expected metres or auto", a.focus)
             })?
         };
         let lens = camera
             .thin_lens()
             .context("invalid camera (check --focus, --fstop, --focal-length, --sensor-width)")?;
+        let settings = a
+            .post
+            .settings(method, &aperture, a.seed, color.height(), Some(&lens))?;
         if a.verbose {
             eprintln!(
                 "lens: f_px {:.2}, lens radius {:.5} m, focus {:.4} m, CoC at infinity {:.2} px",
@@ -226,9 +299,9 @@ impl TryFrom<&BlurArgs> for BlurJob {
         }
         Ok(Self {
             color,
-            depth,
-            lens,
-            method: a.method,
+            input: Input::Depth { depth, lens },
+            method,
+            settings,
             out: a.out.clone(),
             timings: a.timings,
         })
@@ -238,13 +311,14 @@ impl TryFrom<&BlurArgs> for BlurJob {
 impl BlurJob {
     /// Runs the method and writes the output.
     pub fn run(self) -> Result<()> {
-        let output: MethodOutput = match self.method {
-            BlurMethod::Hammon => defocus::methods::hammon::render(
-                &self.color,
-                &self.depth,
-                &self.lens,
-                &defocus::methods::hammon::HammonSettings::default(),
-            )?,
+        let output: MethodOutput = match (&self.input, &self.settings) {
+            (Input::Depth { depth, lens }, settings) => {
+                post::run(settings, &self.color, depth, lens)?
+            }
+            (Input::TiltShift { coc_px }, PostSettings::Lowrank(s)) => {
+                lowrank::render_coc(&self.color, coc_px, s)?
+            }
+            (Input::TiltShift { .. }, _) => bail!("--tilt-shift works with --method lowrank"),
         };
         let mut timings = output.timings.clone();
         let id = self.method.id();
@@ -254,8 +328,8 @@ impl BlurJob {
         report_timings(
             self.timings,
             id,
-            self.lens.width_px,
-            self.lens.height_px,
+            self.color.width(),
+            self.color.height(),
             &timings,
         );
         Ok(())

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use defocus::image::{io, GrayImage};
 use defocus::lens::{Aperture, ApertureImage, Camera, SamplerKind};
+use defocus::methods::lowrank::CustomShape;
 use defocus::methods::reference::{self, ReferenceSettings};
 use defocus::methods::MethodOutput;
 use defocus::metrics;
@@ -14,6 +15,7 @@ use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::args::{Cli, Command, CompareArgs, Focus, RenderArgs, RenderMethod, TimingFormat};
+use crate::post::{self, PostSettings};
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
@@ -31,7 +33,9 @@ pub fn run(cli: Cli) -> Result<()> {
             let job = RenderJob::try_from(args)?;
             job.run(cli.quiet)
         }
+        Command::Blur(args) => crate::blur::BlurJob::try_from(args.as_ref())?.run(),
         Command::Compare(args) => compare(&args),
+        Command::Kernel(args) => crate::kernel::run(&args),
     }
 }
 
@@ -69,6 +73,8 @@ struct RenderJob {
     camera: Camera,
     settings: ReferenceSettings,
     method: RenderMethod,
+    /// Settings of the post-process method, for those methods.
+    post: Option<PostSettings>,
     out: PathBuf,
     depth_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
@@ -106,7 +112,13 @@ pub fn parse_aperture(spec: &str) -> Result<Aperture> {
         let density = ApertureImage::new(grey).with_context(|| format!("aperture image {path}"))?;
         return Ok(Aperture::Image(std::sync::Arc::new(density)));
     }
-    Ok(Aperture::parse(spec)?)
+    let name = spec.trim().split(':').next().unwrap_or("");
+    if ["star", "heart", "ring"].contains(&name) {
+        let shape =
+            CustomShape::parse(spec).with_context(|| format!("invalid --aperture {spec}"))?;
+        return Ok(shape.aperture()?);
+    }
+    Aperture::parse(spec).with_context(|| format!("invalid --aperture {spec}"))
 }
 
 impl TryFrom<RenderArgs> for RenderJob {
@@ -177,19 +189,29 @@ impl TryFrom<RenderArgs> for RenderJob {
         };
         let samples = a.samples.unwrap_or(match a.method {
             RenderMethod::Reference => 256,
-            RenderMethod::Pinhole => 1,
+            _ => 1,
         });
         if samples == 0 || samples > 1 << 20 {
             bail!("invalid --samples {samples}: expected 1 to {}", 1 << 20);
         }
         let sampler = SamplerKind::parse(&a.sampler).context("invalid --sampler")?;
+        let post = match a.method.post() {
+            Some(m) => Some(a.post.settings(
+                m,
+                &aperture,
+                a.seed,
+                camera.height_px,
+                Some(&camera.thin_lens()?),
+            )?),
+            None => None,
+        };
         let settings = ReferenceSettings {
             samples,
             sampler,
             seed: a.seed,
             aperture,
             use_lens: a.method == RenderMethod::Reference,
-            with_depth: a.depth_out.is_some(),
+            with_depth: a.depth_out.is_some() || post.is_some(),
         };
         let mut inputs = Vec::new();
         if Path::new(&a.scene).exists() {
@@ -203,6 +225,7 @@ impl TryFrom<RenderArgs> for RenderJob {
             camera,
             settings,
             method: a.method,
+            post,
             out: a.out,
             depth_out: a.depth_out,
             timings: a.timings,
@@ -219,16 +242,28 @@ impl RenderJob {
             }
         }
         let bar = progress_bar(quiet, self.settings.samples as u64, "views");
-        let output: MethodOutput =
+        let mut output: MethodOutput =
             reference::render(&self.scene, &self.camera, &self.settings, &mut |done, _| {
                 bar.set_position(done as u64)
             })?;
         bar.finish_and_clear();
         let mut timings = output.timings.clone();
-        let method = match self.method {
-            RenderMethod::Pinhole => "pinhole",
-            RenderMethod::Reference => "reference",
-        };
+        if let Some(post) = &self.post {
+            // The pinhole frame (colour and centre depth) is the post-process method's input.
+            let depth = output
+                .depth
+                .take()
+                .context("internal: the pinhole pass returned no depth")?;
+            let lens = self.camera.thin_lens()?;
+            let blurred = post::run(post, &output.image, &depth, &lens)?;
+            timings.extend(&blurred.timings);
+            output = MethodOutput {
+                image: blurred.image,
+                depth: Some(depth),
+                timings: blurred.timings,
+            };
+        }
+        let method = self.method.id();
         timings.time(&format!("{method}/write"), || {
             io::write_color(&self.out, &output.image)
         })?;

@@ -2,7 +2,10 @@
 //! them into validated jobs (units converted, ranges checked), run, report.
 
 mod args;
+mod blur;
 mod commands;
+mod kernel;
+mod post;
 
 use std::process::ExitCode;
 

@@ -1,0 +1,155 @@
+//! `defocus kernel`: an aperture kernel, its singular values and the error of its low-rank
+//! approximations (McGraw section 3, eqs. 1-4).
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use defocus::image::{io, ColorImage, GrayImage};
+use defocus::methods::lowrank::{decompose, kernel_image, KernelSpec};
+
+use crate::commands::{check_output, parse_aperture, IMAGE_EXTENSIONS};
+
+/// Flags of `kernel`.
+#[derive(Debug, Args)]
+pub struct KernelArgs {
+    /// Aperture: `disc`, `poly:B[,rot=DEG][,curve=R]`, `star[:N[,INNER]]`, `heart`,
+    /// `ring[:INNER]` or `image:PATH`.
+    #[arg(long, default_value = "disc", value_name = "SPEC")]
+    pub aperture: String,
+    /// Side of the square kernel in pixels (odd; the paper's largest is 65).
+    #[arg(long, default_value_t = 65, value_name = "PX")]
+    pub size: usize,
+    /// Ranks to report: `R` or `A..B` (inclusive).
+    #[arg(long, default_value = "1..10", value_name = "R|A..B")]
+    pub rank: String,
+    /// Spherical aberration, -1 (bright centre) to 1 (bright rim).
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "A",
+        allow_negative_numbers = true
+    )]
+    pub aberration: f32,
+    /// Samples per kernel pixel and axis when rasterizing the aperture (1 to 64).
+    #[arg(long, default_value_t = 8, value_name = "N")]
+    pub supersample: usize,
+    /// Write the kernel as an image, scaled so its largest value is 1 (.png, .exr or .pfm).
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
+    /// Write the rank-r approximation of the highest rank asked for, on the kernel's scale
+    /// (EXR and PFM keep its negative lobes; PNG clamps them to 0).
+    #[arg(long, value_name = "FILE")]
+    pub approx_out: Option<PathBuf>,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parses `R` or `A..B` into an inclusive range of ranks from 1.
+fn parse_ranks(spec: &str) -> Result<(usize, usize)> {
+    let bad =
+        || anyhow::anyhow!("invalid --rank '{spec}': expected R or A..B, whole numbers from 1");
+    let (a, b) = match spec.split_once("..") {
+        Some((a, b)) => (a.trim(), b.trim().trim_start_matches('=')),
+        None => (spec.trim(), spec.trim()),
+    };
+    let a: usize = a.parse().map_err(|_| bad())?;
+    let b: usize = b.parse().map_err(|_| bad())?;
+    if a == 0 || b < a {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
+
+/// A grey image as RGBA, scaled by `scale`.
+fn to_color(g: &GrayImage, scale: f32) -> ColorImage {
+    g.map(|v| {
+        let v = v * scale;
+        [v, v, v, 1.0]
+    })
+}
+
+/// Runs `defocus kernel`.
+pub fn run(a: &KernelArgs) -> Result<()> {
+    for (path, flag) in [(&a.out, "--out"), (&a.approx_out, "--approx-out")] {
+        if let Some(p) = path {
+            check_output(p, flag, IMAGE_EXTENSIONS)?;
+        }
+    }
+    let (r0, r1) = parse_ranks(&a.rank)?;
+    let aperture = parse_aperture(&a.aperture)?;
+    if let Some(p) = a.aperture.strip_prefix("image:") {
+        for out in a.out.iter().chain(&a.approx_out) {
+            io::ensure_not_same_file(std::path::Path::new(p), out)?;
+        }
+    }
+    let spec = KernelSpec {
+        aperture,
+        size_px: a.size,
+        aberration: a.aberration,
+        supersample: a.supersample,
+    };
+    let kernel = kernel_image(&spec)
+        .context("invalid kernel (check --size, --aberration, --supersample)")?;
+    let lr = decompose(&kernel)?;
+    if r1 > lr.len() {
+        bail!(
+            "invalid --rank '{}': a {}x{} kernel has at most rank {}",
+            a.rank,
+            a.size,
+            a.size,
+            lr.len()
+        );
+    }
+    let peak = kernel.pixels().iter().fold(0.0f32, |m, &v| m.max(v));
+    let scale = if peak > 0.0 { 1.0 / peak } else { 1.0 };
+    if let Some(p) = &a.out {
+        io::write_color(p, &to_color(&kernel, scale))?;
+    }
+    if let Some(p) = &a.approx_out {
+        io::write_color(p, &to_color(&lr.approximation(r1), scale))?;
+    }
+    let ranks: Vec<(usize, f64, f64)> = (r0..=r1)
+        .map(|r| (r, lr.relative_error(r), lr.approximation_sum(r)))
+        .collect();
+    let shown = lr.singular_values().len().min(r1.max(16));
+    let text = if a.json {
+        serde_json::json!({
+            "aperture": a.aperture,
+            "size_px": a.size,
+            "aberration": a.aberration,
+            "full_rank": lr.full_rank(),
+            "rank_tolerance": lr.tolerance(),
+            "singular_values": lr.singular_values(),
+            "ranks": ranks.iter().map(|&(r, e, s)| serde_json::json!({
+                "rank": r, "relative_error": e, "sum": s,
+            })).collect::<Vec<_>>(),
+        })
+        .to_string()
+    } else {
+        let mut t = format!(
+            "kernel: {} {}x{} px, aberration {}, {}x{} samples per pixel\n",
+            a.aperture, a.size, a.size, a.aberration, a.supersample, a.supersample
+        );
+        t += &format!(
+            "full rank: {} (singular values above {:.3e})\n",
+            lr.full_rank(),
+            lr.tolerance()
+        );
+        t += &format!("singular values (first {shown}):");
+        for s in &lr.singular_values()[..shown] {
+            t += &format!(" {s:.6e}");
+        }
+        t += "\nrank  relative_error  kernel_sum\n";
+        for (r, e, s) in &ranks {
+            t += &format!("{r:>4}  {e:>14.6}  {s:>10.6}\n");
+        }
+        t.trim_end().to_string()
+    };
+    #[expect(clippy::print_stdout, reason = "the analysis is the command's output")]
+    {
+        println!("{text}");
+    }
+    Ok(())
+}

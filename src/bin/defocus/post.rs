@@ -1,0 +1,324 @@
+//! Single-image (post-process) methods shared by `render` and `blur`: their flags, turned into
+//! validated settings once, and the dispatch to the library.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use defocus::image::{ColorImage, GrayImage};
+use defocus::lens::{Aperture, ThinLens};
+use defocus::methods::gaussian::{self, GaussianSettings};
+use defocus::methods::hammon::{self, CocMode, HammonSettings, LerpDistances};
+use defocus::methods::lowrank::{self, LowRankSettings};
+use defocus::methods::poisson::{self, PoissonSettings};
+use defocus::methods::MethodOutput;
+
+/// Post-process methods: colour + depth in, colour out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum PostMethod {
+    /// Hammon, GPU Gems 3 ch. 28: blend of blur levels with a blurred near CoC.
+    Hammon,
+    /// McGraw: the aperture kernel as a sum of separable filters (SVD), depth-edge mask with a
+    /// 2D gather fallback.
+    Lowrank,
+    /// Baseline: separable Gaussian gather sized by the CoC (Zhou et al.).
+    Gaussian,
+    /// Baseline: Poisson-disc gather in the aperture shape with depth rejection (Scheuermann).
+    Poisson,
+}
+
+impl PostMethod {
+    /// The method id used in timings and reports.
+    pub fn id(self) -> &'static str {
+        match self {
+            PostMethod::Hammon => "hammon",
+            PostMethod::Lowrank => "lowrank",
+            PostMethod::Gaussian => "gaussian",
+            PostMethod::Poisson => "poisson",
+        }
+    }
+}
+
+/// `--coc` of hammon.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum HammonCoc {
+    /// The thin-lens CoC of the shared camera model.
+    Physical,
+    /// The chapter's artist curve (fig. 28-6), from --artist-near and --artist-far.
+    Artist,
+}
+
+/// Options of the post-process methods (each applies to the methods its heading names).
+#[derive(Debug, Args, Clone)]
+#[command(next_help_heading = "Post-process methods (hammon, lowrank, gaussian, poisson)")]
+pub struct PostArgs {
+    /// Largest CoC radius in pixels the lowrank, gaussian and poisson methods blur; larger
+    /// blurs are clamped to it (0 to 512).
+    #[arg(
+        long,
+        default_value_t = 64.0,
+        value_name = "PX",
+        allow_negative_numbers = true
+    )]
+    pub max_coc: f32,
+
+    /// hammon: depth to blur amount: `physical` (thin lens) or `artist` (fig. 28-6 curve).
+    #[arg(long, value_enum, default_value_t = HammonCoc::Physical)]
+    pub coc: HammonCoc,
+    /// hammon, --coc artist: near blur is full up to START metres and falls to 0 at END.
+    #[arg(long, value_name = "START,END", value_parser = parse_pair)]
+    pub artist_near: Option<(f32, f32)>,
+    /// hammon, --coc artist: far blur rises from 0 at START metres to full at END.
+    #[arg(long, value_name = "START,END", value_parser = parse_pair)]
+    pub artist_far: Option<(f32, f32)>,
+    /// hammon: far blur radius over near blur radius (the chapter's dofEqFar.z, >= 0).
+    #[arg(
+        long,
+        default_value_t = 1.0,
+        value_name = "RATIO",
+        allow_negative_numbers = true
+    )]
+    pub far_to_near_ratio: f32,
+    /// hammon: depth in metres beyond which a pixel is sky and gets only near blur (`inf`:
+    /// no sky).
+    #[arg(
+        long,
+        default_value_t = 1e6,
+        value_name = "M",
+        allow_negative_numbers = true
+    )]
+    pub sky_depth: f32,
+    /// hammon: standard deviation of the large blur in pixels of a 480-row image, scaled to
+    /// the real height (the chapter's convention; 10 gives a largest CoC of about 30 px at
+    /// 720 rows).
+    #[arg(
+        long,
+        default_value_t = 10.0,
+        value_name = "PX",
+        allow_negative_numbers = true,
+        conflicts_with = "large_blur_coc"
+    )]
+    pub large_blur_sigma: f32,
+    /// hammon: set the large blur by its equivalent CoC radius in pixels instead, or `auto`
+    /// for the lens's CoC at infinity (so the far field gets its physical blur).
+    #[arg(long, value_name = "PX|auto")]
+    pub large_blur_coc: Option<String>,
+    /// hammon: the chapter's blend distances d0, d1, d2 (> 0, normalised to sum 1)
+    /// [default: derived from the blur levels' radii, linear in CoC].
+    #[arg(long, value_name = "D0,D1,D2", value_parser = parse_triple)]
+    pub lerp: Option<(f32, f32, f32)>,
+
+    /// lowrank: rank r of the separable approximation (the paper uses 3 for DoF).
+    #[arg(long, default_value_t = 3, value_name = "R")]
+    pub rank: usize,
+    /// lowrank: spherical aberration, -1 (bright centre) to 1 (bright rim).
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "A",
+        allow_negative_numbers = true
+    )]
+    pub aberration: f32,
+    /// lowrank: side in pixels (odd) of the decomposed base kernel [default: 2 ceil(max |C|) + 1,
+    /// 17 to 129].
+    #[arg(long, value_name = "PX")]
+    pub kernel_size: Option<usize>,
+    /// lowrank: no depth-discontinuity mask and no 2D fallback (fig. 15 off).
+    #[arg(long)]
+    pub no_mask: bool,
+    /// lowrank: a pixel is on a depth edge where its CoC differs from a neighbour's by more than
+    /// this many pixels.
+    #[arg(
+        long,
+        default_value_t = 1.0,
+        value_name = "PX",
+        allow_negative_numbers = true
+    )]
+    pub edge_threshold: f32,
+    /// lowrank: a pixel gets the 2D fallback when more than this fraction of its kernel lies on
+    /// depth edges (0 to 1).
+    #[arg(
+        long,
+        default_value_t = 0.01,
+        value_name = "FRACTION",
+        allow_negative_numbers = true
+    )]
+    pub mask_threshold: f32,
+    /// lowrank: taps of the 2D fallback gather on masked pixels (1 to 1024).
+    #[arg(long, default_value_t = 64, value_name = "N")]
+    pub fallback_taps: usize,
+
+    /// gaussian: standard deviation per pixel of CoC radius (0.5: the variance of the disc).
+    #[arg(
+        long,
+        default_value_t = 0.5,
+        value_name = "S",
+        allow_negative_numbers = true
+    )]
+    pub sigma_per_coc: f32,
+
+    /// poisson: taps per pixel, centre included (1 to 1024).
+    #[arg(long, default_value_t = 32, value_name = "N")]
+    pub taps: usize,
+}
+
+/// Validated settings of one post-process method.
+#[derive(Clone, Debug)]
+pub enum PostSettings {
+    /// hammon.
+    Hammon(HammonSettings),
+    /// lowrank.
+    Lowrank(LowRankSettings),
+    /// gaussian.
+    Gaussian(GaussianSettings),
+    /// poisson.
+    Poisson(PoissonSettings),
+}
+
+impl PostArgs {
+    /// The settings of `method` for a frame `height_px` rows high, seen through `lens` (needed
+    /// by `--large-blur-coc auto`), with the aperture and seed of the run. Every range is
+    /// checked here, before any image is read or rendered.
+    pub fn settings(
+        &self,
+        method: PostMethod,
+        aperture: &Aperture,
+        seed: u64,
+        height_px: usize,
+        lens: Option<&ThinLens>,
+    ) -> Result<PostSettings> {
+        let s = match method {
+            PostMethod::Hammon => {
+                let mut h = HammonSettings {
+                    far_to_near_ratio: self.far_to_near_ratio,
+                    sky_depth_m: self.sky_depth,
+                    large_blur_sigma_480p_px: self.large_blur_sigma,
+                    ..HammonSettings::default()
+                };
+                h.coc = match self.coc {
+                    HammonCoc::Physical => {
+                        if self.artist_near.is_some() || self.artist_far.is_some() {
+                            bail!("--artist-near / --artist-far need --coc artist");
+                        }
+                        CocMode::Physical
+                    }
+                    HammonCoc::Artist => {
+                        let (Some(near), Some(far)) = (self.artist_near, self.artist_far) else {
+                            bail!("--coc artist needs --artist-near START,END and --artist-far START,END (metres)");
+                        };
+                        CocMode::Artist {
+                            near_start_m: near.0,
+                            near_end_m: near.1,
+                            far_start_m: far.0,
+                            far_end_m: far.1,
+                        }
+                    }
+                };
+                h.lerp = self.lerp.map(|(d0, d1, d2)| LerpDistances { d0, d1, d2 });
+                h.validate().context("invalid hammon option")?;
+                if let Some(spec) = &self.large_blur_coc {
+                    let px = if spec.trim() == "auto" {
+                        lens.map(|l| l.coc_at_infinity_px()).context(
+                            "--large-blur-coc auto needs a lens (give --focal-length, --fstop, --focus)",
+                        )?
+                    } else {
+                        spec.trim().parse::<f32>().map_err(|_| {
+                            anyhow::anyhow!(
+                                "invalid --large-blur-coc '{spec}': expected a radius in pixels or auto"
+                            )
+                        })?
+                    };
+                    h.set_large_blur_coc_px(px, height_px)
+                        .context("invalid --large-blur-coc")?;
+                }
+                PostSettings::Hammon(h)
+            }
+            PostMethod::Lowrank => {
+                let l = LowRankSettings {
+                    aperture: aperture.clone(),
+                    rank: self.rank,
+                    aberration: self.aberration,
+                    kernel_size_px: self.kernel_size,
+                    use_mask: !self.no_mask,
+                    edge_threshold_px: self.edge_threshold,
+                    mask_threshold: self.mask_threshold,
+                    fallback_taps: self.fallback_taps,
+                    seed,
+                    max_coc_px: self.max_coc,
+                    ..LowRankSettings::default()
+                };
+                l.validate().context("invalid lowrank option")?;
+                if let Some(k) = self.kernel_size {
+                    if k % 2 == 0 || !(3..=513).contains(&k) {
+                        bail!("invalid --kernel-size {k}: expected an odd number of pixels from 3 to 513");
+                    }
+                }
+                check_taps("--fallback-taps", self.fallback_taps)?;
+                PostSettings::Lowrank(l)
+            }
+            PostMethod::Gaussian => {
+                let g = GaussianSettings {
+                    sigma_per_coc: self.sigma_per_coc,
+                    max_coc_px: self.max_coc,
+                    ..GaussianSettings::default()
+                };
+                g.validate().context("invalid gaussian option")?;
+                PostSettings::Gaussian(g)
+            }
+            PostMethod::Poisson => {
+                poisson::check_max_coc(self.max_coc).context("invalid --max-coc")?;
+                check_taps("--taps", self.taps)?;
+                PostSettings::Poisson(PoissonSettings {
+                    aperture: aperture.clone(),
+                    taps: self.taps,
+                    seed,
+                    max_coc_px: self.max_coc,
+                })
+            }
+        };
+        Ok(s)
+    }
+}
+
+fn check_taps(flag: &str, n: usize) -> Result<()> {
+    if !(1..=poisson::MAX_TAPS).contains(&n) {
+        bail!("invalid {flag} {n}: expected 1 to {}", poisson::MAX_TAPS);
+    }
+    Ok(())
+}
+
+/// Runs a post-process method on a colour image and its view-axis depth in metres.
+pub fn run(
+    settings: &PostSettings,
+    color: &ColorImage,
+    depth: &GrayImage,
+    lens: &ThinLens,
+) -> Result<MethodOutput> {
+    let out = match settings {
+        PostSettings::Hammon(s) => hammon::render(color, depth, lens, s)?,
+        PostSettings::Lowrank(s) => lowrank::render(color, depth, lens, s)?,
+        PostSettings::Gaussian(s) => gaussian::render(color, depth, lens, s)?,
+        PostSettings::Poisson(s) => poisson::render(color, depth, lens, s)?,
+    };
+    Ok(out)
+}
+
+/// Parses `A,B` (two finite numbers).
+pub fn parse_pair(s: &str) -> Result<(f32, f32), String> {
+    match parse_numbers(s).as_deref() {
+        Some([a, b]) => Ok((*a, *b)),
+        _ => Err(format!("'{s}': expected two numbers A,B")),
+    }
+}
+
+/// Parses `A,B,C` (three finite numbers).
+pub fn parse_triple(s: &str) -> Result<(f32, f32, f32), String> {
+    match parse_numbers(s).as_deref() {
+        Some([a, b, c]) => Ok((*a, *b, *c)),
+        _ => Err(format!("'{s}': expected three numbers A,B,C")),
+    }
+}
+
+fn parse_numbers(s: &str) -> Option<Vec<f32>> {
+    s.split(',')
+        .map(|p| p.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
+        .collect()
+}

@@ -1,0 +1,394 @@
+//! Tests: the post-process commands run as a user would: `blur` on colour + depth files,
+//! `render --method hammon|lowrank|gaussian|poisson`, and `kernel`.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use defocus::image::{io, ColorImage, GrayImage};
+
+fn defocus(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .expect("run defocus")
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("defocus-post-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+const W: usize = 48;
+const H: usize = 32;
+
+/// A frame with a bright square on a dark far wall (depth 10 m) and an in-focus left half
+/// (depth 2 m): colour and depth written as a Blender-style multilayer EXR.
+fn write_frame(path: &Path) -> (ColorImage, GrayImage) {
+    let mut color = ColorImage::new(W, H, [0.05, 0.05, 0.05, 1.0]);
+    let mut depth = GrayImage::new(W, H, 10.0);
+    for y in 0..H {
+        for x in 0..W {
+            if x < W / 2 {
+                *color.get_mut(x, y) = if (x / 4 + y / 4) % 2 == 0 {
+                    [0.8, 0.8, 0.8, 1.0]
+                } else {
+                    [0.1, 0.1, 0.1, 1.0]
+                };
+                *depth.get_mut(x, y) = 2.0;
+            } else if (34..38).contains(&x) && (14..18).contains(&y) {
+                *color.get_mut(x, y) = [20.0, 20.0, 20.0, 1.0];
+            }
+        }
+    }
+    let ch = |c: usize| -> Vec<f32> { color.pixels().iter().map(|p| p[c]).collect() };
+    let (r, g, b, a) = (ch(0), ch(1), ch(2), ch(3));
+    io::write_exr_layers(
+        path,
+        W,
+        H,
+        &[
+            ("ViewLayer.Combined.R", &r),
+            ("ViewLayer.Combined.G", &g),
+            ("ViewLayer.Combined.B", &b),
+            ("ViewLayer.Combined.A", &a),
+            ("ViewLayer.Depth.Z", depth.pixels()),
+        ],
+    )
+    .unwrap();
+    (color, depth)
+}
+
+fn sum_rgb(img: &ColorImage) -> f64 {
+    img.pixels()
+        .iter()
+        .map(|p| (p[0] + p[1] + p[2]) as f64)
+        .sum()
+}
+
+#[test]
+fn blur_runs_every_method_on_a_multilayer_exr_and_keeps_the_focused_half_sharp() {
+    let dir = temp_dir("methods");
+    let frame = dir.join("frame.exr");
+    let (color, _) = write_frame(&frame);
+    for method in ["hammon", "lowrank", "gaussian", "poisson"] {
+        let out = dir.join(format!("{method}.exr"));
+        let o = defocus(&[
+            "blur",
+            "--color",
+            s(&frame),
+            "--depth",
+            s(&frame),
+            "--method",
+            method,
+            "--focus",
+            "2",
+            // f_px = 200/36*48 = 267 px, lens radius 0.1 m: C(10 m) = 10.7 px.
+            "--fstop",
+            "1",
+            "--focal-length",
+            "200",
+            "--out",
+            s(&out),
+            "--timings",
+            "json",
+        ]);
+        assert!(o.status.success(), "{method}: {}", stderr(&o));
+        let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+        assert_eq!(json["method"], method);
+        assert!(json["passes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|p| p["name"] == format!("{method}/write")));
+        let img = io::read_color(&out).unwrap();
+        assert_eq!((img.width(), img.height()), (W, H));
+        // The in-focus checker, away from the depth edge, is unchanged.
+        for y in 0..H {
+            for x in 0..W / 2 - 6 {
+                let (a, b) = (img.get(x, y), color.get(x, y));
+                for c in 0..3 {
+                    assert!(
+                        (a[c] - b[c]).abs() < 2e-3,
+                        "{method}: in-focus pixel ({x}, {y}) changed: {a:?} vs {b:?}"
+                    );
+                }
+            }
+        }
+        // The bright square far behind focus is spread out: its peak drops.
+        let peak = (14..18)
+            .flat_map(|y| (34..38).map(move |x| (x, y)))
+            .map(|(x, y)| img.get(x, y)[0])
+            .fold(0.0f32, f32::max);
+        assert!(
+            peak < 15.0,
+            "{method}: far square not blurred (peak {peak})"
+        );
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn blur_verbose_names_the_channels_it_found() {
+    let dir = temp_dir("verbose");
+    let frame = dir.join("frame.exr");
+    write_frame(&frame);
+    let out = dir.join("o.exr");
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&frame),
+        "--out",
+        s(&out),
+        "--verbose",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("ViewLayer.Combined.R"), "{e}");
+    assert!(e.contains("ViewLayer.Depth.Z"), "{e}");
+    // --focus auto is the default and says what it chose: the square's wall at the centre.
+    assert!(e.contains("focus: "), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn tilt_shift_blurs_outside_the_band_and_conserves_a_constant_image() {
+    let dir = temp_dir("tilt");
+    // A horizontal stripe pattern: sharp in the band, averaged out far from it.
+    let mut photo = ColorImage::new(64, 64, [0.0; 4]);
+    for y in 0..64 {
+        for x in 0..64 {
+            let v = if x % 2 == 0 { 1.0 } else { 0.0 };
+            *photo.get_mut(x, y) = [v, v, v, 1.0];
+        }
+    }
+    let input = dir.join("photo.exr");
+    io::write_color(&input, &photo).unwrap();
+    let out = dir.join("tilt.exr");
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&input),
+        "--tilt-shift",
+        "centre=0.5,width=0.2,blur=6,ramp=0.1",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let img = io::read_color(&out).unwrap();
+    // Inside the band (rows 26..38) the stripes keep full contrast.
+    for x in 8..56 {
+        assert!((img.get(x, 32)[0] - photo.get(x, 32)[0]).abs() < 1e-3);
+    }
+    // Far from the band the stripes are averaged towards 0.5.
+    for x in 8..56 {
+        let v = img.get(x, 2)[0];
+        assert!((v - 0.5).abs() < 0.1, "row 2, x {x}: {v}");
+    }
+    // Energy is kept: the mean stays the same.
+    let (a, b) = (sum_rgb(&img), sum_rgb(&photo));
+    assert!((a - b).abs() / b < 0.02, "{a} vs {b}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn blur_bad_inputs_fail_with_a_clear_error_and_no_output() {
+    let dir = temp_dir("bad");
+    let frame = dir.join("frame.exr");
+    write_frame(&frame);
+    let small = dir.join("small.pfm");
+    let mut pfm = b"Pf\n4 4\n-1.0\n".to_vec();
+    pfm.extend((0..16).flat_map(|_| 1.0f32.to_le_bytes()));
+    std::fs::write(&small, pfm).unwrap();
+    let mut nan_depth = GrayImage::new(W, H, 3.0);
+    *nan_depth.get_mut(5, 7) = f32::NAN;
+    let nan = dir.join("nan.exr");
+    io::write_depth_exr(&nan, &nan_depth).unwrap();
+    let mut neg_depth = GrayImage::new(W, H, 3.0);
+    *neg_depth.get_mut(1, 2) = -1.0;
+    let neg = dir.join("neg.exr");
+    io::write_depth_exr(&neg, &neg_depth).unwrap();
+    let truncated = dir.join("truncated.exr");
+    let bytes = std::fs::read(&frame).unwrap();
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    let out = dir.join("o.exr");
+    let f = s(&frame);
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["--color", f, "--depth", s(&small)], "size mismatch"),
+        (vec!["--color", f, "--depth", s(&nan)], "NaN"),
+        (vec!["--color", f, "--depth", s(&neg)], "not positive"),
+        (
+            vec!["--color", s(&truncated), "--depth", f],
+            "truncated.exr",
+        ),
+        (vec!["--color", f, "--depth", "missing.exr"], "missing.exr"),
+        (vec!["--color", f, "--depth", f, "--fstop", "0"], "f-number"),
+        (vec!["--color", f, "--depth", f, "--focus", "-1"], "focus"),
+        (
+            vec![
+                "--color", f, "--depth", f, "--method", "lowrank", "--rank", "0",
+            ],
+            "rank",
+        ),
+        (
+            vec![
+                "--color", f, "--depth", f, "--method", "poisson", "--taps", "0",
+            ],
+            "--taps",
+        ),
+        (
+            vec!["--color", f, "--depth", f, "--aperture", "poly:2"],
+            "blades",
+        ),
+        (
+            vec!["--color", f, "--depth", f, "--coc", "artist"],
+            "--artist-near",
+        ),
+        (vec!["--color", f, "--tilt-shift", "width=-1"], "tilt-shift"),
+        (
+            vec!["--color", f, "--tilt-shift", "--method", "hammon"],
+            "lowrank",
+        ),
+    ];
+    for (args, needle) in cases {
+        let mut all = vec!["blur"];
+        all.extend(&args);
+        all.extend(["--out", s(&out)]);
+        let o = defocus(&all);
+        let e = stderr(&o);
+        assert!(!o.status.success(), "{args:?} should fail");
+        assert!(
+            e.contains(needle),
+            "{args:?}: '{e}' should mention {needle}"
+        );
+        assert!(!e.contains("panicked"), "{e}");
+        assert!(!out.exists(), "{args:?}: no output after an error");
+    }
+    // An input is never overwritten.
+    let o = defocus(&["blur", "--color", f, "--depth", f, "--out", f]);
+    assert!(!o.status.success());
+    assert_eq!(std::fs::read(&frame).unwrap(), bytes, "input untouched");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn render_runs_post_process_methods_on_the_pinhole_frame() {
+    let dir = temp_dir("render");
+    let pin = dir.join("pin.exr");
+    let o = defocus(&[
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        "64",
+        "--height",
+        "36",
+        "--out",
+        s(&pin),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let pinhole = io::read_color(&pin).unwrap();
+    for method in ["hammon", "lowrank", "gaussian", "poisson"] {
+        let out = dir.join(format!("{method}.exr"));
+        let o = defocus(&[
+            "render",
+            "--method",
+            method,
+            "--width",
+            "64",
+            "--height",
+            "36",
+            "--out",
+            s(&out),
+            "--timings",
+            "json",
+        ]);
+        assert!(o.status.success(), "{method}: {}", stderr(&o));
+        let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+        let names: Vec<&str> = json["passes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["name"].as_str().unwrap())
+            .collect();
+        assert!(names.iter().any(|n| n.starts_with("pinhole/")), "{names:?}");
+        assert!(
+            names.iter().any(|n| n.starts_with(&format!("{method}/"))),
+            "{names:?}"
+        );
+        let img = io::read_color(&out).unwrap();
+        assert_eq!((img.width(), img.height()), (64, 36));
+        let diff: f32 = img
+            .pixels()
+            .iter()
+            .zip(pinhole.pixels())
+            .map(|(a, b)| (a[0] - b[0]).abs())
+            .sum();
+        assert!(diff > 1.0, "{method}: the railing scene should be blurred");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn kernel_reports_errors_that_fall_with_rank_and_writes_images() {
+    let dir = temp_dir("kernel");
+    let k = dir.join("k.png");
+    let k3 = dir.join("k3.exr");
+    let o = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args([
+            "kernel",
+            "--aperture",
+            "poly:6",
+            "--size",
+            "33",
+            "--rank",
+            "1..4",
+            "--json",
+            "--out",
+            s(&k),
+            "--approx-out",
+            s(&k3),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    let errors: Vec<f64> = json["ranks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["relative_error"].as_f64().unwrap())
+        .collect();
+    assert_eq!(errors.len(), 4);
+    assert!(errors.windows(2).all(|w| w[1] < w[0]), "{errors:?}");
+    // Eq. 4 from the printed singular values.
+    let sv: Vec<f64> = json["singular_values"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let total: f64 = sv.iter().map(|s| s * s).sum();
+    let tail: f64 = sv.iter().skip(2).map(|s| s * s).sum();
+    assert!((errors[1] - (tail / total).sqrt()).abs() < 1e-9);
+    let kimg = io::read_color(&k).unwrap();
+    assert_eq!((kimg.width(), kimg.height()), (33, 33));
+    assert!(io::read_color(&k3).is_ok());
+    // A rank above the kernel's size is refused.
+    let o = defocus(&["kernel", "--size", "5", "--rank", "6"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("at most rank 5"), "{}", stderr(&o));
+    std::fs::remove_dir_all(dir).unwrap();
+}
