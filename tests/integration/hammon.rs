@@ -798,3 +798,30 @@ fn invalid_settings_are_errors_naming_the_setting() {
         }
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Against the ground truth.
+
+#[test]
+fn hammon_is_closer_to_reference_than_the_pinhole_image_on_railing_and_lights() {
+    for name in ["railing", "lights"] {
+        let gt = crate::ground_truth(name);
+        let out =
+            hammon::render(&gt.pinhole, &gt.depth, &gt.lens, &HammonSettings::default()).unwrap();
+        let ham = defocus::metrics::compare(&out.image, &gt.truth).unwrap();
+        let pin = defocus::metrics::compare(&gt.pinhole, &gt.truth).unwrap();
+        eprintln!(
+            "{name} 640x360 vs reference (256 samples): hammon PSNR {:.2} dB SSIM {:.4} MSE {:.5}; \
+             pinhole PSNR {:.2} dB SSIM {:.4} MSE {:.5}",
+            ham.psnr_db, ham.ssim, ham.mse_linear, pin.psnr_db, pin.ssim, pin.mse_linear
+        );
+        assert!(
+            ham.psnr_db > pin.psnr_db + 1.0,
+            "{name}: PSNR {ham:?} vs {pin:?}"
+        );
+        assert!(
+            ham.ssim > pin.ssim + 0.02,
+            "{name}: SSIM {ham:?} vs {pin:?}"
+        );
+    }
+}

@@ -904,61 +904,43 @@ fn custom_shapes_are_symmetric_apertures() {
 
 #[test]
 fn lowrank_is_closer_to_reference_than_the_gaussian_on_lights_and_railing() {
-    use defocus::methods::{pinhole, reference};
     for name in ["lights", "railing"] {
-        let scene = defocus::scene::builtin::load(name).unwrap();
-        let defaults = scene.defaults.clone().unwrap();
-        let mut camera = defaults.camera.clone();
-        camera.width_px = 640;
-        camera.height_px = 360;
-        let lens = camera.thin_lens().unwrap();
         let start = std::time::Instant::now();
-        let pin = pinhole::render(&scene, &camera, 1, 0, true).unwrap();
-        let depth = pin.depth.unwrap();
-        let truth = reference::render(
-            &scene,
-            &camera,
-            &reference::ReferenceSettings {
-                samples: 256,
-                aperture: defaults.aperture.clone(),
-                ..Default::default()
-            },
-            &mut |_, _| {},
-        )
-        .unwrap();
+        let gt = crate::ground_truth(name);
         let reference_ms = start.elapsed().as_millis();
+        let (lens, depth) = (&gt.lens, &gt.depth);
         let lr = lowrank::render(
-            &pin.image,
-            &depth,
-            &lens,
+            &gt.pinhole,
+            depth,
+            lens,
             &LowRankSettings {
-                aperture: defaults.aperture.clone(),
+                aperture: gt.aperture.clone(),
                 ..LowRankSettings::default()
             },
         )
         .unwrap();
-        let ga = gaussian::render(&pin.image, &depth, &lens, &Default::default()).unwrap();
+        let ga = gaussian::render(&gt.pinhole, depth, lens, &Default::default()).unwrap();
         let po = poisson::render(
-            &pin.image,
-            &depth,
-            &lens,
+            &gt.pinhole,
+            depth,
+            lens,
             &poisson::PoissonSettings {
-                aperture: defaults.aperture.clone(),
+                aperture: gt.aperture.clone(),
                 ..Default::default()
             },
         )
         .unwrap();
-        let mse = |img: &ColorImage| defocus::metrics::mse_linear(img, &truth.image).unwrap();
+        let mse = |img: &ColorImage| defocus::metrics::mse_linear(img, &gt.truth).unwrap();
         let (m_lr, m_ga, m_po, m_pin) = (
             mse(&lr.image),
             mse(&ga.image),
             mse(&po.image),
-            mse(&pin.image),
+            mse(&gt.pinhole),
         );
         eprintln!(
-            "{name} 640x360 ({:?}): MSE vs reference (256 samples, {reference_ms} ms): lowrank {m_lr:.5} \
+            "{name} 640x360 ({:?}): MSE vs reference (256 samples, {reference_ms} ms if not shared): lowrank {m_lr:.5} \
              gaussian {m_ga:.5} poisson {m_po:.5} pinhole {m_pin:.5}; lowrank {:+.0}% vs gaussian",
-            defaults.aperture,
+            gt.aperture,
             100.0 * (m_lr / m_ga - 1.0)
         );
         assert!(m_lr < m_ga, "{name}: lowrank {m_lr} vs gaussian {m_ga}");

@@ -65,3 +65,57 @@ pub fn add_screen_rect(
     mesh.push_quad(p0, to_world(x1, y0) - p0, to_world(x0, y1) - p0);
     scene.meshes.push(mesh);
 }
+
+/// A built-in scene at 640x360 with its pinhole frame (colour, depth) and its ground truth
+/// (`reference`, 256 lens samples, the scene's aperture), rendered once per test run.
+pub struct GroundTruth {
+    /// The scene's default aperture.
+    pub aperture: defocus::lens::Aperture,
+    /// The thin lens of the scene's camera at 640x360.
+    pub lens: defocus::lens::ThinLens,
+    /// Pinhole colour at pixel centres.
+    pub pinhole: defocus::image::ColorImage,
+    /// Pinhole view-axis depth in metres.
+    pub depth: defocus::image::GrayImage,
+    /// The reference image.
+    pub truth: defocus::image::ColorImage,
+}
+
+/// The [`GroundTruth`] of built-in scene `name` ("lights" or "railing").
+pub fn ground_truth(name: &str) -> &'static GroundTruth {
+    use std::sync::OnceLock;
+    static LIGHTS: OnceLock<GroundTruth> = OnceLock::new();
+    static RAILING: OnceLock<GroundTruth> = OnceLock::new();
+    let cell = match name {
+        "lights" => &LIGHTS,
+        "railing" => &RAILING,
+        other => panic!("no ground truth for {other}"),
+    };
+    cell.get_or_init(|| {
+        use defocus::methods::{pinhole, reference};
+        let scene = defocus::scene::builtin::load(name).unwrap();
+        let defaults = scene.defaults.clone().unwrap();
+        let mut camera = defaults.camera.clone();
+        camera.width_px = 640;
+        camera.height_px = 360;
+        let pin = pinhole::render(&scene, &camera, 1, 0, true).unwrap();
+        let truth = reference::render(
+            &scene,
+            &camera,
+            &reference::ReferenceSettings {
+                samples: 256,
+                aperture: defaults.aperture.clone(),
+                ..Default::default()
+            },
+            &mut |_, _| {},
+        )
+        .unwrap();
+        GroundTruth {
+            aperture: defaults.aperture,
+            lens: camera.thin_lens().unwrap(),
+            pinhole: pin.image,
+            depth: pin.depth.unwrap(),
+            truth: truth.image,
+        }
+    })
+}
