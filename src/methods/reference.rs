@@ -156,7 +156,7 @@ pub fn render(
             let view = View {
                 lens,
                 lens_point: s.lens,
-                pixel_offset: s.pixel_offset,
+                pixel_offset: crate::raster::snap_pixel_offset(s.pixel_offset),
                 lod_bias: -0.5 * (total as f32).log2(),
             };
             let binned = timings.time(&format!("{method}/setup"), || {

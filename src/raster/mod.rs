@@ -41,6 +41,21 @@ use crate::Result;
 /// Tile side in pixels.
 pub const TILE: usize = 32;
 
+/// Steps per pixel of the fixed-point grid that vertices snap to (1/256 pixel).
+pub const SUBPIXEL_STEPS: f32 = (1u32 << setup::SUBPIXEL_BITS) as f32;
+
+/// A sub-pixel sample offset in [-0.5, 0.5) moved down onto the raster's fixed-point grid, so
+/// that geometry aligned to the pixel grid (texel-aligned edges) stays on grid points after the
+/// shift and is never snapped across a pixel centre: an offset just below +0.5 would otherwise
+/// round onto the next pixel's boundary.
+pub fn snap_pixel_offset(offset: glam::Vec2) -> glam::Vec2 {
+    let q = |o: f32| {
+        let k = (o * SUBPIXEL_STEPS).floor();
+        k.clamp(-0.5 * SUBPIXEL_STEPS, 0.5 * SUBPIXEL_STEPS - 1.0) / SUBPIXEL_STEPS
+    };
+    glam::Vec2::new(q(offset.x), q(offset.y))
+}
+
 /// A screen-space fragment handed to a sink.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fragment {

@@ -8,7 +8,7 @@ use crate::lens::ThinLens;
 use crate::scene::Scene;
 
 /// Sub-pixel precision: 1/256 pixel.
-const SUBPIXEL_BITS: u32 = 8;
+pub(crate) const SUBPIXEL_BITS: u32 = 8;
 const ONE: i64 = 1 << SUBPIXEL_BITS;
 const HALF: i64 = ONE / 2;
 /// Guard band in pixels around the image: triangles are clipped to it so fixed-point

@@ -1090,22 +1090,18 @@ fn every_shared_scene_asset_loads_and_renders_a_lit_pinhole_frame() {
 const CYCLES_PINHOLE_SAMPLES: usize = 256;
 /// Least PSNR of our supersampled pinhole image against `pinhole.exr`. An independent program
 /// following the README's model scored 69.16 dB; Cycles' own seed pair 70.03 dB. Measured:
-/// 52.3 dB at 256 samples, because a sub-pixel offset within 1/512 px of +0.5 is snapped by the
-/// rasterizer's 1/256 px fixed point onto the next pixel's edge (texel-aligned ruler ticks and
-/// stripes pick up a neighbouring texel in 2 of 256 samples); with offsets kept on the grid inside
-/// [-0.5, 0.5) the same renderer scores 65.1 dB (256 samples) and 69.8 dB (1024). Raise this to
-/// 62 dB once the raster keeps offsets inside the pixel.
-const CYCLES_PINHOLE_MIN_PSNR_DB: f64 = 50.0;
+/// 64.5 dB at 256 samples (the sub-pixel offsets are snapped onto the rasterizer's 1/256 px grid,
+/// [`defocus::raster::snap_pixel_offset`]; before that, an offset within 1/512 px of +0.5 rounded
+/// onto the next pixel's edge and texel-aligned ticks picked up a neighbouring texel: 52.3 dB).
+const CYCLES_PINHOLE_MIN_PSNR_DB: f64 = 62.0;
 /// Lens samples of the depth-of-field renders (the README: 1024 samples should score about
 /// 56-57 dB against the two-seed means; a noise-free renderer about 61 dB).
 const CYCLES_DOF_SAMPLES: usize = 1024;
 /// Least PSNR against `dof_disc.exr` and `dof_blades5.exr`, far above the 30.13 dB of the
 /// pinhole image against `dof_disc.exr` (turning the pentagon by 18 degrees costs about 3.6 dB).
-/// Measured at 1024 samples: 53.7 dB (disc) and 54.2 dB (5 blades); with sub-pixel offsets kept
-/// inside the pixel (see [`CYCLES_PINHOLE_MIN_PSNR_DB`]) 56.8 and 58.0 dB, and 59.2 and 60.4 dB
-/// at 4096 samples, as the README predicts for a renderer that follows Cycles' model. Raise this
-/// to 55 dB once the raster keeps offsets inside the pixel.
-const CYCLES_DOF_MIN_PSNR_DB: f64 = 52.0;
+/// Measured at 1024 samples: 56.8 dB (disc) and 57.9 dB (5 blades); 59.2 and 60.4 dB at 4096
+/// samples, as the Cycles README predicts for a renderer that follows Cycles' model.
+const CYCLES_DOF_MIN_PSNR_DB: f64 = 55.0;
 /// Least SSIM of the depth-of-field renders (Cycles' seed pair: 0.99991).
 const CYCLES_DOF_MIN_SSIM: f64 = 0.9995;
 
