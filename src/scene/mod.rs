@@ -149,6 +149,10 @@ pub struct Mesh {
     pub indices: Vec<[u32; 3]>,
     /// Index into [`Scene::materials`].
     pub material: usize,
+    /// Unit vertex normals, world space, as the file gives them (glTF `NORMAL`, OBJ `vn`).
+    /// Empty when the file has none. Rendering is unlit and does not use them yet; they are
+    /// kept for shading and for methods that want them.
+    pub normals: Vec<Vec3>,
 }
 
 impl Mesh {

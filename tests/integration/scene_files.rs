@@ -1365,3 +1365,62 @@ fn cli_renders_a_scene_file_with_its_camera_a_chosen_view_and_autofocus() {
         stderr(&o)
     );
 }
+
+#[test]
+fn gltf_normals_are_kept_in_world_space_with_the_inverse_transpose() {
+    let dir = temp_dir("normals");
+    let mut g = Gltf::new();
+    // A quad in the plane x + z = 0 (local normal (1, 0, 1) / sqrt 2), under a node scaled 2x
+    // along x: the world normal is diag(1/2, 1, 1) n, normalised, not diag(2, 1, 1) n.
+    let c = [
+        Vec3::new(-1.0, -1.0, 1.0),
+        Vec3::new(1.0, -1.0, -1.0),
+        Vec3::new(1.0, 1.0, -1.0),
+        Vec3::new(-1.0, 1.0, 1.0),
+    ];
+    let mesh = g.quad(c, None);
+    let n = Vec3::new(1.0, 0.0, 1.0).normalize();
+    let normals = g.positions(&[n; 4]);
+    g.json["meshes"][mesh]["primitives"][0]["attributes"]["NORMAL"] = json!(normals);
+    g.root(json!({"mesh": mesh, "scale": [2.0, 1.0, 1.0]}));
+    let path = g.write(&dir, "normals");
+    let scene = load_scene_file(&path).unwrap();
+    let m = &scene.meshes[0];
+    assert_eq!(m.normals.len(), m.positions.len());
+    let expected = Vec3::new(0.5, 0.0, 1.0).normalize();
+    for got in &m.normals {
+        assert!((*got - expected).length() < 1e-5, "{got} vs {expected}");
+        // Perpendicular to the transformed surface.
+        let e1 = m.positions[1] - m.positions[0];
+        let e2 = m.positions[3] - m.positions[0];
+        assert!(got.dot(e1).abs() < 1e-5 && got.dot(e2).abs() < 1e-5);
+    }
+    // A NORMAL accessor of the wrong length is an error naming the attribute.
+    let mut bad = Gltf::new();
+    let mesh = bad.quad(c, None);
+    let short = bad.positions(&[n; 3]);
+    bad.json["meshes"][mesh]["primitives"][0]["attributes"]["NORMAL"] = json!(short);
+    bad.root(json!({"mesh": mesh}));
+    let e = load_scene_file(&bad.write(&dir, "bad"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("NORMAL") && e.contains("bad.gltf"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn obj_vertex_normals_are_kept_unit_length() {
+    let dir = temp_dir("objnormals");
+    std::fs::write(
+        dir.join("n.obj"),
+        "v -1 -1 -2\nv 1 -1 -2\nv 1 1 -2\nvn 0 0 2\nf 1//1 2//1 3//1\n",
+    )
+    .unwrap();
+    let scene = load_scene_file(&dir.join("n.obj")).unwrap();
+    let m = &scene.meshes[0];
+    assert_eq!(m.normals.len(), m.positions.len());
+    for n in &m.normals {
+        assert!((*n - Vec3::Z).length() < 1e-6, "{n}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -280,6 +280,8 @@ fn load_buffers<'a>(
 /// A primitive in its mesh's local space.
 struct LocalPrimitive {
     positions: Vec<Vec3>,
+    /// Local-space normals, one per position, or empty.
+    normals: Vec<Vec3>,
     uvs: Vec<Vec2>,
     indices: Vec<[u32; 3]>,
     material: Option<usize>,
@@ -474,6 +476,8 @@ impl<'a> Loader<'a> {
         // front faces stay counter-clockwise (glTF 2.0, section 3.7.4).
         let flip = world.determinant() < 0.0;
         let affine = Affine3A::from_mat4(*world);
+        // Normals transform by the inverse transpose of the linear part.
+        let normal_matrix = glam::Mat3::from_mat4(*world).inverse().transpose();
         for p in prims.iter() {
             let material = self.material(p.material)?;
             self.scene.meshes.push(Mesh {
@@ -481,6 +485,11 @@ impl<'a> Loader<'a> {
                     .positions
                     .iter()
                     .map(|&v| affine.transform_point3(v))
+                    .collect(),
+                normals: p
+                    .normals
+                    .iter()
+                    .map(|&n| (normal_matrix * n).normalize_or_zero())
                     .collect(),
                 uvs: p.uvs.clone(),
                 indices: if flip {
@@ -525,6 +534,19 @@ impl<'a> Loader<'a> {
             if n > u32::MAX as usize {
                 return Err(self.err(format!("{what}: {n} vertices is more than 2^32 - 1")));
             }
+            let normals = match prim.get(&gl::Semantic::Normals) {
+                None => Vec::new(),
+                Some(acc) => {
+                    let flat = self.read_floats(&acc, &format!("{what} NORMAL"), 3)?;
+                    if flat.len() != 3 * n {
+                        return Err(self.err(format!(
+                            "{what}: NORMAL has {} elements for {n} positions",
+                            flat.len() / 3
+                        )));
+                    }
+                    flat.chunks_exact(3).map(Vec3::from_slice).collect()
+                }
+            };
             let uvs = match uv_set(&prim.material()) {
                 None => Vec::new(),
                 Some(set) => {
@@ -580,6 +602,7 @@ impl<'a> Loader<'a> {
             };
             out.push(LocalPrimitive {
                 positions,
+                normals,
                 uvs,
                 indices,
                 material: prim.material().index(),

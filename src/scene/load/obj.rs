@@ -170,6 +170,14 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
         } else {
             Vec::new()
         };
+        let normals: Vec<Vec3> = if mesh.normals.len() == 3 * n {
+            mesh.normals
+                .chunks_exact(3)
+                .map(|v| Vec3::from_slice(v).normalize_or_zero())
+                .collect()
+        } else {
+            Vec::new()
+        };
         if mesh.indices.len() % 3 != 0 {
             return Err(Error::format(
                 path,
@@ -187,6 +195,7 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
         }
         scene.meshes.push(Mesh {
             positions,
+            normals,
             uvs,
             indices: mesh
                 .indices
