@@ -392,3 +392,40 @@ fn kernel_reports_errors_that_fall_with_rank_and_writes_images() {
     assert!(stderr(&o).contains("at most rank 5"), "{}", stderr(&o));
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn output_files_are_byte_identical_with_one_and_two_threads() {
+    let dir = temp_dir("threads");
+    for method in ["reference", "lowrank", "poisson", "hammon"] {
+        let files: Vec<Vec<u8>> = ["1", "2"]
+            .iter()
+            .map(|threads| {
+                let out = dir.join(format!("{method}-{threads}.exr"));
+                let o = defocus(&[
+                    "render",
+                    "--scene",
+                    "lights",
+                    "--method",
+                    method,
+                    "--samples",
+                    "8",
+                    "--width",
+                    "96",
+                    "--height",
+                    "54",
+                    "--threads",
+                    threads,
+                    "--out",
+                    s(&out),
+                ]);
+                assert!(o.status.success(), "{method}: {}", stderr(&o));
+                std::fs::read(&out).unwrap()
+            })
+            .collect();
+        assert!(
+            files[0] == files[1],
+            "{method}: output differs between 1 and 2 threads"
+        );
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
