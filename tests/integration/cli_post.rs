@@ -429,3 +429,66 @@ fn output_files_are_byte_identical_with_one_and_two_threads() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn blur_takes_png_colour_with_16_bit_png_or_pfm_depth_and_a_depth_scale() {
+    let dir = temp_dir("png");
+    let exr = dir.join("frame.exr");
+    let (color, depth) = write_frame(&exr);
+    let png = dir.join("frame.png");
+    io::write_color(
+        &png,
+        &color.map(|p| [p[0].min(1.0), p[1].min(1.0), p[2].min(1.0), 1.0]),
+    )
+    .unwrap();
+    // 16-bit grey PNG: value / 65535 * 20 m = depth.
+    let z16 = dir.join("z16.png");
+    let raw: Vec<u16> = depth
+        .pixels()
+        .iter()
+        .map(|z| (z / 20.0 * 65535.0).round() as u16)
+        .collect();
+    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(W as u32, H as u32, raw)
+        .unwrap()
+        .save(&z16)
+        .unwrap();
+    // PFM in centimetres (bottom row first, as the format stores it).
+    let zpfm = dir.join("z.pfm");
+    let mut pfm = format!("Pf\n{W} {H}\n-1.0\n").into_bytes();
+    for y in (0..H).rev() {
+        for x in 0..W {
+            pfm.extend((depth.get(x, y) * 100.0).to_le_bytes());
+        }
+    }
+    std::fs::write(&zpfm, pfm).unwrap();
+    let lens = ["--focus", "2", "--fstop", "1", "--focal-length", "200"];
+    let mut outputs = Vec::new();
+    for (z, scale) in [(&z16, "20"), (&zpfm, "0.01")] {
+        let out = dir.join(format!("{}.exr", z.file_stem().unwrap().to_str().unwrap()));
+        let mut args = vec![
+            "blur",
+            "--color",
+            s(&png),
+            "--depth",
+            s(z),
+            "--depth-scale",
+            scale,
+        ];
+        args.extend(lens);
+        args.extend(["--method", "gaussian", "--out", s(&out)]);
+        let o = defocus(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        outputs.push(io::read_color(&out).unwrap());
+    }
+    // Both depth files say the same thing, so the results agree (to the 16-bit quantisation).
+    let max_diff = outputs[0]
+        .pixels()
+        .iter()
+        .zip(outputs[1].pixels())
+        .map(|(a, b)| (a[0] - b[0]).abs())
+        .fold(0.0f32, f32::max);
+    assert!(max_diff < 1e-3, "PNG and PFM depth disagree by {max_diff}");
+    // And the far half is blurred: the bright square's neighbour brightens.
+    assert!(outputs[0].get(39, 16)[0] > color.get(39, 16)[0] + 0.05);
+    std::fs::remove_dir_all(dir).unwrap();
+}
