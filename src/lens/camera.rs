@@ -32,6 +32,13 @@ pub struct Camera {
     pub yfov_rad: Option<f32>,
 }
 
+/// Longest focal length accepted, in millimetres (the longest photographic lenses are about
+/// 5 m; beyond this a value is taken for a unit mistake).
+pub const MAX_FOCAL_LENGTH_MM: f32 = 10_000.0;
+
+/// Widest sensor accepted, in millimetres (8x10 inch large format film is 254 mm).
+pub const MAX_SENSOR_WIDTH_MM: f32 = 1_000.0;
+
 impl Camera {
     /// A camera at `from` looking at `to` with the given `up` direction, 50 mm on a 36 mm
     /// sensor at f/2.8, focused on `to`, 1280x720.
@@ -75,6 +82,37 @@ impl Camera {
                 format!(
                     "f/{} is not a physical lens: expected at least f/0.1",
                     self.fstop
+                ),
+            ));
+        }
+        for (name, v, lo, hi) in [
+            (
+                "focal length",
+                self.focal_length_mm,
+                0.1,
+                MAX_FOCAL_LENGTH_MM,
+            ),
+            (
+                "sensor width",
+                self.sensor_width_mm,
+                0.1,
+                MAX_SENSOR_WIDTH_MM,
+            ),
+        ] {
+            if !(lo..=hi).contains(&v) {
+                return Err(Error::invalid(
+                    name,
+                    format!("{v} mm is not a physical camera: expected {lo} to {hi} mm"),
+                ));
+            }
+        }
+        if self.focus_m <= self.focal_length_mm * 1e-3 {
+            return Err(Error::invalid(
+                "focus distance",
+                format!(
+                    "{} m is not beyond the focal length ({} mm): a lens cannot focus closer \
+                     than its focal length",
+                    self.focus_m, self.focal_length_mm
                 ),
             ));
         }

@@ -55,6 +55,11 @@ pub fn focus_at_pixel(
     } else {
         pinhole.near_m
     };
+    // Beyond the focal length too (a lens cannot focus closer), when the planes allow it.
+    pinhole.focus_m = pinhole
+        .focus_m
+        .max(2e-3 * pinhole.focal_length_mm)
+        .min(pinhole.far_m);
     let lens = pinhole.thin_lens()?.pinhole();
     let prepared = PreparedScene::new(scene, &camera.camera_from_world)?;
     let depth = render_gbuffer(&prepared, &View::pinhole(lens)).depth;

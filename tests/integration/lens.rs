@@ -81,6 +81,27 @@ fn camera_rejects_bad_lens_parameters() {
     let mut c = cycles_camera();
     c.fstop = f32::NAN;
     assert!(c.thin_lens().is_err());
+    // Absurd focal lengths and sensors (unit mistakes), and focus inside the focal length.
+    for (f_mm, sensor_mm, focus_m, needle) in [
+        (35_000.0, 36.0, 2.0, "focal length"),
+        (0.01, 36.0, 2.0, "focal length"),
+        (35.0, 36_000.0, 2.0, "sensor width"),
+        (
+            35.0,
+            36.0,
+            0.03,
+            "cannot focus closer than its focal length",
+        ),
+    ] {
+        let mut c = cycles_camera();
+        c.near_m = 0.01;
+        (c.focal_length_mm, c.sensor_width_mm, c.focus_m) = (f_mm, sensor_mm, focus_m);
+        let e = c.thin_lens().unwrap_err().to_string();
+        assert!(
+            e.contains(needle),
+            "{f_mm} mm, {sensor_mm} mm, {focus_m} m: {e}"
+        );
+    }
 }
 
 #[test]
