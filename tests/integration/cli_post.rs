@@ -492,3 +492,53 @@ fn blur_takes_png_colour_with_16_bit_png_or_pfm_depth_and_a_depth_scale() {
     assert!(outputs[0].get(39, 16)[0] > color.get(39, 16)[0] + 0.05);
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn blur_writes_the_signed_coc_map_of_the_thin_lens() {
+    let dir = temp_dir("cocout");
+    let frame = dir.join("frame.exr");
+    write_frame(&frame);
+    let (out, coc) = (dir.join("o.exr"), dir.join("coc.exr"));
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&frame),
+        "--focus",
+        "2",
+        "--fstop",
+        "1",
+        "--focal-length",
+        "200",
+        "--out",
+        s(&out),
+        "--coc-out",
+        s(&coc),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ch = io::read_exr_channels(&coc).unwrap();
+    let c = ch.find("CoC").expect("channel CoC");
+    // f_px = 200 / 36 * 48 px, lens radius 0.2 m / 2 = 0.1 m: C(z) = f_px E (1/2 - 1/z).
+    let expected_far = 200.0 / 36.0 * 48.0 * 0.1 * (0.5 - 0.1);
+    assert_eq!(c[0], 0.0, "the in-focus half has no blur");
+    assert!(
+        (c[W - 1] - expected_far).abs() < 1e-3,
+        "{} vs {expected_far}",
+        c[W - 1]
+    );
+    // The same file for both outputs is refused.
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&frame),
+        "--out",
+        s(&coc),
+        "--coc-out",
+        s(&coc),
+    ]);
+    assert!(!o.status.success());
+    std::fs::remove_dir_all(dir).unwrap();
+}

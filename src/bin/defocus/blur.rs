@@ -104,6 +104,10 @@ pub struct BlurArgs {
     /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
     pub timings: Option<TimingFormat>,
+    /// Also write the signed CoC radius in pixels of every pixel (channel `CoC`; negative in front
+    /// of the focal plane, unclamped), to check the focus set-up.
+    #[arg(long, value_name = "FILE.exr")]
+    pub coc_out: Option<PathBuf>,
     /// Say which channels and parameters were used (on stderr).
     #[arg(long, short)]
     pub verbose: bool,
@@ -153,6 +157,7 @@ pub struct BlurJob {
     method: PostMethod,
     settings: PostSettings,
     out: PathBuf,
+    coc_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
 }
 
@@ -161,9 +166,20 @@ impl TryFrom<&BlurArgs> for BlurJob {
 
     fn try_from(a: &BlurArgs) -> Result<Self> {
         check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
-        io::ensure_not_same_file(&a.color, &a.out)?;
-        if let Some(d) = &a.depth {
-            io::ensure_not_same_file(d, &a.out)?;
+        if let Some(c) = &a.coc_out {
+            check_output(c, "--coc-out", &["exr"])?;
+            if c == &a.out {
+                bail!(
+                    "--coc-out and --out both name {}: give two files",
+                    c.display()
+                );
+            }
+        }
+        for out in std::iter::once(&a.out).chain(&a.coc_out) {
+            io::ensure_not_same_file(&a.color, out)?;
+            if let Some(d) = &a.depth {
+                io::ensure_not_same_file(d, out)?;
+            }
         }
         let tilt_shift = a.tilt_shift.as_deref().map(parse_tilt_shift).transpose()?;
         let method = match (a.method, &tilt_shift) {
@@ -214,6 +230,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 method,
                 settings,
                 out: a.out.clone(),
+                coc_out: a.coc_out.clone(),
                 timings: a.timings,
             });
         }
@@ -303,6 +320,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             method,
             settings,
             out: a.out.clone(),
+            coc_out: a.coc_out.clone(),
             timings: a.timings,
         })
     }
@@ -325,6 +343,20 @@ impl BlurJob {
         timings.time(&format!("{id}/write"), || {
             io::write_color(&self.out, &output.image)
         })?;
+        if let Some(path) = &self.coc_out {
+            let coc: Vec<f32> = match &self.input {
+                Input::Depth { depth, lens } => {
+                    depth.pixels().iter().map(|&z| lens.coc_px(z)).collect()
+                }
+                Input::TiltShift { coc_px } => coc_px.pixels().to_vec(),
+            };
+            io::write_exr_layers(
+                path,
+                self.color.width(),
+                self.color.height(),
+                &[("CoC", &coc)],
+            )?;
+        }
         report_timings(
             self.timings,
             id,
