@@ -4,21 +4,21 @@
 use glam::Vec2;
 
 use crate::image::Rgba;
-use crate::scene::texture::fast_log2;
-use crate::scene::{AlphaMode, Material, Texture, TextureBinding};
+use crate::scene::texture::{fast_log2, BoundTexture};
+use crate::scene::{AlphaMode, Material, Texture, TextureBinding, UvTransform};
 
 /// A material ready to shade fragments.
 pub(crate) struct Shader<'a> {
     material: &'a Material,
-    base: Option<(&'a TextureBinding, &'a Texture)>,
-    emissive: Option<(&'a TextureBinding, &'a Texture)>,
+    base: Option<Slot<'a>>,
+    emissive: Option<Slot<'a>>,
     emission: [f32; 3],
     lod_bias: f32,
 }
 
 impl<'a> Shader<'a> {
     pub(crate) fn new(material: &'a Material, textures: &'a [Texture], lod_bias: f32) -> Self {
-        let bind = |b: &'a Option<TextureBinding>| b.as_ref().map(|b| (b, &textures[b.texture]));
+        let bind = |b: &'a Option<TextureBinding>| b.as_ref().map(|b| Slot::new(b, textures));
         Self {
             material,
             base: bind(&material.base_color_texture),
@@ -40,15 +40,15 @@ impl<'a> Shader<'a> {
     pub(crate) fn shade(&self, uv: Vec2, duv_dx: Vec2, duv_dy: Vec2) -> Option<Rgba> {
         let m = self.material;
         let mut c = m.base_color;
-        if let Some((b, t)) = self.base {
-            let s = sample(b, t, uv, duv_dx, duv_dy, self.lod_bias);
+        if let Some(slot) = &self.base {
+            let s = slot.sample(uv, duv_dx, duv_dy, self.lod_bias);
             for k in 0..4 {
                 c[k] *= s[k];
             }
         }
         let mut e = self.emission;
-        if let Some((b, t)) = self.emissive {
-            let s = sample(b, t, uv, duv_dx, duv_dy, self.lod_bias);
+        if let Some(slot) = &self.emissive {
+            let s = slot.sample(uv, duv_dx, duv_dy, self.lod_bias);
             for k in 0..3 {
                 e[k] *= s[k];
             }
@@ -67,22 +67,104 @@ impl<'a> Shader<'a> {
     }
 }
 
-#[inline]
-fn sample(b: &TextureBinding, t: &Texture, uv: Vec2, dx: Vec2, dy: Vec2, lod_bias: f32) -> Rgba {
-    let (w, h) = t.size();
-    let size = Vec2::new(w as f32, h as f32);
-    let (uv, dx, dy) = if b.uv_transform.is_identity() {
-        (uv, dx, dy)
-    } else {
-        let o = b.uv_transform.apply(Vec2::ZERO);
-        (
-            b.uv_transform.apply(uv),
-            b.uv_transform.apply(dx) - o,
-            b.uv_transform.apply(dy) - o,
-        )
-    };
-    let fx = (dx * size).length_squared();
-    let fy = (dy * size).length_squared();
-    let lod = 0.5 * fast_log2(fx.max(fy).max(1e-12)) + lod_bias;
-    t.sample(&b.sampler, uv, lod)
+/// A bound texture slot of a material, with what sampling it needs worked out once.
+struct Slot<'a> {
+    texture: BoundTexture<'a>,
+    /// `None` for the identity.
+    uv_transform: Option<UvAffine>,
+    /// Level-0 size in texels.
+    size: Vec2,
+}
+
+impl<'a> Slot<'a> {
+    fn new(b: &TextureBinding, textures: &'a [Texture]) -> Self {
+        let texture = BoundTexture::new(&textures[b.texture], b.sampler);
+        let (w, h) = texture.size();
+        Self {
+            texture,
+            uv_transform: (!b.uv_transform.is_identity()).then(|| UvAffine::new(&b.uv_transform)),
+            size: Vec2::new(w as f32, h as f32),
+        }
+    }
+
+    #[inline]
+    fn sample(&self, uv: Vec2, dx: Vec2, dy: Vec2, lod_bias: f32) -> Rgba {
+        let (uv, dx, dy) = match &self.uv_transform {
+            None => (uv, dx, dy),
+            Some(t) => (t.apply(uv), t.apply(dx) - t.origin, t.apply(dy) - t.origin),
+        };
+        let fx = (dx * self.size).length_squared();
+        let fy = (dy * self.size).length_squared();
+        let lod = 0.5 * fast_log2(fx.max(fy).max(1e-12)) + lod_bias;
+        self.texture.sample(uv, lod)
+    }
+}
+
+/// [`UvTransform::apply`] with the rotation's sine and cosine and the image of the origin
+/// worked out once per material instead of per fragment; the same arithmetic, bit for bit.
+#[derive(Clone, Copy, Debug)]
+struct UvAffine {
+    scale: Vec2,
+    sin: f32,
+    cos: f32,
+    offset: Vec2,
+    /// `apply(0, 0)`, subtracted to transform derivatives.
+    origin: Vec2,
+}
+
+impl UvAffine {
+    fn new(t: &UvTransform) -> Self {
+        let (sin, cos) = t.rotation_rad.sin_cos();
+        Self {
+            scale: t.scale,
+            sin,
+            cos,
+            offset: t.offset,
+            origin: t.apply(Vec2::ZERO),
+        }
+    }
+
+    #[inline]
+    fn apply(&self, uv: Vec2) -> Vec2 {
+        let s = uv * self.scale;
+        let (sin, cos) = (self.sin, self.cos);
+        Vec2::new(cos * s.x + sin * s.y, -sin * s.x + cos * s.y) + self.offset
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hoisted_uv_transform_matches_uv_transform_apply_bit_for_bit() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32 * 8.0 - 4.0
+        };
+        for _ in 0..1000 {
+            let t = UvTransform {
+                offset: Vec2::new(next(), next()),
+                rotation_rad: next(),
+                scale: Vec2::new(next(), next()),
+            };
+            let a = UvAffine::new(&t);
+            assert_eq!(
+                a.origin.to_array().map(f32::to_bits),
+                t.apply(Vec2::ZERO).to_array().map(f32::to_bits)
+            );
+            for _ in 0..10 {
+                let uv = Vec2::new(next(), next()) * 100.0;
+                let want = t.apply(uv).to_array().map(f32::to_bits);
+                assert_eq!(
+                    a.apply(uv).to_array().map(f32::to_bits),
+                    want,
+                    "{t:?} at {uv}"
+                );
+            }
+        }
+    }
 }

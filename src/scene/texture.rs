@@ -1,4 +1,4 @@
-use glam::Vec2;
+use glam::{Vec2, Vec4};
 
 use crate::image::{ColorImage, Rgba};
 
@@ -114,60 +114,65 @@ impl Texture {
     /// Samples at `uv` (glTF convention: (0,0) is the top-left corner of the image) with a
     /// footprint: `lod` is log2 of the texels per pixel at level 0.
     pub fn sample(&self, sampler: &TextureSampler, uv: Vec2, lod: f32) -> Rgba {
+        self.sample_with(sampler, uv, lod)
+    }
+
+    #[inline(always)]
+    fn sample_with(&self, sampler: &TextureSampler, uv: Vec2, lod: f32) -> Rgba {
         if lod <= 0.0 || sampler.mip_filter.is_none() {
             let filter = if lod <= 0.0 {
                 sampler.mag_filter
             } else {
                 sampler.min_filter
             };
-            return self.sample_level(0, filter, sampler, uv);
+            return self.sample_level(0, filter, sampler, uv).to_array();
         }
-        let max_level = (self.levels.len() - 1) as f32;
-        let lod = lod.min(max_level);
+        let last = self.levels.len() - 1;
+        let lod = lod.min(last as f32);
         match sampler.mip_filter {
-            Some(FilterMode::Nearest) => {
-                self.sample_level((lod + 0.5) as usize, sampler.min_filter, sampler, uv)
-            }
+            Some(FilterMode::Nearest) => self
+                .sample_level((lod + 0.5) as usize, sampler.min_filter, sampler, uv)
+                .to_array(),
             _ => {
-                let l0 = lod.floor();
-                let t = lod - l0;
-                let a = self.sample_level(l0 as usize, sampler.min_filter, sampler, uv);
+                // `lod` is in (0, last] here, so truncation is `floor` (and needs no libm call).
+                let l0 = lod as usize;
+                let t = lod - l0 as f32;
+                let a = self.sample_level(l0, sampler.min_filter, sampler, uv);
                 if t <= 0.0 {
-                    return a;
+                    return a.to_array();
                 }
-                let b = self.sample_level(
-                    (l0 as usize + 1).min(self.levels.len() - 1),
-                    sampler.min_filter,
-                    sampler,
-                    uv,
-                );
-                std::array::from_fn(|c| a[c] + (b[c] - a[c]) * t)
+                let b = self.sample_level((l0 + 1).min(last), sampler.min_filter, sampler, uv);
+                (a + (b - a) * t).to_array()
             }
         }
     }
 
-    #[inline]
+    /// One mip level, filtered. Colours are `Vec4` so that the blends run on all four channels
+    /// at once; the arithmetic per channel is the scalar `a + (b - a) * t`.
+    #[inline(always)]
     fn sample_level(
         &self,
         level: usize,
         filter: FilterMode,
         sampler: &TextureSampler,
         uv: Vec2,
-    ) -> Rgba {
+    ) -> Vec4 {
         let img = &self.levels[level];
         let (w, h) = (img.width() as i32, img.height() as i32);
         let x = uv.x * w as f32;
         let y = uv.y * h as f32;
         if !(x.is_finite() && y.is_finite()) {
-            return img.get(0, 0);
+            return Vec4::from_array(img.get(0, 0));
         }
         // Far outside the texture, wrap in float first so the integer conversion cannot saturate.
         let (x, y) = (reduce(x, w, sampler.wrap_u), reduce(y, h, sampler.wrap_v));
+        let texels = img.pixels();
+        let texel = |ix: usize, iy: usize| Vec4::from_array(texels[iy * w as usize + ix]);
         match filter {
             FilterMode::Nearest => {
                 let ix = wrap(fast_floor(x), w, sampler.wrap_u);
                 let iy = wrap(fast_floor(y), h, sampler.wrap_v);
-                img.get(ix, iy)
+                texel(ix, iy)
             }
             FilterMode::Linear => {
                 let fx = x - 0.5;
@@ -178,15 +183,77 @@ impl Texture {
                 let ty = fy - y0 as f32;
                 let (xa, xb) = wrap_pair(x0, w, sampler.wrap_u);
                 let (ya, yb) = wrap_pair(y0, h, sampler.wrap_v);
-                let row_a = img.row(ya);
-                let row_b = img.row(yb);
-                let (p00, p10, p01, p11) = (row_a[xa], row_a[xb], row_b[xa], row_b[xb]);
-                std::array::from_fn(|c| {
-                    let top = p00[c] + (p10[c] - p00[c]) * tx;
-                    let bottom = p01[c] + (p11[c] - p01[c]) * tx;
-                    top + (bottom - top) * ty
-                })
+                let (p00, p10, p01, p11) =
+                    (texel(xa, ya), texel(xb, ya), texel(xa, yb), texel(xb, yb));
+                let top = p00 + (p10 - p00) * tx;
+                let bottom = p01 + (p11 - p01) * tx;
+                top + (bottom - top) * ty
             }
+        }
+    }
+}
+
+/// The glTF default sampler (trilinear) with the same wrap mode on both axes.
+const fn trilinear(wrap: WrapMode) -> TextureSampler {
+    TextureSampler {
+        mag_filter: FilterMode::Linear,
+        min_filter: FilterMode::Linear,
+        mip_filter: Some(FilterMode::Linear),
+        wrap_u: wrap,
+        wrap_v: wrap,
+    }
+}
+
+/// Samplers that get a copy of the lookup of their own, with the modes known at compile time.
+#[derive(Clone, Copy, Debug)]
+enum Specialised {
+    TrilinearRepeat,
+    TrilinearClamp,
+    Other,
+}
+
+/// A texture with its sampler, for many lookups: the filter and wrap dispatch, which
+/// [`Texture::sample`] does per texel, is done once here for the common samplers.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct BoundTexture<'a> {
+    texture: &'a Texture,
+    sampler: TextureSampler,
+    specialised: Specialised,
+}
+
+impl<'a> BoundTexture<'a> {
+    const REPEAT: TextureSampler = trilinear(WrapMode::Repeat);
+    const CLAMP: TextureSampler = trilinear(WrapMode::ClampToEdge);
+
+    pub(crate) fn new(texture: &'a Texture, sampler: TextureSampler) -> Self {
+        let specialised = if sampler == Self::REPEAT {
+            Specialised::TrilinearRepeat
+        } else if sampler == Self::CLAMP {
+            Specialised::TrilinearClamp
+        } else {
+            Specialised::Other
+        };
+        Self {
+            texture,
+            sampler,
+            specialised,
+        }
+    }
+
+    /// Width and height of level 0.
+    #[inline]
+    pub(crate) fn size(&self) -> (usize, usize) {
+        self.texture.size()
+    }
+
+    /// Same as [`Texture::sample`] with this sampler, bit for bit.
+    #[inline]
+    pub(crate) fn sample(&self, uv: Vec2, lod: f32) -> Rgba {
+        // Each arm inlines `sample_with` with constant modes.
+        match self.specialised {
+            Specialised::TrilinearRepeat => self.texture.sample_with(&Self::REPEAT, uv, lod),
+            Specialised::TrilinearClamp => self.texture.sample_with(&Self::CLAMP, uv, lod),
+            Specialised::Other => self.texture.sample_with(&self.sampler, uv, lod),
         }
     }
 }
@@ -215,11 +282,19 @@ fn reduce(x: f32, n: i32, mode: WrapMode) -> f32 {
 }
 
 /// Wrapped indices of texels `i` and `i + 1`.
-#[inline]
+#[inline(always)]
 fn wrap_pair(i: i32, n: i32, mode: WrapMode) -> (usize, usize) {
     match mode {
+        // Power-of-two sizes (the common case) wrap with a mask, as `wrap` does.
+        WrapMode::Repeat if n & (n - 1) == 0 => {
+            ((i & (n - 1)) as usize, ((i + 1) & (n - 1)) as usize)
+        }
         WrapMode::Repeat if (0..n - 1).contains(&i) => (i as usize, i as usize + 1),
-        WrapMode::ClampToEdge => (i.clamp(0, n - 1) as usize, (i + 1).clamp(0, n - 1) as usize),
+        // `max(0).min(n - 1)` is `clamp(0, n - 1)` for n >= 1 without clamp's min <= max check.
+        WrapMode::ClampToEdge => (
+            i.max(0).min(n - 1) as usize,
+            (i + 1).max(0).min(n - 1) as usize,
+        ),
         _ => (wrap(i, n, mode), wrap(i + 1, n, mode)),
     }
 }
@@ -253,4 +328,119 @@ fn wrap(i: i32, n: i32, mode: WrapMode) -> usize {
         }
     };
     r.clamp(0, n - 1) as usize
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The straightforward sampler: every mode decided per texel, each channel on its own.
+    fn naive_sample(t: &Texture, s: &TextureSampler, uv: Vec2, lod: f32) -> Rgba {
+        let level = |level: usize, filter: FilterMode| -> Rgba {
+            let img = &t.levels[level];
+            let (w, h) = (img.width() as i32, img.height() as i32);
+            let (x, y) = (uv.x * w as f32, uv.y * h as f32);
+            if !(x.is_finite() && y.is_finite()) {
+                return img.get(0, 0);
+            }
+            let (x, y) = (reduce(x, w, s.wrap_u), reduce(y, h, s.wrap_v));
+            match filter {
+                FilterMode::Nearest => img.get(
+                    wrap(x.floor() as i32, w, s.wrap_u),
+                    wrap(y.floor() as i32, h, s.wrap_v),
+                ),
+                FilterMode::Linear => {
+                    let (fx, fy) = (x - 0.5, y - 0.5);
+                    let (x0, y0) = (fx.floor() as i32, fy.floor() as i32);
+                    let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+                    let (xa, xb) = (wrap(x0, w, s.wrap_u), wrap(x0 + 1, w, s.wrap_u));
+                    let (ya, yb) = (wrap(y0, h, s.wrap_v), wrap(y0 + 1, h, s.wrap_v));
+                    let (p00, p10) = (img.get(xa, ya), img.get(xb, ya));
+                    let (p01, p11) = (img.get(xa, yb), img.get(xb, yb));
+                    std::array::from_fn(|c| {
+                        let top = p00[c] + (p10[c] - p00[c]) * tx;
+                        let bottom = p01[c] + (p11[c] - p01[c]) * tx;
+                        top + (bottom - top) * ty
+                    })
+                }
+            }
+        };
+        if lod <= 0.0 || s.mip_filter.is_none() {
+            let filter = if lod <= 0.0 {
+                s.mag_filter
+            } else {
+                s.min_filter
+            };
+            return level(0, filter);
+        }
+        let last = t.levels.len() - 1;
+        let lod = lod.min(last as f32);
+        if s.mip_filter == Some(FilterMode::Nearest) {
+            return level((lod + 0.5) as usize, s.min_filter);
+        }
+        let l0 = lod.floor();
+        let t = lod - l0;
+        let a = level(l0 as usize, s.min_filter);
+        if t <= 0.0 {
+            return a;
+        }
+        let b = level((l0 as usize + 1).min(last), s.min_filter);
+        std::array::from_fn(|c| a[c] + (b[c] - a[c]) * t)
+    }
+
+    #[test]
+    fn sampling_matches_the_naive_sampler_bit_for_bit() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let filters = [FilterMode::Nearest, FilterMode::Linear];
+        let wraps = [
+            WrapMode::Repeat,
+            WrapMode::ClampToEdge,
+            WrapMode::MirroredRepeat,
+        ];
+        for (w, h) in [(1, 1), (1, 5), (8, 8), (16, 4), (7, 3), (12, 9)] {
+            let texels = (0..w * h)
+                .map(|_| [next(), next(), next(), next()])
+                .collect();
+            let texture = Texture::new(ColorImage::from_vec(w, h, texels).expect("size"));
+            for mip_filter in [None, Some(FilterMode::Nearest), Some(FilterMode::Linear)] {
+                for (&mag_filter, &min_filter) in filters.iter().zip(filters.iter().rev()) {
+                    for (&wrap_u, &wrap_v) in wraps.iter().zip(wraps.iter().cycle().skip(1)) {
+                        for sampler in [
+                            TextureSampler {
+                                mag_filter,
+                                min_filter,
+                                mip_filter,
+                                wrap_u,
+                                wrap_v,
+                            },
+                            trilinear(wrap_u),
+                        ] {
+                            let bound = BoundTexture::new(&texture, sampler);
+                            for i in 0..400 {
+                                let scale = [1.0, 4.0, 100.0, 3.0e7][i % 4];
+                                let uv = Vec2::new(next() - 0.5, next() - 0.5) * scale;
+                                let lod = next() * 8.0 - 2.0;
+                                let want = naive_sample(&texture, &sampler, uv, lod);
+                                for got in
+                                    [texture.sample(&sampler, uv, lod), bound.sample(uv, lod)]
+                                {
+                                    assert_eq!(
+                                        got.map(f32::to_bits),
+                                        want.map(f32::to_bits),
+                                        "{w}x{h} {sampler:?} uv {uv} lod {lod}"
+                                    );
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
