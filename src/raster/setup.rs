@@ -277,20 +277,31 @@ fn for_each_covered(
     let edges = [(1usize, 2usize), (2, 0), (0, 1)];
     // Per-pixel steps of each edge function.
     let step_x = edges.map(|(a, b)| -(v[b].1 - v[a].1) * ONE);
+    let last = (x1 - x0) as i64;
     for y in y0..=y1 {
         let p = (x0 as i64 * ONE + HALF, y as i64 * ONE + HALF);
-        let mut w = [0i64; 3];
+        // The covered pixels of a row are one run `x0 + lo ..= x0 + hi`: solve
+        // `w[k] + step_x[k] * i >= 0` for `i` exactly, edge by edge, in integers.
+        let (mut lo, mut hi) = (0i64, last);
         for k in 0..3 {
-            w[k] = edge(v[edges[k].0], v[edges[k].1], p) + tri.bias[k];
+            let w = edge(v[edges[k].0], v[edges[k].1], p) + tri.bias[k];
+            let s = step_x[k];
+            if s > 0 {
+                if w < 0 {
+                    lo = lo.max((-w + s - 1) / s);
+                }
+            } else if w < 0 {
+                hi = -1;
+            } else if s < 0 {
+                hi = hi.min(w / -s);
+            }
+        }
+        if lo > hi {
+            continue;
         }
         let fy = y as f32 + 0.5 - tri.origin.y;
-        for x in x0..=x1 {
-            if (w[0] | w[1] | w[2]) >= 0 {
-                f(x, y, x as f32 + 0.5 - tri.origin.x, fy);
-            }
-            for k in 0..3 {
-                w[k] += step_x[k];
-            }
+        for x in x0 + lo as usize..=x0 + hi as usize {
+            f(x, y, x as f32 + 0.5 - tri.origin.x, fy);
         }
     }
 }
@@ -342,4 +353,95 @@ pub(crate) fn raster_triangle<T: TileSink>(
             });
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plain version of [`for_each_covered`]: every pixel of the box, all three edge
+    /// functions stepped along the row and tested.
+    fn naive_covered(tri: &SetupTriangle, rect: &TileRect) -> Vec<(usize, usize, f32, f32)> {
+        let mut out = Vec::new();
+        let x0 = (tri.bbox.0 as usize).max(rect.x0);
+        let x1 = (tri.bbox.2 as usize).min(rect.x1 - 1);
+        let y0 = (tri.bbox.1 as usize).max(rect.y0);
+        let y1 = (tri.bbox.3 as usize).min(rect.y1 - 1);
+        let edges = [(1usize, 2usize), (2, 0), (0, 1)];
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let p = (x as i64 * ONE + HALF, y as i64 * ONE + HALF);
+                let inside = (0..3)
+                    .all(|k| edge(tri.v[edges[k].0], tri.v[edges[k].1], p) + tri.bias[k] >= 0);
+                if inside {
+                    let fx = x as f32 + 0.5 - tri.origin.x;
+                    out.push((x, y, fx, y as f32 + 0.5 - tri.origin.y));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn row_runs_cover_the_same_pixels_as_testing_every_pixel() {
+        let lens = ThinLens {
+            width_px: 70,
+            height_px: 45,
+            f_px: 50.0,
+            lens_radius_m: 0.0,
+            focus_m: 1.0,
+            near_m: 0.1,
+            far_m: 10.0,
+        };
+        let mut state = 0x853c_49e6_748f_ea9bu64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let rects = [
+            TileRect {
+                x0: 0,
+                y0: 0,
+                x1: 70,
+                y1: 45,
+            },
+            TileRect {
+                x0: 32,
+                y0: 32,
+                x1: 64,
+                y1: 45,
+            },
+            TileRect {
+                x0: 5,
+                y0: 7,
+                x1: 6,
+                y1: 8,
+            },
+        ];
+        let mut tris = Vec::new();
+        let mut covered = 0;
+        for i in 0..3000 {
+            // Mostly small triangles, some huge ones and some slivers; a few snapped to the grid.
+            let scale = [4.0, 30.0, 300.0][i % 3];
+            let c = Vec2::new(next() * 80.0 - 5.0, next() * 55.0 - 5.0);
+            let mut p = [0; 3].map(|_| c + (Vec2::new(next(), next()) - 0.5) * scale);
+            if i % 7 == 0 {
+                p = p.map(|q| (q * 2.0).round() / 2.0);
+            }
+            let verts = p.map(|q| (Vec3::new(q.x, q.y, 1.0), Vec2::ZERO));
+            tris.clear();
+            setup_triangle(&verts, 0, true, false, &lens, &mut tris);
+            for tri in &tris {
+                for rect in &rects {
+                    let mut got = Vec::new();
+                    for_each_covered(tri, rect, |x, y, fx, fy| got.push((x, y, fx, fy)));
+                    assert_eq!(got, naive_covered(tri, rect), "{p:?} in {rect:?}");
+                    covered += got.len();
+                }
+            }
+        }
+        assert!(covered > 100_000, "only {covered} pixels covered");
+    }
 }
