@@ -114,34 +114,46 @@ impl Texture {
     /// Samples at `uv` (glTF convention: (0,0) is the top-left corner of the image) with a
     /// footprint: `lod` is log2 of the texels per pixel at level 0.
     pub fn sample(&self, sampler: &TextureSampler, uv: Vec2, lod: f32) -> Rgba {
-        self.sample_with(sampler, uv, lod)
+        self.sample_with(sampler, uv, lod, false)
+    }
+
+    /// True when `uv` lands within `SMALL_TEXELS` texels of the origin on level 0, and so on
+    /// every level (they are no larger): finite, no float wrap needed, and `floor_small` exact.
+    #[inline(always)]
+    fn is_small(&self, uv: Vec2) -> bool {
+        let base = &self.levels[0];
+        // NaN fails both comparisons.
+        (uv.x * base.width() as f32).abs() < SMALL_TEXELS
+            && (uv.y * base.height() as f32).abs() < SMALL_TEXELS
     }
 
     #[inline(always)]
-    fn sample_with(&self, sampler: &TextureSampler, uv: Vec2, lod: f32) -> Rgba {
+    /// `small`: the caller checked [`Texture::is_small`].
+    fn sample_with(&self, sampler: &TextureSampler, uv: Vec2, lod: f32, small: bool) -> Rgba {
         if lod <= 0.0 || sampler.mip_filter.is_none() {
             let filter = if lod <= 0.0 {
                 sampler.mag_filter
             } else {
                 sampler.min_filter
             };
-            return self.sample_level(0, filter, sampler, uv).to_array();
+            return self.sample_level(0, filter, sampler, uv, small).to_array();
         }
         let last = self.levels.len() - 1;
         let lod = lod.min(last as f32);
         match sampler.mip_filter {
             Some(FilterMode::Nearest) => self
-                .sample_level((lod + 0.5) as usize, sampler.min_filter, sampler, uv)
+                .sample_level((lod + 0.5) as usize, sampler.min_filter, sampler, uv, small)
                 .to_array(),
             _ => {
                 // `lod` is in (0, last] here, so truncation is `floor` (and needs no libm call).
                 let l0 = lod as usize;
                 let t = lod - l0 as f32;
-                let a = self.sample_level(l0, sampler.min_filter, sampler, uv);
+                let a = self.sample_level(l0, sampler.min_filter, sampler, uv, small);
                 if t <= 0.0 {
                     return a.to_array();
                 }
-                let b = self.sample_level((l0 + 1).min(last), sampler.min_filter, sampler, uv);
+                let b =
+                    self.sample_level((l0 + 1).min(last), sampler.min_filter, sampler, uv, small);
                 (a + (b - a) * t).to_array()
             }
         }
@@ -156,29 +168,36 @@ impl Texture {
         filter: FilterMode,
         sampler: &TextureSampler,
         uv: Vec2,
+        small: bool,
     ) -> Vec4 {
         let img = &self.levels[level];
         let (w, h) = (img.width() as i32, img.height() as i32);
         let x = uv.x * w as f32;
         let y = uv.y * h as f32;
-        if !(x.is_finite() && y.is_finite()) {
-            return Vec4::from_array(img.get(0, 0));
-        }
-        // Far outside the texture, wrap in float first so the integer conversion cannot saturate.
-        let (x, y) = (reduce(x, w, sampler.wrap_u), reduce(y, h, sampler.wrap_v));
+        let floor = if small { floor_small } else { fast_floor };
+        let (x, y) = if small {
+            (x, y)
+        } else {
+            if !(x.is_finite() && y.is_finite()) {
+                return Vec4::from_array(img.get(0, 0));
+            }
+            // Far outside the texture, wrap in float first so the integer conversion cannot
+            // saturate.
+            (reduce(x, w, sampler.wrap_u), reduce(y, h, sampler.wrap_v))
+        };
         let texels = img.pixels();
         let texel = |ix: usize, iy: usize| Vec4::from_array(texels[iy * w as usize + ix]);
         match filter {
             FilterMode::Nearest => {
-                let ix = wrap(fast_floor(x), w, sampler.wrap_u);
-                let iy = wrap(fast_floor(y), h, sampler.wrap_v);
+                let ix = wrap(floor(x), w, sampler.wrap_u);
+                let iy = wrap(floor(y), h, sampler.wrap_v);
                 texel(ix, iy)
             }
             FilterMode::Linear => {
                 let fx = x - 0.5;
                 let fy = y - 0.5;
-                let x0 = fast_floor(fx);
-                let y0 = fast_floor(fy);
+                let x0 = floor(fx);
+                let y0 = floor(fy);
                 let tx = fx - x0 as f32;
                 let ty = fy - y0 as f32;
                 let (xa, xb) = wrap_pair(x0, w, sampler.wrap_u);
@@ -251,11 +270,28 @@ impl<'a> BoundTexture<'a> {
     pub(crate) fn sample(&self, uv: Vec2, lod: f32) -> Rgba {
         // Each arm inlines `sample_with` with constant modes.
         match self.specialised {
-            Specialised::TrilinearRepeat => self.texture.sample_with(&Self::REPEAT, uv, lod),
-            Specialised::TrilinearClamp => self.texture.sample_with(&Self::CLAMP, uv, lod),
-            Specialised::Other => self.texture.sample_with(&self.sampler, uv, lod),
+            Specialised::TrilinearRepeat if self.texture.is_small(uv) => {
+                self.texture.sample_with(&Self::REPEAT, uv, lod, true)
+            }
+            Specialised::TrilinearClamp if self.texture.is_small(uv) => {
+                self.texture.sample_with(&Self::CLAMP, uv, lod, true)
+            }
+            _ => self.texture.sample_with(&self.sampler, uv, lod, false),
         }
     }
+}
+
+/// Texel coordinates below this in magnitude are exact for [`floor_small`] and need no wrap in
+/// float ([`reduce`]).
+const SMALL_TEXELS: f32 = 4_000_000.0;
+
+/// `floor` of `|x| < 2^22`, exact, without the saturation checks of `as i32`: adding 1.5 * 2^23
+/// leaves the nearest integer in the low mantissa bits.
+#[inline(always)]
+fn floor_small(x: f32) -> i32 {
+    debug_assert!(x.abs() < 4_194_304.0, "{x}");
+    let nearest = (x + 12_582_912.0).to_bits() as i32 - 0x4b40_0000;
+    nearest - i32::from(nearest as f32 > x)
 }
 
 /// `floor` without a libm call (x86-64 without SSE4.1 has no rounding instruction).
@@ -333,6 +369,37 @@ fn wrap(i: i32, n: i32, mode: WrapMode) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floor_small_is_floor() {
+        // A few mantissas at every scale, their neighbours, both signs.
+        for m in [1.0f32, 1.25, 1.5, 1.999_999_9, 1.333_333_3] {
+            for e in -30..22 {
+                let x = m * 2f32.powi(e);
+                for y in [x, x.next_down(), x.next_up(), x + 0.5, x - 0.5] {
+                    for y in [y, -y] {
+                        if y.abs() < 4_194_304.0 {
+                            assert_eq!(floor_small(y), y.floor() as i32, "{y}");
+                        }
+                    }
+                }
+            }
+        }
+        for y in [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.5,
+            -1.5,
+            2.5,
+            0.49999997,
+            -0.49999997,
+            4_194_303.5,
+        ] {
+            assert_eq!(floor_small(y), y.floor() as i32, "{y}");
+        }
+    }
 
     /// The straightforward sampler: every mode decided per texel, each channel on its own.
     fn naive_sample(t: &Texture, s: &TextureSampler, uv: Vec2, lod: f32) -> Rgba {
@@ -423,7 +490,7 @@ mod tests {
                         ] {
                             let bound = BoundTexture::new(&texture, sampler);
                             for i in 0..400 {
-                                let scale = [1.0, 4.0, 100.0, 3.0e7][i % 4];
+                                let scale = [1.0, 4.0, 100.0, 3.0e7, 5.0e5, 2.0e6][i % 6];
                                 let uv = Vec2::new(next() - 0.5, next() - 0.5) * scale;
                                 let lod = next() * 8.0 - 2.0;
                                 let want = naive_sample(&texture, &sampler, uv, lod);
