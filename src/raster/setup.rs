@@ -1,7 +1,7 @@
 //! Passes `setup` (clip, cull, snap, edge functions, attribute planes) and `raster`
 //! (coverage, early depth test, shading) for one triangle.
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 
 use super::{shade, Fragment, TileRect, TileSink};
 use crate::lens::ThinLens;
@@ -327,18 +327,23 @@ pub(crate) fn raster_triangle<T: TileSink>(
     let shader = shade::Shader::new(material, &scene.textures, lod_bias);
     let [pq, pu, pv] = &tri.planes;
     let needs_uv = shader.needs_uv();
+    // The three planes side by side, lanes (1/w, u/w, v/w, unused): one evaluation for all,
+    // with `eval`'s arithmetic in each lane.
+    let [p0, p1, p2] = [0, 1, 2].map(|k| Vec4::new(pq[k], pu[k], pv[k], 0.0));
     for_each_covered(tri, rect, |x, y, fx, fy| {
-        let q = eval(pq, fx, fy);
+        let e = p0 + p1 * fx + p2 * fy;
+        let q = e.x;
         let depth_m = 1.0 / q;
         if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
             return;
         }
         let color = if needs_uv {
-            let u = eval(pu, fx, fy);
-            let v = eval(pv, fx, fy);
-            let uv = Vec2::new(u, v) / q;
-            let uvx = Vec2::new(u + pu[1], v + pv[1]) / (q + pq[1]);
-            let uvy = Vec2::new(u + pu[2], v + pv[2]) / (q + pq[2]);
+            let (u, v) = (e.y, e.z);
+            // uv at the pixel and one pixel right and down, the six divisions in two vectors.
+            let (qx, qy) = (q + pq[1], q + pq[2]);
+            let a = Vec4::new(u, v, u + pu[1], v + pv[1]) / Vec4::new(q, q, qx, qx);
+            let b = Vec4::new(u + pu[2], v + pv[2], 1.0, 1.0) / Vec4::new(qy, qy, 1.0, 1.0);
+            let (uv, uvx, uvy) = (a.xy(), a.zw(), b.xy());
             shader.shade(uv, uvx - uv, uvy - uv)
         } else {
             shader.shade(Vec2::ZERO, Vec2::ZERO, Vec2::ZERO)
