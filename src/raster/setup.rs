@@ -278,6 +278,8 @@ fn for_each_covered(
     // Per-pixel steps of each edge function.
     let step_x = edges.map(|(a, b)| -(v[b].1 - v[a].1) * ONE);
     let last = (x1 - x0) as i64;
+    // Locals, which the sink's stores cannot alias, so they stay in registers.
+    let origin = tri.origin;
     for y in y0..=y1 {
         let p = (x0 as i64 * ONE + HALF, y as i64 * ONE + HALF);
         // The covered pixels of a row are one run `x0 + lo ..= x0 + hi`: solve
@@ -299,18 +301,19 @@ fn for_each_covered(
         if lo > hi {
             continue;
         }
-        let fy = y as f32 + 0.5 - tri.origin.y;
-        for x in x0 + lo as usize..=x0 + hi as usize {
-            f(x, y, x as f32 + 0.5 - tri.origin.x, fy);
+        let fy = y as f32 + 0.5 - origin.y;
+        // Half-open: `..=` costs a test more per pixel.
+        for x in x0 + lo as usize..x0 + hi as usize + 1 {
+            f(x, y, x as f32 + 0.5 - origin.x, fy);
         }
     }
 }
 
 /// Depth-only rasterization of an opaque triangle for the sink's depth pre-pass.
 pub(crate) fn prepass_triangle<T: TileSink>(tri: &SetupTriangle, rect: &TileRect, tile: &mut T) {
-    let pq = &tri.planes[0];
+    let pq = tri.planes[0];
     for_each_covered(tri, rect, |x, y, fx, fy| {
-        tile.prepass(x as u32, y as u32, 1.0 / eval(pq, fx, fy));
+        tile.prepass(x as u32, y as u32, 1.0 / eval(&pq, fx, fy));
     });
 }
 
