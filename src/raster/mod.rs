@@ -5,7 +5,7 @@
 //!    projection, cull back faces of single-sided materials, clip in homogeneous space against
 //!    the near and far planes (and a guard band), snap to 1/256-pixel fixed point, and build
 //!    edge functions and perspective-correct attribute planes.
-//! 2. `bin`: put each triangle in the list of every 32x32 tile its bounding box touches.
+//! 2. `bin`: put each triangle in the list of every 64x64 tile its bounding box touches.
 //! 3. `raster`: tiles in parallel (rayon); within a tile triangles in scene order, so the output
 //!    does not depend on the thread count. Coverage uses the top-left fill rule at pixel
 //!    centres; the sink may reject a fragment by depth before it is shaded (early depth test);
@@ -38,8 +38,10 @@ use crate::lens::ThinLens;
 use crate::scene::{AlphaMode, Scene};
 use crate::Result;
 
-/// Tile side in pixels.
-pub const TILE: usize = 32;
+/// Tile side in pixels. 64 rather than 32: a quarter of the per-triangle, per-tile setup
+/// (shader, row runs), 3 % faster on `raster/pinhole/railing` with the same output; a tile's
+/// buffers (96 KiB) still fit in L2.
+pub const TILE: usize = 64;
 
 /// Steps per pixel of the fixed-point grid that vertices snap to (1/256 pixel).
 pub const SUBPIXEL_STEPS: f32 = (1u32 << setup::SUBPIXEL_BITS) as f32;
