@@ -542,3 +542,73 @@ fn blur_writes_the_signed_coc_map_of_the_thin_lens() {
     assert!(!o.status.success());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn kernel_filter_blurs_an_image_with_the_low_rank_and_the_full_kernel() {
+    let dir = temp_dir("kfilter");
+    // One bright pixel on black: the full 2D blur is the kernel itself, and energy is kept.
+    let mut img = ColorImage::new(41, 41, [0.0, 0.0, 0.0, 1.0]);
+    *img.get_mut(20, 20) = [100.0, 100.0, 100.0, 1.0];
+    let input = dir.join("dot.exr");
+    io::write_color(&input, &img).unwrap();
+    let (low, full) = (dir.join("low.exr"), dir.join("full.exr"));
+    let o = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args([
+            "kernel",
+            "--aperture",
+            "poly:6",
+            "--size",
+            "21",
+            "--rank",
+            "3",
+            "--json",
+            "--filter",
+            s(&input),
+            "--filter-out",
+            s(&low),
+            "--full-2d-out",
+            s(&full),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    assert!(json["filter"]["separable_ms"].as_f64().unwrap() >= 0.0);
+    let (low, full) = (
+        io::read_color(&low).unwrap(),
+        io::read_color(&full).unwrap(),
+    );
+    let energy = |im: &ColorImage| im.pixels().iter().map(|p| p[0] as f64).sum::<f64>();
+    assert!((energy(&full) - 100.0).abs() < 1e-3, "{}", energy(&full));
+    assert!((energy(&low) - 100.0).abs() < 1.0, "{}", energy(&low));
+    // The full blur of a dot is a hexagon 21 px across: nothing beyond 10.5 px of the centre.
+    for y in 0..41 {
+        for x in 0..41 {
+            let r = ((x as f32 - 20.0).powi(2) + (y as f32 - 20.0).powi(2)).sqrt();
+            if r > 11.5 {
+                assert!(full.get(x, y)[0].abs() < 1e-6, "({x}, {y})");
+            }
+        }
+    }
+    // Rank 3 approximates it: the error is eq. 4's relative error, about 0.14 for 6 blades.
+    let diff: f64 = low
+        .pixels()
+        .iter()
+        .zip(full.pixels())
+        .map(|(a, b)| ((a[0] - b[0]) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let norm: f64 = full
+        .pixels()
+        .iter()
+        .map(|p| (p[0] as f64).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let e3 = json["ranks"][0]["relative_error"].as_f64().unwrap();
+    assert!(
+        (diff / norm - e3).abs() < 0.02,
+        "{} vs eq. 4 {e3}",
+        diff / norm
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}

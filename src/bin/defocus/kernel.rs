@@ -6,7 +6,10 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use defocus::image::{io, ColorImage, GrayImage};
-use defocus::methods::lowrank::{decompose, kernel_image, KernelSpec};
+use defocus::methods::lowrank::{
+    decompose, filter_full_2d, filter_separable, kernel_image, KernelSpec,
+};
+use defocus::metrics;
 
 use crate::commands::{check_output, parse_aperture, IMAGE_EXTENSIONS};
 
@@ -41,6 +44,17 @@ pub struct KernelArgs {
     /// (EXR and PFM keep its negative lobes; PNG clamps them to 0).
     #[arg(long, value_name = "FILE")]
     pub approx_out: Option<PathBuf>,
+    /// Blur this image with the kernel, spatially invariant (McGraw fig. 2: per rank a
+    /// horizontal then a vertical pass), at the highest rank asked for; needs --filter-out.
+    #[arg(long, value_name = "IMAGE", requires = "filter_out")]
+    pub filter: Option<PathBuf>,
+    /// Where the low-rank blur of --filter goes (.exr, .png or .pfm).
+    #[arg(long, value_name = "FILE", requires = "filter")]
+    pub filter_out: Option<PathBuf>,
+    /// Also blur --filter with the full 2D kernel (the convolution the low-rank filter
+    /// approximates) into this file, and print the difference and both times.
+    #[arg(long, value_name = "FILE", requires = "filter")]
+    pub full_2d_out: Option<PathBuf>,
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
@@ -72,9 +86,18 @@ fn to_color(g: &GrayImage, scale: f32) -> ColorImage {
 
 /// Runs `defocus kernel`.
 pub fn run(a: &KernelArgs) -> Result<()> {
-    for (path, flag) in [(&a.out, "--out"), (&a.approx_out, "--approx-out")] {
+    let outputs = [
+        (&a.out, "--out"),
+        (&a.approx_out, "--approx-out"),
+        (&a.filter_out, "--filter-out"),
+        (&a.full_2d_out, "--full-2d-out"),
+    ];
+    for (path, flag) in outputs {
         if let Some(p) = path {
             check_output(p, flag, IMAGE_EXTENSIONS)?;
+            if let Some(input) = &a.filter {
+                io::ensure_not_same_file(input, p)?;
+            }
         }
     }
     let (r0, r1) = parse_ranks(&a.rank)?;
@@ -110,6 +133,10 @@ pub fn run(a: &KernelArgs) -> Result<()> {
     if let Some(p) = &a.approx_out {
         io::write_color(p, &to_color(&lr.approximation(r1), scale))?;
     }
+    let filtered = match (&a.filter, &a.filter_out) {
+        (Some(input), Some(out)) => Some(filter_image(input, out, a, &kernel, &lr, r1)?),
+        _ => None,
+    };
     let ranks: Vec<(usize, f64, f64)> = (r0..=r1)
         .map(|r| (r, lr.relative_error(r), lr.approximation_sum(r)))
         .collect();
@@ -125,6 +152,13 @@ pub fn run(a: &KernelArgs) -> Result<()> {
             "ranks": ranks.iter().map(|&(r, e, s)| serde_json::json!({
                 "rank": r, "relative_error": e, "sum": s,
             })).collect::<Vec<_>>(),
+            "filter": filtered.as_ref().map(|f| serde_json::json!({
+                "rank": r1,
+                "separable_ms": f.separable_ms,
+                "full_2d_ms": f.full_2d_ms,
+                "mse_vs_full_2d": f.against_2d.map(|m| m.mse_linear),
+                "psnr_vs_full_2d": f.against_2d.map(|m| m.psnr_db),
+            })),
         })
         .to_string()
     } else {
@@ -145,6 +179,16 @@ pub fn run(a: &KernelArgs) -> Result<()> {
         for (r, e, s) in &ranks {
             t += &format!("{r:>4}  {e:>14.6}  {s:>10.6}\n");
         }
+        if let Some(f) = &filtered {
+            t += &format!("filter: rank {r1} separable {:.1} ms", f.separable_ms);
+            if let (Some(ms), Some(m)) = (f.full_2d_ms, f.against_2d) {
+                t += &format!(
+                    ", full 2D {ms:.1} ms; rank {r1} against full 2D: MSE {:.3e}, PSNR {:.2} dB",
+                    m.mse_linear, m.psnr_db
+                );
+            }
+            t += "\n";
+        }
         t.trim_end().to_string()
     };
     #[expect(clippy::print_stdout, reason = "the analysis is the command's output")]
@@ -152,4 +196,43 @@ pub fn run(a: &KernelArgs) -> Result<()> {
         println!("{text}");
     }
     Ok(())
+}
+
+/// What `--filter` measured.
+struct Filtered {
+    separable_ms: f64,
+    full_2d_ms: Option<f64>,
+    against_2d: Option<metrics::Metrics>,
+}
+
+/// Blurs the `--filter` image with the rank-`rank` filter (and the full 2D kernel when asked),
+/// writes the results and times both.
+fn filter_image(
+    input: &std::path::Path,
+    out: &std::path::Path,
+    a: &KernelArgs,
+    kernel: &GrayImage,
+    lr: &defocus::methods::lowrank::LowRank,
+    rank: usize,
+) -> Result<Filtered> {
+    let img = io::read_color(input)?;
+    let start = std::time::Instant::now();
+    let low = filter_separable(&img, lr, rank);
+    let separable_ms = start.elapsed().as_secs_f64() * 1e3;
+    io::write_color(out, &low)?;
+    let (full_2d_ms, against_2d) = match &a.full_2d_out {
+        Some(p) => {
+            let start = std::time::Instant::now();
+            let full = filter_full_2d(&img, kernel);
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            io::write_color(p, &full)?;
+            (Some(ms), Some(metrics::compare(&low, &full)?))
+        }
+        None => (None, None),
+    };
+    Ok(Filtered {
+        separable_ms,
+        full_2d_ms,
+        against_2d,
+    })
 }
