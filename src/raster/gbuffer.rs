@@ -1,17 +1,26 @@
 //! The `GBuffer` sink: nearest opaque surface per pixel, with alpha-blended surfaces in front
-//! of it composited back to front.
+//! of it composited back to front. The depth is that of the surface that contributes most to the
+//! pixel (see [`GBuffer::depth`]), so a post-process method blurs a mostly opaque blended surface
+//! by its own depth, sees through a faint one to what is behind it, and keeps the depth of a
+//! glass standing in front of nothing at all.
 
 use super::{Fragment, Sink, TileRect, TileSink};
 use crate::image::{ColorImage, GrayImage, Rgba};
 
 /// Colour (linear, premultiplied alpha; transparent black where nothing was drawn) and view
-/// depth in metres of the nearest opaque surface (`f32::INFINITY` where there is none).
+/// depth in metres of the surface that contributes most to the pixel (`f32::INFINITY` where
+/// there is none).
 #[derive(Clone, Debug, PartialEq)]
 pub struct GBuffer {
     /// Linear premultiplied RGBA: opaque surface with transparent surfaces in front composited
     /// over it.
     pub color: ColorImage,
-    /// View-axis depth in metres of the nearest opaque surface.
+    /// View-axis depth in metres of the surface with the largest weight in the composite: its
+    /// alpha times the transmittance `prod (1 - alpha)` of the blended surfaces in front of it
+    /// (an opaque surface has alpha 1; the empty background weighs nothing); ties go to the
+    /// nearer surface. So a blended surface in front that is at least half opaque always gives
+    /// the depth, as a renderer's Z pass with Blender Cycles' default alpha threshold 0.5 does,
+    /// and a faint one gives way to the surface behind it, unless there is none.
     pub depth: GrayImage,
 }
 
@@ -121,7 +130,19 @@ impl TileSink for GBufferTile {
         // Per pixel, far to near; stable, so equal depths keep scene order.
         self.blended
             .sort_by(|a, b| a.0.cmp(&b.0).then(b.1.total_cmp(&a.1)));
-        for &(i, _, src) in &self.blended {
+        // Weight, relative to the blended surfaces not yet composited in front, of the surface
+        // whose depth the pixel currently has (1 for an opaque surface, 0 for the background).
+        let mut pixel = u32::MAX;
+        let mut best_weight = 0.0f32;
+        for &(i, z, src) in &self.blended {
+            if i != pixel {
+                pixel = i;
+                best_weight = if self.depth[i as usize].is_finite() {
+                    1.0
+                } else {
+                    0.0
+                };
+            }
             // `over` with premultiplied colour: the fragment's colour is straight.
             let dst = &mut self.color[i as usize];
             let a = src[3];
@@ -129,6 +150,12 @@ impl TileSink for GBufferTile {
                 dst[k] = src[k] * a + dst[k] * (1.0 - a);
             }
             dst[3] = a + dst[3] * (1.0 - a);
+            // Far to near: everything behind is now seen through this surface.
+            best_weight *= 1.0 - a;
+            if a > 0.0 && a >= best_weight {
+                best_weight = a;
+                self.depth[i as usize] = z;
+            }
         }
         self.blended.clear();
     }

@@ -3,9 +3,9 @@
 //! The scene is rasterized once through the lens centre (a pinhole view at pixel centres) and
 //! the view-axis depth is read in a small window around the pixel. The median of the window's
 //! finite depths is robust to holes (alpha cut-outs, the background) and to the edge of an
-//! object falling on the pixel. When the window sees only background (or only transparent
-//! surfaces, which have no depth of their own) it doubles until it finds a surface or covers
-//! the whole image.
+//! object falling on the pixel. When the window sees only background it doubles until it finds
+//! a surface or covers the whole image. A blended surface counts where it contributes most to
+//! the pixel (see [`crate::raster::GBuffer::depth`]).
 
 use super::Scene;
 use crate::image::GrayImage;

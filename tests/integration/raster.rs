@@ -237,7 +237,9 @@ fn transparent_surfaces_composite_in_depth_order_whatever_the_submission_order()
             assert!((p[k] - expected[k]).abs() < 1e-6, "{p:?} vs {expected:?}");
         }
         assert_eq!(p[3], 1.0);
-        assert_eq!(g.depth.get(8, 8), 3.0, "depth is the opaque surface's");
+        // The surface that contributes most: red weighs 1 * 0.5 * 0.75 = 0.375, blue
+        // 0.5 * 0.75 = 0.375 (a tie, to the nearer), green 0.25: blue at 2 m.
+        assert_eq!(g.depth.get(8, 8), 2.0, "depth of the largest contribution");
     }
 }
 
@@ -436,5 +438,41 @@ fn coverage_agrees_with_a_naive_point_in_triangle_test_on_random_triangles() {
                 }
             }
         }
+    }
+}
+
+#[test]
+fn a_pixel_takes_the_depth_of_the_surface_that_contributes_most() {
+    let camera = test_camera(16, 16, 2.0, 2.8);
+    for (alpha, expected_depth) in [(0.3, 4.0), (0.7, 1.5)] {
+        let mut scene = Scene::default();
+        let wall = scene.add_material(Material::color("wall", [1.0; 3]));
+        let glass = scene.add_material(Material {
+            name: "glass".into(),
+            base_color: [0.2, 0.4, 0.6, alpha],
+            alpha_mode: AlphaMode::Blend,
+            ..Default::default()
+        });
+        add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 4.0, wall);
+        // The pane covers the left half only; over nothing at all on the far right.
+        add_screen_rect(&mut scene, &camera, (0.0, 0.0, 8.0, 16.0), 1.5, glass);
+        let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+        let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
+        assert_eq!(g.depth.get(3, 8), expected_depth, "alpha {alpha}");
+        assert_eq!(g.depth.get(12, 8), 4.0, "beside the pane");
+    }
+    // A pane over empty space is all the pixel shows: it keeps its depth however faint.
+    for alpha in [0.1, 0.7] {
+        let mut scene = Scene::default();
+        let glass = scene.add_material(Material {
+            name: "glass".into(),
+            base_color: [0.2, 0.4, 0.6, alpha],
+            alpha_mode: AlphaMode::Blend,
+            ..Default::default()
+        });
+        add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 1.5, glass);
+        let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+        let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
+        assert_eq!(g.depth.get(8, 8), 1.5, "alpha {alpha}");
     }
 }
