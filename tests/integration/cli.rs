@@ -5,7 +5,8 @@ use std::process::{Command, Output};
 
 use defocus::image::io;
 
-fn defocus(args: &[&str]) -> Output {
+/// Runs the `defocus` binary with `args` and `--quiet`.
+pub(crate) fn defocus(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_defocus"))
         .args(args)
         .arg("--quiet")
@@ -13,19 +14,21 @@ fn defocus(args: &[&str]) -> Output {
         .expect("run defocus")
 }
 
-/// A fresh, empty temporary folder for one test.
-fn temp_dir(name: &str) -> PathBuf {
+/// A fresh, empty temporary folder for one test (names are unique across the CLI tests).
+pub(crate) fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("defocus-cli-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
 
-fn s(p: &Path) -> &str {
+/// The path as a command-line argument.
+pub(crate) fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-fn stderr(o: &Output) -> String {
+/// What the command printed on stderr.
+pub(crate) fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 

@@ -1,33 +1,12 @@
 //! Tests: the post-process commands run as a user would: `blur` on colour + depth files,
 //! `render --method hammon|lowrank|gaussian|poisson`, and `kernel`.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
+use std::process::Command;
 
 use defocus::image::{io, ColorImage, GrayImage};
 
-fn defocus(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_defocus"))
-        .args(args)
-        .arg("--quiet")
-        .output()
-        .expect("run defocus")
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("defocus-post-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use crate::cli::{defocus, s, stderr, temp_dir};
 
 const W: usize = 48;
 const H: usize = 32;
@@ -285,7 +264,7 @@ fn blur_bad_inputs_fail_with_a_clear_error_and_no_output() {
 
 #[test]
 fn render_runs_post_process_methods_on_the_pinhole_frame() {
-    let dir = temp_dir("render");
+    let dir = temp_dir("post-render");
     let pin = dir.join("pin.exr");
     let o = defocus(&[
         "render",

@@ -218,12 +218,16 @@ fn parse_focus(s: &str) -> Result<Focus, String> {
 
 /// Parses `X,Y,Z` (three finite numbers).
 fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
-    let v: Vec<f32> = s
-        .split(',')
+    parse_numbers(s)
+        .and_then(|v| <[f32; 3]>::try_from(v).ok())
+        .ok_or_else(|| format!("'{s}': expected three numbers X,Y,Z"))
+}
+
+/// Parses comma-separated finite numbers; `None` if any is not one.
+pub fn parse_numbers(s: &str) -> Option<Vec<f32>> {
+    s.split(',')
         .map(|p| p.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
-        .collect::<Option<_>>()
-        .ok_or_else(|| format!("'{s}': expected three numbers X,Y,Z"))?;
-    <[f32; 3]>::try_from(v).map_err(|_| format!("'{s}': expected three numbers X,Y,Z"))
+        .collect()
 }
 
 /// Parses `X,Y` (two pixel indices).

@@ -11,6 +11,8 @@ use defocus::methods::lowrank::{self, LowRankSettings};
 use defocus::methods::poisson::{self, PoissonSettings};
 use defocus::methods::MethodOutput;
 
+use crate::args::parse_numbers;
+
 /// Post-process methods: colour + depth in, colour out.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum PostMethod {
@@ -246,11 +248,10 @@ impl PostArgs {
                     ..LowRankSettings::default()
                 };
                 l.validate().context("invalid lowrank option")?;
-                if let Some(k) = self.kernel_size {
-                    if k % 2 == 0 || !(3..=513).contains(&k) {
-                        bail!("invalid --kernel-size {k}: expected an odd number of pixels from 3 to 513");
-                    }
-                }
+                // The kernel's own checks (odd size, in range), before any frame is read.
+                l.kernel_spec(0.0)
+                    .validate()
+                    .context("invalid --kernel-size")?;
                 check_taps("--fallback-taps", self.fallback_taps)?;
                 PostSettings::Lowrank(l)
             }
@@ -315,10 +316,4 @@ pub fn parse_triple(s: &str) -> Result<(f32, f32, f32), String> {
         Some([a, b, c]) => Ok((*a, *b, *c)),
         _ => Err(format!("'{s}': expected three numbers A,B,C")),
     }
-}
-
-fn parse_numbers(s: &str) -> Option<Vec<f32>> {
-    s.split(',')
-        .map(|p| p.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
-        .collect()
 }
