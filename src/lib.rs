@@ -11,6 +11,7 @@ pub mod image;
 pub mod lens;
 pub mod methods;
 pub mod metrics;
+pub mod random;
 pub mod raster;
 pub mod scene;
 pub mod timing;

@@ -4,6 +4,11 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+/// Label of reading input files (images, depth passes, scenes), apart from any method's passes.
+pub const READ: &str = "io/read";
+/// Label of writing output files, apart from any method's passes.
+pub const WRITE: &str = "io/write";
+
 /// One timed pass: `<method>/<pass>` and its wall-clock time in milliseconds.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PassTiming {

@@ -8,10 +8,16 @@
 mod aperture;
 mod camera;
 mod sampler;
+mod shapes;
+mod taps;
 
 pub use aperture::{Aperture, ApertureImage};
 pub use camera::{Camera, ThinLens};
 pub use sampler::{LensSample, SampleSet, SamplerKind};
+pub(crate) use sampler::SAMPLER_SEED_SALT;
+pub(crate) use shapes::check_aberration;
+pub use shapes::{aberration_profile, CustomShape, CUSTOM_SHAPE_PX};
+pub use taps::{Taps, CANDIDATES, MAX_TAPS};
 
 /// Signed circle-of-confusion radius in pixels of a point at view depth `z_m`:
 ///

@@ -1,6 +1,10 @@
 use glam::Vec2;
 
 use super::Aperture;
+use crate::random::SplitMix64;
+
+/// Xored into the user's seed so the sampler's stream differs from other users of that seed.
+pub(crate) const SAMPLER_SEED_SALT: u64 = 0x5DEE_CE66_D1CE_4E5B;
 use crate::{Error, Result};
 
 /// How lens and pixel sample points are chosen. All are deterministic for a given seed.
@@ -49,27 +53,6 @@ pub struct SampleSet {
     pub samples: Vec<LensSample>,
 }
 
-/// SplitMix64: a tiny seedable generator for jitter and shuffles.
-#[derive(Clone, Debug)]
-pub(crate) struct SplitMix64(u64);
-
-impl SplitMix64 {
-    pub(crate) fn new(seed: u64) -> Self {
-        Self(seed ^ 0x5DEE_CE66_D1CE_4E5B)
-    }
-    pub(crate) fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    pub(crate) fn next_f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
-    }
-}
-
 /// Radical inverse of `i` in base `b`, in [0, 1).
 pub(crate) fn radical_inverse(mut i: u64, b: u64) -> f64 {
     let inv = 1.0 / b as f64;
@@ -114,7 +97,7 @@ impl SampleSet {
                 }],
             });
         }
-        let mut rng = SplitMix64::new(seed);
+        let mut rng = SplitMix64::new(seed ^ SAMPLER_SEED_SALT);
         let rot: [f32; 5] = std::array::from_fn(|_| rng.next_f32());
         // Candidate stream: index -> (lens u, pixel u, acceptance u).
         let grid = (count as f64).sqrt().ceil() as usize;

@@ -4,7 +4,7 @@
 //! "a separable Gaussian kernel results in a much softer blur").
 //!
 //! # Passes, in order (each timed as `gaussian/<pass>`)
-//! 1. `coc` ([`super::poisson::coc`]): reads depth; writes the signed CoC radius in pixels,
+//! 1. `coc` ([`super::coc_map::coc`]): reads depth; writes the signed CoC radius in pixels,
 //!    clamped to `max_coc_px`.
 //! 2. `horizontal` ([`horizontal`]): reads colour and CoC; writes the row-blurred colour. Pixel
 //!    `p` gathers `q = p - d`, `|d| <= ceil(truncate_sigmas * sigma_p)`, with weight
@@ -22,8 +22,9 @@
 
 use rayon::prelude::*;
 
-use super::lowrank::dof::{level_count, level_of, level_radius_px};
-use super::poisson::{self, rejection_weight};
+use super::coc_map::{level_count, level_of, level_radius_px};
+use super::coc_map;
+use super::poisson::rejection_weight;
 use super::MethodOutput;
 use crate::image::{ColorImage, GrayImage, Rgba};
 use crate::lens::ThinLens;
@@ -58,7 +59,7 @@ impl Default for GaussianSettings {
 impl GaussianSettings {
     /// Checks every field (see their documentation).
     pub fn validate(&self) -> Result<()> {
-        poisson::check_max_coc(self.max_coc_px)?;
+        coc_map::check_max_coc(self.max_coc_px)?;
         if !(self.sigma_per_coc > 0.0 && self.sigma_per_coc <= 4.0) {
             return Err(Error::invalid(
                 "sigma per CoC",
@@ -136,10 +137,10 @@ pub fn render(
     settings: &GaussianSettings,
 ) -> Result<MethodOutput> {
     settings.validate()?;
-    poisson::check_frame(color, depth, lens)?;
+    coc_map::check_frame(color, depth, lens)?;
     let mut timings = Timings::default();
     let coc_px = timings.time("gaussian/coc", || {
-        poisson::coc(depth, lens, settings.max_coc_px)
+        coc_map::coc(depth, lens, settings.max_coc_px)
     })?;
     let max_radius = coc_px.pixels().iter().fold(0.0f32, |m, c| m.max(c.abs()));
     let table = GaussTable::new(settings, max_radius);

@@ -10,12 +10,14 @@
 //! | `gaussian` | [`gaussian`] | colour + depth (baseline: separable Gaussian gather sized by the CoC, after Zhou et al. 2007) |
 //! | `poisson` | [`poisson`] | colour + depth (baseline: Poisson-disc gather with depth rejection, after Scheuermann 2004) |
 
+pub mod coc_map;
 pub mod gaussian;
 pub mod hammon;
 pub mod lowrank;
 pub mod pinhole;
 pub mod poisson;
 pub mod reference;
+pub mod registry;
 
 use crate::image::{ColorImage, GrayImage};
 use crate::timing::Timings;

@@ -17,16 +17,46 @@
 //! tile order, so the result is bit-identical whatever the number of threads. With one sample the
 //! view is the plain pinhole image at pixel centres, returned exactly.
 
-use crate::image::{ColorImage, Rgba};
+use crate::image::GrayImage;
 use crate::lens::{Aperture, Camera, SampleSet, SamplerKind};
-use std::sync::Mutex;
-
-use crate::raster::{BinnedView, GBuffer, GBufferTile, PreparedScene, Sink, TileRect, View};
+use crate::raster::{accumulate_views, render_view, PreparedScene, View, ViewPassLabels};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::Result;
 
 use super::MethodOutput;
+
+/// `--timings` labels of `reference`.
+pub mod pass {
+    /// World to camera space, once per frame.
+    pub const PREPARE: &str = "reference/prepare";
+    /// Per view: projection, clipping, culling.
+    pub const SETUP: &str = "reference/setup";
+    /// Per view: triangles into tile lists.
+    pub const BIN: &str = "reference/bin";
+    /// Per view: rasterize and accumulate.
+    pub const RASTER: &str = "reference/raster";
+    /// Divide by the number of views.
+    pub const RESOLVE: &str = "reference/resolve";
+    /// The pinhole depth at pixel centres (with `with_depth`).
+    pub const DEPTH: &str = "reference/depth";
+}
+
+/// `--timings` labels of `pinhole` (the same loop with the lens closed).
+pub mod pinhole_pass {
+    /// World to camera space, once per frame.
+    pub const PREPARE: &str = "pinhole/prepare";
+    /// Per view: projection, clipping, culling.
+    pub const SETUP: &str = "pinhole/setup";
+    /// Per view: triangles into tile lists.
+    pub const BIN: &str = "pinhole/bin";
+    /// Per view: rasterize and accumulate.
+    pub const RASTER: &str = "pinhole/raster";
+    /// Divide by the number of samples.
+    pub const RESOLVE: &str = "pinhole/resolve";
+    /// The depth at pixel centres (with `with_depth` and more than one sample).
+    pub const DEPTH: &str = "pinhole/depth";
+}
 
 /// Settings of the reference renderer.
 #[derive(Clone, Debug, PartialEq)]
@@ -59,46 +89,6 @@ impl Default for ReferenceSettings {
     }
 }
 
-/// Accumulates premultiplied colour of many views.
-struct Accumulator {
-    width: usize,
-    sum: Vec<Rgba>,
-    /// Finished tiles kept for reuse, so views do not reallocate (and page-fault) tile memory.
-    pool: Mutex<Vec<GBufferTile>>,
-}
-
-impl Sink for Accumulator {
-    type Tile = <GBuffer as Sink>::Tile;
-
-    fn begin_tile(&self, rect: TileRect) -> Self::Tile {
-        // The accumulator uses the G-buffer's tiles: same depth test and blending.
-        let recycled = self.pool.lock().ok().and_then(|mut p| p.pop());
-        match recycled {
-            Some(mut tile) => {
-                tile.reset(rect);
-                tile
-            }
-            None => GBuffer::tile(rect),
-        }
-    }
-
-    fn end_tile(&mut self, rect: TileRect, tile: Self::Tile) {
-        let w = rect.width();
-        let colors = tile.color();
-        for (row, y) in (rect.y0..rect.y1).enumerate() {
-            let dst = &mut self.sum[y * self.width + rect.x0..][..w];
-            for (d, s) in dst.iter_mut().zip(&colors[row * w..(row + 1) * w]) {
-                for k in 0..4 {
-                    d[k] += s[k];
-                }
-            }
-        }
-        if let Ok(mut pool) = self.pool.lock() {
-            pool.push(tile);
-        }
-    }
-}
-
 /// Renders `scene` through `camera` by accumulating `settings.samples` views over the lens.
 /// `progress(done, total)` is called after each view.
 pub fn render(
@@ -107,10 +97,28 @@ pub fn render(
     settings: &ReferenceSettings,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<MethodOutput> {
-    let method = if settings.use_lens {
-        "reference"
+    let (prepare, labels, depth_label) = if settings.use_lens {
+        (
+            pass::PREPARE,
+            ViewPassLabels {
+                setup: pass::SETUP,
+                bin: pass::BIN,
+                raster: pass::RASTER,
+                resolve: pass::RESOLVE,
+            },
+            pass::DEPTH,
+        )
     } else {
-        "pinhole"
+        (
+            pinhole_pass::PREPARE,
+            ViewPassLabels {
+                setup: pinhole_pass::SETUP,
+                bin: pinhole_pass::BIN,
+                raster: pinhole_pass::RASTER,
+                resolve: pinhole_pass::RESOLVE,
+            },
+            pinhole_pass::DEPTH,
+        )
     };
     let lens = camera.thin_lens()?;
     let mut timings = Timings::default();
@@ -125,66 +133,41 @@ pub fn render(
             s.lens = glam::Vec2::ZERO;
         }
     }
-    let prepared = timings.time(&format!("{method}/prepare"), || {
+    let prepared = timings.time(prepare, || {
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
-    let total = set.samples.len();
-    let (w, h) = (lens.width_px, lens.height_px);
-
-    let mut depth = None;
-    let image = if total == 1 {
-        let view = View::pinhole(lens);
-        let binned = timings.time(&format!("{method}/setup"), || {
-            BinnedView::new(&prepared, &view)
-        });
-        let mut g = GBuffer::new(w, h);
-        timings.time(&format!("{method}/raster"), || {
-            binned.rasterize(&prepared, &mut g)
-        });
-        progress(1, 1);
-        if settings.with_depth {
-            depth = Some(g.depth.clone());
-        }
-        g.color
+    let image = accumulate_views(
+        &prepared,
+        lens,
+        &set.samples,
+        &labels,
+        &mut timings,
+        progress,
+    )?;
+    let depth = if settings.with_depth {
+        Some(pinhole_depth(&prepared, lens, depth_label, &mut timings))
     } else {
-        let mut acc = Accumulator {
-            width: w,
-            sum: vec![[0.0; 4]; w * h],
-            pool: Mutex::new(Vec::new()),
-        };
-        for (i, s) in set.samples.iter().enumerate() {
-            let view = View {
-                lens,
-                lens_point: s.lens,
-                pixel_offset: crate::raster::snap_pixel_offset(s.pixel_offset),
-                lod_bias: -0.5 * (total as f32).log2(),
-            };
-            let binned = timings.time(&format!("{method}/setup"), || {
-                BinnedView::new(&prepared, &view)
-            });
-            timings.time(&format!("{method}/raster"), || {
-                binned.rasterize(&prepared, &mut acc)
-            });
-            progress(i + 1, total);
-        }
-        if settings.with_depth {
-            let view = View::pinhole(lens);
-            let binned = BinnedView::new(&prepared, &view);
-            let mut g = GBuffer::new(w, h);
-            timings.time(&format!("{method}/depth"), || {
-                binned.rasterize(&prepared, &mut g)
-            });
-            depth = Some(g.depth);
-        }
-        timings.time(&format!("{method}/resolve"), || {
-            let inv_n = 1.0 / total as f32;
-            let data = acc.sum.iter().map(|s| s.map(|v| v * inv_n)).collect();
-            ColorImage::from_vec(w, h, data)
-        })?
+        None
     };
     Ok(MethodOutput {
         image,
         depth,
         timings,
     })
+}
+
+/// View-axis depth in metres at pixel centres of the pinhole view (a renderer's Z pass).
+fn pinhole_depth(
+    prepared: &PreparedScene,
+    lens: crate::lens::ThinLens,
+    label: &'static str,
+    timings: &mut Timings,
+) -> GrayImage {
+    let labels = ViewPassLabels {
+        setup: label,
+        bin: label,
+        raster: label,
+        resolve: label,
+    };
+    render_view(prepared, &View::pinhole(lens), &labels, timings).depth
 }

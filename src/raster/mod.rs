@@ -26,12 +26,14 @@
 mod gbuffer;
 mod setup;
 mod shade;
+pub mod views;
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 pub use gbuffer::{GBuffer, GBufferTile};
 pub use setup::SetupTriangle;
+pub use views::{accumulate_views, render_view, sample_view, ViewPassLabels};
 
 use crate::image::Rgba;
 use crate::lens::ThinLens;
@@ -249,10 +251,24 @@ pub struct BinnedView {
 impl BinnedView {
     /// Sets up and bins every triangle of `prepared` for `view` (passes `setup` and `bin`).
     pub fn new(prepared: &PreparedScene, view: &View) -> Self {
-        let width = view.lens.width_px;
-        let height = view.lens.height_px;
+        Self::bin(Self::setup(prepared, view), view)
+    }
+
+    /// [`BinnedView::new`], timing `setup` and `bin` under the labels given.
+    pub fn new_timed(
+        prepared: &PreparedScene,
+        view: &View,
+        labels: &views::ViewPassLabels,
+        timings: &mut crate::timing::Timings,
+    ) -> Self {
+        let triangles = timings.time(labels.setup, || Self::setup(prepared, view));
+        timings.time(labels.bin, || Self::bin(triangles, view))
+    }
+
+    /// Pass `setup`: project, clip and cull every triangle for `view`.
+    fn setup(prepared: &PreparedScene, view: &View) -> Vec<SetupTriangle> {
         let materials = &prepared.scene.materials;
-        let triangles: Vec<SetupTriangle> = prepared
+        prepared
             .triangles
             .par_chunks(1024)
             .flat_map_iter(|chunk| {
@@ -276,7 +292,13 @@ impl BinnedView {
                 }
                 out
             })
-            .collect();
+            .collect()
+    }
+
+    /// Pass `bin`: each triangle into the list of every tile its bounding box touches.
+    fn bin(triangles: Vec<SetupTriangle>, view: &View) -> Self {
+        let width = view.lens.width_px;
+        let height = view.lens.height_px;
         let tiles_x = width.div_ceil(TILE);
         let tiles_y = height.div_ceil(TILE);
         let mut bins: Vec<Vec<u32>> = vec![Vec::new(); tiles_x * tiles_y];

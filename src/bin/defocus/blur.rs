@@ -8,12 +8,15 @@ use defocus::image::io::{self, DepthRead};
 use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::{Camera, ThinLens};
 use defocus::methods::lowrank::{self, tilt_shift_coc, TiltShift};
+use defocus::methods::registry::{self, Frame, MethodSettings};
 use defocus::methods::MethodOutput;
+use defocus::timing::{self, Timings};
 use defocus::scene::autofocus::focus_in_depth;
 
-use crate::args::TimingFormat;
-use crate::commands::{check_output, parse_aperture, report_timings, IMAGE_EXTENSIONS};
-use crate::post::{self, PostArgs, PostMethod, PostSettings};
+use crate::common::{
+    check_output, method_parser, parse_aperture, report_timings, TimingFormat, IMAGE_EXTENSIONS,
+};
+use crate::post::PostArgs;
 
 /// What the depth values measure.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -49,9 +52,10 @@ pub struct BlurArgs {
         allow_negative_numbers = true
     )]
     pub depth_scale: f32,
-    /// DoF method [default: hammon; lowrank with --tilt-shift].
-    #[arg(long, value_enum)]
-    pub method: Option<PostMethod>,
+    /// DoF method [default: hammon; lowrank with --tilt-shift]. Methods that need a 3D scene
+    /// (reference, pinhole, and the layered ones) are refused: use `defocus render`.
+    #[arg(long, value_parser = method_parser())]
+    pub method: Option<String>,
     /// Focus distance in metres, or `auto` (median depth of a small window at the image centre).
     #[arg(
         long,
@@ -154,8 +158,9 @@ enum Input {
 pub struct BlurJob {
     color: ColorImage,
     input: Input,
-    method: PostMethod,
-    settings: PostSettings,
+    settings: MethodSettings,
+    /// Time spent reading the inputs.
+    read_timings: Timings,
     out: PathBuf,
     coc_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
@@ -182,15 +187,22 @@ impl TryFrom<&BlurArgs> for BlurJob {
             }
         }
         let tilt_shift = a.tilt_shift.as_deref().map(parse_tilt_shift).transpose()?;
-        let method = match (a.method, &tilt_shift) {
-            (None, None) => PostMethod::Hammon,
-            (None, Some(_)) | (Some(PostMethod::Lowrank), Some(_)) => PostMethod::Lowrank,
+        let method: &str = match (a.method.as_deref(), &tilt_shift) {
+            (None, None) => "hammon",
+            (None, Some(_)) | (Some("lowrank"), Some(_)) => "lowrank",
             (Some(m), None) => m,
             (Some(m), Some(_)) => bail!(
-                "--tilt-shift works with --method lowrank (McGraw section 4), not {}",
-                m.id()
+                "--tilt-shift works with --method lowrank (McGraw section 4), not {m}"
             ),
         };
+        let info = registry::find(method)?;
+        if info.input.needs_scene() {
+            bail!(
+                "--method {method} needs {}, not a colour image with a depth pass: run `defocus render --method {method} --scene ...` instead",
+                info.input.describe()
+            );
+        }
+        let mut read_timings = Timings::default();
         if tilt_shift.is_some() && a.depth.is_some() {
             bail!("--tilt-shift paints the blur itself: give no --depth with it");
         }
@@ -212,7 +224,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 );
             }
         }
-        let color = io::read_color(&a.color)?;
+        let color = read_timings.time(timing::READ, || io::read_color(&a.color))?;
         if let Some(ts) = tilt_shift {
             let mut post = a.post.clone();
             post.max_coc = post.max_coc.max(ts.max_coc_px);
@@ -227,8 +239,8 @@ impl TryFrom<&BlurArgs> for BlurJob {
             return Ok(Self {
                 color,
                 input: Input::TiltShift { coc_px },
-                method,
                 settings,
+                read_timings,
                 out: a.out.clone(),
                 coc_out: a.coc_out.clone(),
                 timings: a.timings,
@@ -253,7 +265,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             scale: a.depth_scale,
             radial: a.depth_kind == DepthKind::Radial,
         };
-        let mut depth = io::read_depth(depth_path, &opts)?;
+        let mut depth = read_timings.time(timing::READ, || io::read_depth(depth_path, &opts))?;
         if !color.same_size(&depth) {
             bail!(
                 "size mismatch: colour {} is {}x{} but depth {} is {}x{}",
@@ -317,8 +329,8 @@ impl TryFrom<&BlurArgs> for BlurJob {
         Ok(Self {
             color,
             input: Input::Depth { depth, lens },
-            method,
             settings,
+            read_timings,
             out: a.out.clone(),
             coc_out: a.coc_out.clone(),
             timings: a.timings,
@@ -330,19 +342,23 @@ impl BlurJob {
     /// Runs the method and writes the output.
     pub fn run(self) -> Result<()> {
         let output: MethodOutput = match (&self.input, &self.settings) {
-            (Input::Depth { depth, lens }, settings) => {
-                post::run(settings, &self.color, depth, lens)?
-            }
-            (Input::TiltShift { coc_px }, PostSettings::Lowrank(s)) => {
+            (Input::Depth { depth, lens }, settings) => registry::run_frame(
+                settings,
+                &Frame {
+                    color: &self.color,
+                    depth,
+                    lens,
+                },
+            )?,
+            (Input::TiltShift { coc_px }, MethodSettings::Lowrank(s)) => {
                 lowrank::render_coc(&self.color, coc_px, s)?
             }
             (Input::TiltShift { .. }, _) => bail!("--tilt-shift works with --method lowrank"),
         };
-        let mut timings = output.timings.clone();
-        let id = self.method.id();
-        timings.time(&format!("{id}/write"), || {
-            io::write_color(&self.out, &output.image)
-        })?;
+        let mut timings = self.read_timings.clone();
+        timings.extend(&output.timings);
+        let id = self.settings.id();
+        timings.time(timing::WRITE, || io::write_color(&self.out, &output.image))?;
         if let Some(path) = &self.coc_out {
             let coc: Vec<f32> = match &self.input {
                 Input::Depth { depth, lens } => {

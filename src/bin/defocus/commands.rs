@@ -3,19 +3,22 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use defocus::image::{io, GrayImage};
-use defocus::lens::{Aperture, ApertureImage, Camera, SamplerKind};
-use defocus::methods::lowrank::CustomShape;
-use defocus::methods::reference::{self, ReferenceSettings};
+use defocus::image::io;
+use defocus::lens::{Camera, SamplerKind};
+use defocus::methods::reference::ReferenceSettings;
+use defocus::methods::registry::{
+    self, MethodSettings, PinholeSettings, SceneOptions, DEFAULT_FRAME_SAMPLES,
+};
 use defocus::methods::MethodOutput;
 use defocus::metrics;
 use defocus::scene::{autofocus, builtin, load, Scene};
-use defocus::timing::Timings;
+use defocus::timing;
 use glam::Vec3;
-use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::args::{Cli, Command, CompareArgs, Focus, RenderArgs, RenderMethod, TimingFormat};
-use crate::post::{self, PostSettings};
+use crate::args::{Cli, Command, CompareArgs, Focus, RenderArgs};
+use crate::common::{
+    check_output, parse_aperture, progress_bar, report_timings, TimingFormat, IMAGE_EXTENSIONS,
+};
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
@@ -39,42 +42,12 @@ pub fn run(cli: Cli) -> Result<()> {
     }
 }
 
-pub(crate) const IMAGE_EXTENSIONS: &[&str] = &["exr", "png", "pfm"];
-
-/// Checks an output path before any work is done: a supported extension and an existing folder.
-pub(crate) fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
-    if !extensions.contains(&ext.as_str()) {
-        bail!(
-            "invalid {flag} {}: expected a file ending in .{}",
-            path.display(),
-            extensions.join(", .")
-        );
-    }
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        if !parent.is_dir() {
-            bail!(
-                "invalid {flag} {}: folder {} does not exist",
-                path.display(),
-                parent.display()
-            );
-        }
-    }
-    Ok(())
-}
-
 /// A validated `render` job.
 struct RenderJob {
     scene: Scene,
     camera: Camera,
-    settings: ReferenceSettings,
-    method: RenderMethod,
-    /// Settings of the post-process method, for those methods.
-    post: Option<PostSettings>,
+    settings: MethodSettings,
+    options: SceneOptions,
     out: PathBuf,
     depth_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
@@ -100,25 +73,6 @@ fn load_scene(spec: &str, camera: Option<&str>) -> Result<Scene> {
         "unknown scene '{spec}': not a built-in scene ({}) and no such file",
         builtin::NAMES.join(", ")
     )
-}
-
-/// Parses `--aperture`, loading the image for `image:PATH`.
-pub fn parse_aperture(spec: &str) -> Result<Aperture> {
-    if let Some(path) = spec.strip_prefix("image:") {
-        let img = io::read_color(Path::new(path))
-            .with_context(|| format!("invalid --aperture {spec}"))?;
-        let grey = img.map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]);
-        let grey = GrayImage::from_vec(grey.width(), grey.height(), grey.into_vec())?;
-        let density = ApertureImage::new(grey).with_context(|| format!("aperture image {path}"))?;
-        return Ok(Aperture::Image(std::sync::Arc::new(density)));
-    }
-    let name = spec.trim().split(':').next().unwrap_or("");
-    if ["star", "heart", "ring"].contains(&name) {
-        let shape =
-            CustomShape::parse(spec).with_context(|| format!("invalid --aperture {spec}"))?;
-        return Ok(shape.aperture()?);
-    }
-    Aperture::parse(spec).with_context(|| format!("invalid --aperture {spec}"))
 }
 
 impl TryFrom<RenderArgs> for RenderJob {
@@ -187,31 +141,38 @@ impl TryFrom<RenderArgs> for RenderJob {
             Some(spec) => parse_aperture(spec)?,
             None => defaults.aperture,
         };
-        let samples = a.samples.unwrap_or(match a.method {
-            RenderMethod::Reference => 256,
-            _ => 1,
-        });
-        if samples == 0 || samples > 1 << 20 {
-            bail!("invalid --samples {samples}: expected 1 to {}", 1 << 20);
+        if let Some(n) = a.samples {
+            if n == 0 || n > 1 << 20 {
+                bail!("invalid --samples {n}: expected 1 to {}", 1 << 20);
+            }
         }
         let sampler = SamplerKind::parse(&a.sampler).context("invalid --sampler")?;
-        let post = match a.method.post() {
-            Some(m) => Some(a.post.settings(
-                m,
-                &aperture,
-                a.seed,
-                camera.height_px,
-                Some(&camera.thin_lens()?),
-            )?),
-            None => None,
+        let lens = camera.thin_lens()?;
+        let settings = match a.post.settings(
+            &a.method,
+            &aperture,
+            a.seed,
+            camera.height_px,
+            Some(&lens),
+        )? {
+            MethodSettings::Reference(r) => MethodSettings::Reference(ReferenceSettings {
+                samples: a.samples.unwrap_or(r.samples),
+                sampler,
+                seed: a.seed,
+                aperture,
+                ..r
+            }),
+            MethodSettings::Pinhole(p) => MethodSettings::Pinhole(PinholeSettings {
+                samples: a.samples.unwrap_or(p.samples),
+                sampler,
+                seed: a.seed,
+            }),
+            other => other,
         };
-        let settings = ReferenceSettings {
-            samples,
-            sampler,
+        let options = SceneOptions {
+            frame_samples: a.samples.unwrap_or(DEFAULT_FRAME_SAMPLES),
             seed: a.seed,
-            aperture,
-            use_lens: a.method == RenderMethod::Reference,
-            with_depth: a.depth_out.is_some() || post.is_some(),
+            with_depth: a.depth_out.is_some(),
         };
         let mut inputs = Vec::new();
         if Path::new(&a.scene).exists() {
@@ -224,8 +185,7 @@ impl TryFrom<RenderArgs> for RenderJob {
             scene,
             camera,
             settings,
-            method: a.method,
-            post,
+            options,
             out: a.out,
             depth_out: a.depth_out,
             timings: a.timings,
@@ -241,37 +201,31 @@ impl RenderJob {
                 io::ensure_not_same_file(input, out)?;
             }
         }
-        let bar = progress_bar(quiet, self.settings.samples as u64, "views");
-        let mut output: MethodOutput =
-            reference::render(&self.scene, &self.camera, &self.settings, &mut |done, _| {
-                bar.set_position(done as u64)
-            })?;
+        let views = match &self.settings {
+            MethodSettings::Reference(r) => r.samples,
+            MethodSettings::Pinhole(p) => p.samples,
+            _ => self.options.frame_samples,
+        };
+        let bar = progress_bar(quiet, views as u64, "views");
+        let output: MethodOutput = registry::run_scene(
+            &self.settings,
+            &self.scene,
+            &self.camera,
+            &self.options,
+            &mut |done, _| bar.set_position(done as u64),
+        )?;
         bar.finish_and_clear();
         let mut timings = output.timings.clone();
-        if let Some(post) = &self.post {
-            // The pinhole frame (colour and centre depth) is the post-process method's input.
-            let depth = output
-                .depth
-                .take()
-                .context("internal: the pinhole pass returned no depth")?;
-            let lens = self.camera.thin_lens()?;
-            let blurred = post::run(post, &output.image, &depth, &lens)?;
-            timings.extend(&blurred.timings);
-            output = MethodOutput {
-                image: blurred.image,
-                depth: Some(depth),
-                timings: blurred.timings,
-            };
-        }
-        let method = self.method.id();
-        timings.time(&format!("{method}/write"), || {
-            io::write_color(&self.out, &output.image)
+        let method = self.settings.id();
+        timings.time(timing::WRITE, || {
+            io::write_color(&self.out, &output.image)?;
+            if let (Some(path), Some(depth)) = (&self.depth_out, &output.depth) {
+                // Renderers write a large finite value where nothing was hit (Blender: 1e10).
+                let depth = depth.map(|z| if z.is_finite() { z } else { 1e10 });
+                io::write_depth_exr(path, &depth)?;
+            }
+            anyhow::Ok(())
         })?;
-        if let (Some(path), Some(depth)) = (&self.depth_out, &output.depth) {
-            // Renderers write a large finite value where nothing was hit (Blender: 1e10).
-            let depth = depth.map(|z| if z.is_finite() { z } else { 1e10 });
-            io::write_depth_exr(path, &depth)?;
-        }
         report_timings(
             self.timings,
             method,
@@ -280,63 +234,6 @@ impl RenderJob {
             &timings,
         );
         Ok(())
-    }
-}
-
-fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
-    if quiet || total <= 1 {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(total);
-    let template = format!(
-        "{{spinner}} [{{elapsed_precise}}] {{wide_bar}} {{pos}}/{{len}} {unit} (eta {{eta}})"
-    );
-    if let Ok(style) = ProgressStyle::with_template(&template) {
-        bar.set_style(style);
-    }
-    bar
-}
-
-pub(crate) fn report_timings(
-    format: Option<TimingFormat>,
-    method: &str,
-    width: usize,
-    height: usize,
-    timings: &Timings,
-) {
-    match format {
-        None => {}
-        Some(TimingFormat::Table) => {
-            let name_width = timings
-                .passes
-                .iter()
-                .map(|p| p.name.len())
-                .max()
-                .unwrap_or(4)
-                .max(5);
-            eprintln!("{method} {width}x{height}");
-            eprintln!("{:<name_width$} {:>10}", "pass", "ms");
-            for p in &timings.passes {
-                eprintln!("{:<name_width$} {:>10.2}", p.name, p.ms);
-            }
-            eprintln!("{:<name_width$} {:>10.2}", "total", timings.total_ms());
-        }
-        Some(TimingFormat::Json) => {
-            let value = serde_json::json!({
-                "method": method,
-                "width": width,
-                "height": height,
-                "passes": timings.passes,
-                "total_ms": timings.total_ms(),
-            });
-            #[expect(
-                clippy::print_stdout,
-                reason = "--timings json is the command's output"
-            )]
-            {
-                println!("{value}");
-            }
-        }
     }
 }
 

@@ -11,7 +11,7 @@ use defocus::methods::lowrank::{
 };
 use defocus::metrics;
 
-use crate::commands::{check_output, parse_aperture, IMAGE_EXTENSIONS};
+use crate::common::{check_output, parse_aperture, IMAGE_EXTENSIONS};
 
 /// Flags of `kernel`.
 #[derive(Debug, Args)]

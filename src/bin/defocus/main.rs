@@ -4,6 +4,7 @@
 mod args;
 mod blur;
 mod commands;
+mod common;
 mod kernel;
 mod post;
 

@@ -1,43 +1,17 @@
-//! Single-image (post-process) methods shared by `render` and `blur`: their flags, turned into
-//! validated settings once, and the dispatch to the library.
+//! The flags of the methods, shared by `render` and `blur`, turned into the library's validated
+//! [`MethodSettings`] once. Running them is the library's registry.
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::{Aperture, ThinLens};
-use defocus::methods::gaussian::{self, GaussianSettings};
-use defocus::methods::hammon::{self, CocMode, HammonSettings, LerpDistances};
-use defocus::methods::lowrank::{self, LowRankSettings};
+use defocus::methods::gaussian::GaussianSettings;
+use defocus::methods::hammon::{CocMode, HammonSettings, LerpDistances};
+use defocus::methods::lowrank::LowRankSettings;
+use defocus::methods::coc_map;
 use defocus::methods::poisson::{self, PoissonSettings};
-use defocus::methods::MethodOutput;
+use defocus::methods::registry::MethodSettings;
 
-use crate::args::parse_numbers;
-
-/// Post-process methods: colour + depth in, colour out.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum PostMethod {
-    /// Hammon, GPU Gems 3 ch. 28: blend of blur levels with a blurred near CoC.
-    Hammon,
-    /// McGraw: the aperture kernel as a sum of separable filters (SVD), depth-edge mask with a
-    /// 2D gather fallback.
-    Lowrank,
-    /// Baseline: separable Gaussian gather sized by the CoC (Zhou et al.).
-    Gaussian,
-    /// Baseline: Poisson-disc gather in the aperture shape with depth rejection (Scheuermann).
-    Poisson,
-}
-
-impl PostMethod {
-    /// The method id used in timings and reports.
-    pub fn id(self) -> &'static str {
-        match self {
-            PostMethod::Hammon => "hammon",
-            PostMethod::Lowrank => "lowrank",
-            PostMethod::Gaussian => "gaussian",
-            PostMethod::Poisson => "poisson",
-        }
-    }
-}
+use crate::common::parse_numbers;
 
 /// `--coc` of hammon.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -162,33 +136,20 @@ pub struct PostArgs {
     pub taps: usize,
 }
 
-/// Validated settings of one post-process method.
-#[derive(Clone, Debug)]
-pub enum PostSettings {
-    /// hammon.
-    Hammon(HammonSettings),
-    /// lowrank.
-    Lowrank(LowRankSettings),
-    /// gaussian.
-    Gaussian(GaussianSettings),
-    /// poisson.
-    Poisson(PoissonSettings),
-}
-
 impl PostArgs {
-    /// The settings of `method` for a frame `height_px` rows high, seen through `lens` (needed
+    /// The settings of the method `method` (a registry id) for a frame `height_px` rows high, seen through `lens` (needed
     /// by `--large-blur-coc auto`), with the aperture and seed of the run. Every range is
     /// checked here, before any image is read or rendered.
     pub fn settings(
         &self,
-        method: PostMethod,
+        method: &str,
         aperture: &Aperture,
         seed: u64,
         height_px: usize,
         lens: Option<&ThinLens>,
-    ) -> Result<PostSettings> {
+    ) -> Result<MethodSettings> {
         let s = match method {
-            PostMethod::Hammon => {
+            "hammon" => {
                 let mut h = HammonSettings {
                     far_to_near_ratio: self.far_to_near_ratio,
                     sky_depth_m: self.sky_depth,
@@ -231,9 +192,9 @@ impl PostArgs {
                     h.set_large_blur_coc_px(px, height_px)
                         .context("invalid --large-blur-coc")?;
                 }
-                PostSettings::Hammon(h)
+                MethodSettings::Hammon(h)
             }
-            PostMethod::Lowrank => {
+            "lowrank" => {
                 let l = LowRankSettings {
                     aperture: aperture.clone(),
                     rank: self.rank,
@@ -253,27 +214,28 @@ impl PostArgs {
                     .validate()
                     .context("invalid --kernel-size")?;
                 check_taps("--fallback-taps", self.fallback_taps)?;
-                PostSettings::Lowrank(l)
+                MethodSettings::Lowrank(l)
             }
-            PostMethod::Gaussian => {
+            "gaussian" => {
                 let g = GaussianSettings {
                     sigma_per_coc: self.sigma_per_coc,
                     max_coc_px: self.max_coc,
                     ..GaussianSettings::default()
                 };
                 g.validate().context("invalid gaussian option")?;
-                PostSettings::Gaussian(g)
+                MethodSettings::Gaussian(g)
             }
-            PostMethod::Poisson => {
-                poisson::check_max_coc(self.max_coc).context("invalid --max-coc")?;
+            "poisson" => {
+                coc_map::check_max_coc(self.max_coc).context("invalid --max-coc")?;
                 check_taps("--taps", self.taps)?;
-                PostSettings::Poisson(PoissonSettings {
+                MethodSettings::Poisson(PoissonSettings {
                     aperture: aperture.clone(),
                     taps: self.taps,
                     seed,
                     max_coc_px: self.max_coc,
                 })
             }
+            other => MethodSettings::default_for(other)?,
         };
         Ok(s)
     }
@@ -284,22 +246,6 @@ fn check_taps(flag: &str, n: usize) -> Result<()> {
         bail!("invalid {flag} {n}: expected 1 to {}", poisson::MAX_TAPS);
     }
     Ok(())
-}
-
-/// Runs a post-process method on a colour image and its view-axis depth in metres.
-pub fn run(
-    settings: &PostSettings,
-    color: &ColorImage,
-    depth: &GrayImage,
-    lens: &ThinLens,
-) -> Result<MethodOutput> {
-    let out = match settings {
-        PostSettings::Hammon(s) => hammon::render(color, depth, lens, s)?,
-        PostSettings::Lowrank(s) => lowrank::render(color, depth, lens, s)?,
-        PostSettings::Gaussian(s) => gaussian::render(color, depth, lens, s)?,
-        PostSettings::Poisson(s) => poisson::render(color, depth, lens, s)?,
-    };
-    Ok(out)
 }
 
 /// Parses `A,B` (two finite numbers).

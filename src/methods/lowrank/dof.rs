@@ -56,35 +56,7 @@ use crate::{Error, Result};
 /// Largest tap table of a [`KernelBank`], in floats (each of the two tables: 256 MB).
 pub const MAX_BANK_FLOATS: usize = 1 << 26;
 
-/// CoC radii are quantised to steps of 1 / `LEVELS_PER_PX` pixel.
-pub const LEVELS_PER_PX: f32 = 4.0;
-
-/// Number of taps on each side of the centre for a kernel of radius `radius_px`: the taps whose
-/// footprint `[d - 1/2, d + 1/2]` overlaps `(-R, R)`.
-pub fn half_taps(radius_px: f32) -> usize {
-    if radius_px <= 0.5 {
-        0
-    } else {
-        (radius_px + 0.5).ceil() as usize - 1
-    }
-}
-
-/// Number of quantised radius levels needed for radii up to `max_radius_px`.
-pub fn level_count(max_radius_px: f32) -> usize {
-    (max_radius_px.max(0.0) * LEVELS_PER_PX).ceil() as usize + 1
-}
-
-/// Level of a CoC radius `|coc_px|` (0 to `levels - 1`).
-#[inline]
-pub fn level_of(coc_px: f32, levels: usize) -> usize {
-    ((coc_px.abs() * LEVELS_PER_PX).round() as usize).min(levels - 1)
-}
-
-/// Radius in pixels of level `level`.
-#[inline]
-pub fn level_radius_px(level: usize) -> f32 {
-    level as f32 / LEVELS_PER_PX
-}
+pub use crate::methods::coc_map::{half_taps, level_count, level_of, level_radius_px, LEVELS_PER_PX};
 
 /// The tap tables of every radius level for one decomposed kernel at one rank.
 #[derive(Clone, Debug)]

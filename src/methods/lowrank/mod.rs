@@ -15,7 +15,7 @@
 //!   approximates).
 //!
 //! # Depth of field: passes, in order (each timed as `lowrank/<pass>`)
-//! 1. `coc` ([`crate::methods::poisson::coc`]): reads depth; writes the signed CoC radius in
+//! 1. `coc` ([`crate::methods::coc_map::coc`]): reads depth; writes the signed CoC radius in
 //!    pixels from [`ThinLens::coc_px`], clamped to `max_coc_px`. [`render_coc`] takes a CoC map
 //!    instead (tilt-shift, [`tilt_shift_coc`]) and only validates and clamps it.
 //! 2. `kernel` ([`kernel_image`], [`decompose`], [`dof::KernelBank`]): rasterizes the base
@@ -96,6 +96,7 @@ pub use kernel::{kernel_image, CustomShape, KernelSpec};
 pub use svd::{decompose, LowRank};
 pub use tiltshift::{tilt_shift_coc, TiltShift};
 
+use super::coc_map;
 use super::poisson::{self, Taps};
 use super::MethodOutput;
 use crate::image::{ColorImage, GrayImage};
@@ -166,7 +167,7 @@ impl LowRankSettings {
     pub fn validate(&self) -> Result<()> {
         self.aperture.validate()?;
         kernel::check_aberration(self.aberration)?;
-        poisson::check_max_coc(self.max_coc_px)?;
+        coc_map::check_max_coc(self.max_coc_px)?;
         if self.rank == 0 {
             return Err(Error::invalid("rank", "0: expected at least 1"));
         }
@@ -235,10 +236,10 @@ pub fn render_detailed(
     settings: &LowRankSettings,
 ) -> Result<Detailed> {
     settings.validate()?;
-    poisson::check_frame(color, depth, lens)?;
+    coc_map::check_frame(color, depth, lens)?;
     let mut timings = Timings::default();
     let coc_px = timings.time("lowrank/coc", || {
-        poisson::coc(depth, lens, settings.max_coc_px)
+        coc_map::coc(depth, lens, settings.max_coc_px)
     })?;
     run(color, coc_px, settings, timings)
 }
@@ -277,7 +278,7 @@ pub fn render_coc_detailed(
     }
     let mut timings = Timings::default();
     let coc_px = timings.time("lowrank/coc", || {
-        poisson::clamp_coc(coc_px, settings.max_coc_px)
+        coc_map::clamp_coc(coc_px, settings.max_coc_px)
     })?;
     run(color, coc_px, settings, timings)
 }

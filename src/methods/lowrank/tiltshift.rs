@@ -14,7 +14,7 @@
 use rayon::prelude::*;
 
 use crate::image::{check_size, GrayImage};
-use crate::methods::poisson::MAX_COC_LIMIT_PX;
+use crate::methods::coc_map::MAX_COC_LIMIT_PX;
 use crate::{Error, Result};
 
 /// A tilt-shift band. Lengths are fractions of the image height.

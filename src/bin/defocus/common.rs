@@ -1,0 +1,145 @@
+//! Helpers every command shares: output checks, the aperture flag, the method flag, progress
+//! bars and timing reports. This file imports no other file of the binary, so the modules form
+//! no import circle: `common` <- `post` <- `blur`, `common` <- `kernel`, and `args` and
+//! `commands` on top.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use clap::builder::{PossibleValue, PossibleValuesParser};
+use clap::ValueEnum;
+use defocus::image::{io, GrayImage};
+use defocus::lens::{Aperture, ApertureImage, CustomShape};
+use defocus::methods::registry::METHODS;
+use defocus::timing::Timings;
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// How `--timings` reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum TimingFormat {
+    /// A table on stderr.
+    Table,
+    /// One JSON object on stdout.
+    Json,
+}
+
+/// `--method`: every id of the library's registry, with its description as help.
+pub fn method_parser() -> PossibleValuesParser {
+    PossibleValuesParser::new(
+        METHODS
+            .iter()
+            .map(|m| PossibleValue::new(m.id).help(m.description)),
+    )
+}
+
+/// Parses comma-separated finite numbers; `None` if any is not one.
+pub fn parse_numbers(s: &str) -> Option<Vec<f32>> {
+    s.split(',')
+        .map(|p| p.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
+        .collect()
+}
+
+pub const IMAGE_EXTENSIONS: &[&str] = &["exr", "png", "pfm"];
+
+/// Checks an output path before any work is done: a supported extension and an existing folder.
+pub fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    if !extensions.contains(&ext.as_str()) {
+        bail!(
+            "invalid {flag} {}: expected a file ending in .{}",
+            path.display(),
+            extensions.join(", .")
+        );
+    }
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if !parent.is_dir() {
+            bail!(
+                "invalid {flag} {}: folder {} does not exist",
+                path.display(),
+                parent.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Parses `--aperture`, loading the image for `image:PATH`.
+pub fn parse_aperture(spec: &str) -> Result<Aperture> {
+    if let Some(path) = spec.strip_prefix("image:") {
+        let img = io::read_color(Path::new(path))
+            .with_context(|| format!("invalid --aperture {spec}"))?;
+        let grey = img.map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]);
+        let grey = GrayImage::from_vec(grey.width(), grey.height(), grey.into_vec())?;
+        let density = ApertureImage::new(grey).with_context(|| format!("aperture image {path}"))?;
+        return Ok(Aperture::Image(std::sync::Arc::new(density)));
+    }
+    let name = spec.trim().split(':').next().unwrap_or("");
+    if ["star", "heart", "ring"].contains(&name) {
+        let shape =
+            CustomShape::parse(spec).with_context(|| format!("invalid --aperture {spec}"))?;
+        return Ok(shape.aperture()?);
+    }
+    Aperture::parse(spec).with_context(|| format!("invalid --aperture {spec}"))
+}
+
+pub fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
+    if quiet || total <= 1 {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(total);
+    let template = format!(
+        "{{spinner}} [{{elapsed_precise}}] {{wide_bar}} {{pos}}/{{len}} {unit} (eta {{eta}})"
+    );
+    if let Ok(style) = ProgressStyle::with_template(&template) {
+        bar.set_style(style);
+    }
+    bar
+}
+
+pub fn report_timings(
+    format: Option<TimingFormat>,
+    method: &str,
+    width: usize,
+    height: usize,
+    timings: &Timings,
+) {
+    match format {
+        None => {}
+        Some(TimingFormat::Table) => {
+            let name_width = timings
+                .passes
+                .iter()
+                .map(|p| p.name.len())
+                .max()
+                .unwrap_or(4)
+                .max(5);
+            eprintln!("{method} {width}x{height}");
+            eprintln!("{:<name_width$} {:>10}", "pass", "ms");
+            for p in &timings.passes {
+                eprintln!("{:<name_width$} {:>10.2}", p.name, p.ms);
+            }
+            eprintln!("{:<name_width$} {:>10.2}", "total", timings.total_ms());
+        }
+        Some(TimingFormat::Json) => {
+            let value = serde_json::json!({
+                "method": method,
+                "width": width,
+                "height": height,
+                "passes": timings.passes,
+                "total_ms": timings.total_ms(),
+            });
+            #[expect(
+                clippy::print_stdout,
+                reason = "--timings json is the command's output"
+            )]
+            {
+                println!("{value}");
+            }
+        }
+    }
+}
+

@@ -1,0 +1,135 @@
+//! The CoC map pass shared by every gather (`hammon` has its own near/far CoC of the chapter):
+//! checks a colour + depth frame against the lens, turns depth into the signed thin-lens CoC
+//! radius in pixels ([`crate::lens::ThinLens::coc_px`]), clamps it to the method's limit, and
+//! quantises radii into the levels that the separable gathers keep one tap table for.
+//!
+//! Each method times this pass under its own name (`poisson/coc`, `lowrank/coc`,
+//! `gaussian/coc`); the code is this one function, [`coc`].
+
+use rayon::prelude::*;
+
+use crate::image::{ColorImage, GrayImage};
+use crate::lens::ThinLens;
+use crate::{Error, Result};
+
+/// Largest CoC radius in pixels any post-process method accepts as a clamp.
+pub const MAX_COC_LIMIT_PX: f32 = 512.0;
+
+/// Checks that colour, depth and lens describe the same frame size.
+pub fn check_frame(color: &ColorImage, depth: &GrayImage, lens: &ThinLens) -> Result<()> {
+    if !color.same_size(depth) {
+        return Err(Error::Mismatch(format!(
+            "colour image is {}x{} but depth is {}x{}",
+            color.width(),
+            color.height(),
+            depth.width(),
+            depth.height()
+        )));
+    }
+    if (color.width(), color.height()) != (lens.width_px, lens.height_px) {
+        return Err(Error::Mismatch(format!(
+            "colour image is {}x{} but the camera is {}x{}",
+            color.width(),
+            color.height(),
+            lens.width_px,
+            lens.height_px
+        )));
+    }
+    if color.width() == 0 || color.height() == 0 {
+        return Err(Error::invalid(
+            "image size",
+            "0 pixels: expected at least 1x1",
+        ));
+    }
+    Ok(())
+}
+
+/// Checks a CoC limit: finite, > 0, at most [`MAX_COC_LIMIT_PX`].
+pub fn check_max_coc(max_coc_px: f32) -> Result<()> {
+    if max_coc_px.is_finite() && max_coc_px > 0.0 && max_coc_px <= MAX_COC_LIMIT_PX {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            "max CoC",
+            format!("{max_coc_px} px: expected a radius in (0, {MAX_COC_LIMIT_PX}] pixels"),
+        ))
+    }
+}
+
+/// Pass `coc`: the signed CoC radius in pixels of every pixel, `C(z)` of
+/// [`ThinLens::coc_px`] clamped to `[-max_coc_px, max_coc_px]`.
+///
+/// Fails naming the first pixel (row order) whose depth is NaN, zero or negative; +inf is the
+/// far limit.
+pub fn coc(depth: &GrayImage, lens: &ThinLens, max_coc_px: f32) -> Result<GrayImage> {
+    check_max_coc(max_coc_px)?;
+    let w = depth.width();
+    if let Some(i) = depth.pixels().iter().position(|&z| z.is_nan() || z <= 0.0) {
+        return Err(Error::invalid(
+            "depth",
+            format!(
+                "{} at pixel ({}, {}): expected a view-axis depth greater than 0 m (+inf for sky)",
+                depth.pixels()[i],
+                i % w.max(1),
+                i / w.max(1)
+            ),
+        ));
+    }
+    let mut out = depth.clone();
+    out.pixels_mut().par_chunks_mut(w.max(1)).for_each(|row| {
+        for c in row {
+            *c = lens.coc_px(*c).clamp(-max_coc_px, max_coc_px);
+        }
+    });
+    Ok(out)
+}
+
+/// Validates a given CoC map (finite values, in pixels) and clamps it to `±max_coc_px`: the
+/// `coc` pass for inputs that come with a CoC instead of depth (tilt-shift).
+pub fn clamp_coc(coc_px: &GrayImage, max_coc_px: f32) -> Result<GrayImage> {
+    check_max_coc(max_coc_px)?;
+    let w = coc_px.width().max(1);
+    if let Some(i) = coc_px.pixels().iter().position(|c| !c.is_finite()) {
+        return Err(Error::invalid(
+            "CoC map",
+            format!(
+                "{} at pixel ({}, {}): expected finite radii in pixels",
+                coc_px.pixels()[i],
+                i % w,
+                i / w
+            ),
+        ));
+    }
+    Ok(coc_px.map(|c| c.clamp(-max_coc_px, max_coc_px)))
+}
+
+/// CoC radii are quantised to steps of 1 / `LEVELS_PER_PX` pixel.
+pub const LEVELS_PER_PX: f32 = 4.0;
+
+/// Number of taps on each side of the centre for a kernel of radius `radius_px`: the taps whose
+/// footprint `[d - 1/2, d + 1/2]` overlaps `(-R, R)`.
+pub fn half_taps(radius_px: f32) -> usize {
+    if radius_px <= 0.5 {
+        0
+    } else {
+        (radius_px + 0.5).ceil() as usize - 1
+    }
+}
+
+/// Number of quantised radius levels needed for radii up to `max_radius_px`.
+pub fn level_count(max_radius_px: f32) -> usize {
+    (max_radius_px.max(0.0) * LEVELS_PER_PX).ceil() as usize + 1
+}
+
+/// Level of a CoC radius `|coc_px|` (0 to `levels - 1`).
+#[inline]
+pub fn level_of(coc_px: f32, levels: usize) -> usize {
+    ((coc_px.abs() * LEVELS_PER_PX).round() as usize).min(levels - 1)
+}
+
+/// Radius in pixels of level `level`.
+#[inline]
+pub fn level_radius_px(level: usize) -> f32 {
+    level as f32 / LEVELS_PER_PX
+}
+

@@ -1,0 +1,338 @@
+//! The list of methods, owned by the library: id, one-line description, paper, the input each
+//! needs, its settings type with defaults, and one way to run it. The command line and the
+//! comparison report iterate over [`METHODS`] and never match on method names; adding a method
+//! is one module, one entry here (and in [`MethodSettings`]) and its flags.
+
+use crate::image::{ColorImage, GrayImage};
+use crate::lens::{Camera, ThinLens};
+use crate::scene::Scene;
+use crate::{Error, Result};
+
+use super::gaussian::{self, GaussianSettings};
+use super::hammon::{self, HammonSettings};
+use super::lowrank::{self, LowRankSettings};
+use super::poisson::{self, PoissonSettings};
+use super::reference::{self, ReferenceSettings};
+use super::MethodOutput;
+
+/// What a method reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputKind {
+    /// Views of a 3D scene rasterized through points on the lens (`reference`, `pinhole`).
+    SceneViews,
+    /// One pinhole frame: linear colour + view-axis depth at pixel centres. From a scene (an
+    /// anti-aliased frame is rendered first) or from files (`blur`).
+    PinholeFrame,
+    /// Per-pixel fragment lists of the pinhole view, every surface a pixel sees (a scene).
+    FragmentLists,
+    /// Depth layers of the scene spaced in CoC (a scene).
+    DepthLayers,
+}
+
+impl InputKind {
+    /// True when the input can only be made from a 3D scene (not from a colour + depth pair).
+    pub fn needs_scene(self) -> bool {
+        !matches!(self, InputKind::PinholeFrame)
+    }
+
+    /// A short phrase for messages and reports.
+    pub fn describe(self) -> &'static str {
+        match self {
+            InputKind::SceneViews => "views of a 3D scene through the lens",
+            InputKind::PinholeFrame => "a colour image with a depth pass",
+            InputKind::FragmentLists => "per-pixel fragment lists rasterized from a 3D scene",
+            InputKind::DepthLayers => "depth layers rasterized from a 3D scene",
+        }
+    }
+}
+
+/// One method of the registry.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MethodInfo {
+    /// The id used on the command line, in `--timings` labels and in reports.
+    pub id: &'static str,
+    /// One line on what it does.
+    pub description: &'static str,
+    /// The paper it implements ("" for `pinhole`).
+    pub paper: &'static str,
+    /// What it reads.
+    pub input: InputKind,
+}
+
+/// Every method, in the order reports list them.
+pub const METHODS: &[MethodInfo] = &[
+    MethodInfo {
+        id: "pinhole",
+        description: "no blur: the scene through the lens centre (supersampled with --samples)",
+        paper: "",
+        input: InputKind::SceneViews,
+    },
+    MethodInfo {
+        id: "reference",
+        description: "ground truth: the mean of many views through points on the lens",
+        paper: "Haeberli & Akeley 1990, The accumulation buffer",
+        input: InputKind::SceneViews,
+    },
+    MethodInfo {
+        id: "hammon",
+        description: "post-process gather: blend of small / medium / large blurs with a blurred near CoC",
+        paper: "Hammon 2007, GPU Gems 3 ch. 28",
+        input: InputKind::PinholeFrame,
+    },
+    MethodInfo {
+        id: "lowrank",
+        description: "aperture kernel as a sum of separable filters (SVD), depth-edge mask with a 2D fallback",
+        paper: "McGraw 2015, Fast bokeh effects using low-rank linear filters",
+        input: InputKind::PinholeFrame,
+    },
+    MethodInfo {
+        id: "gaussian",
+        description: "baseline: separable Gaussian gather sized by the CoC",
+        paper: "after Zhou et al. 2007",
+        input: InputKind::PinholeFrame,
+    },
+    MethodInfo {
+        id: "poisson",
+        description: "baseline: Poisson-disc gather in the aperture shape with depth rejection",
+        paper: "after Scheuermann 2004",
+        input: InputKind::PinholeFrame,
+    },
+];
+
+/// The registry entry of `id`, or an error listing the known ids.
+pub fn find(id: &str) -> Result<&'static MethodInfo> {
+    METHODS
+        .iter()
+        .find(|m| m.id == id)
+        .ok_or_else(|| Error::Unknown {
+            kind: "method",
+            name: id.to_string(),
+            expected: ids().join(", "),
+        })
+}
+
+/// Every method id, in registry order.
+pub fn ids() -> Vec<&'static str> {
+    METHODS.iter().map(|m| m.id).collect()
+}
+
+/// Settings of `pinhole`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PinholeSettings {
+    /// Samples per pixel (box filter, the reference's sampler); 1 = pixel centres.
+    pub samples: usize,
+    /// Seed of the pixel sampler.
+    pub seed: u64,
+    /// Pixel sampler.
+    pub sampler: crate::lens::SamplerKind,
+}
+
+impl Default for PinholeSettings {
+    fn default() -> Self {
+        Self {
+            samples: 1,
+            seed: 0,
+            sampler: crate::lens::SamplerKind::Halton,
+        }
+    }
+}
+
+/// The settings of one method: which method runs, and how.
+#[derive(Clone, Debug)]
+pub enum MethodSettings {
+    /// `pinhole`.
+    Pinhole(PinholeSettings),
+    /// `reference`.
+    Reference(ReferenceSettings),
+    /// `hammon`.
+    Hammon(HammonSettings),
+    /// `lowrank`.
+    Lowrank(LowRankSettings),
+    /// `gaussian`.
+    Gaussian(GaussianSettings),
+    /// `poisson`.
+    Poisson(PoissonSettings),
+}
+
+impl MethodSettings {
+    /// The defaults of method `id`.
+    pub fn default_for(id: &str) -> Result<Self> {
+        Ok(match find(id)?.id {
+            "pinhole" => Self::Pinhole(PinholeSettings::default()),
+            "reference" => Self::Reference(ReferenceSettings::default()),
+            "hammon" => Self::Hammon(HammonSettings::default()),
+            "lowrank" => Self::Lowrank(LowRankSettings::default()),
+            "gaussian" => Self::Gaussian(GaussianSettings::default()),
+            "poisson" => Self::Poisson(PoissonSettings::default()),
+            other => {
+                return Err(Error::invalid(
+                    "method",
+                    format!("'{other}' is in the registry but has no settings type"),
+                ))
+            }
+        })
+    }
+
+    /// The method's id.
+    pub fn id(&self) -> &'static str {
+        match self {
+            Self::Pinhole(_) => "pinhole",
+            Self::Reference(_) => "reference",
+            Self::Hammon(_) => "hammon",
+            Self::Lowrank(_) => "lowrank",
+            Self::Gaussian(_) => "gaussian",
+            Self::Poisson(_) => "poisson",
+        }
+    }
+
+    /// The method's registry entry.
+    pub fn info(&self) -> &'static MethodInfo {
+        let id = self.id();
+        METHODS
+            .iter()
+            .find(|m| m.id == id)
+            .expect("every MethodSettings variant has a registry entry (tested)")
+    }
+}
+
+/// A pinhole frame: what the post-process methods read.
+#[derive(Clone, Copy, Debug)]
+pub struct Frame<'a> {
+    /// Linear premultiplied RGBA.
+    pub color: &'a ColorImage,
+    /// View-axis depth in metres at pixel centres (+inf where nothing was hit).
+    pub depth: &'a GrayImage,
+    /// The thin lens the frame is blurred for.
+    pub lens: &'a ThinLens,
+}
+
+/// Runs a method that reads a pinhole frame. A method that needs a scene is refused with a
+/// message that says what it needs.
+pub fn run_frame(settings: &MethodSettings, frame: &Frame) -> Result<MethodOutput> {
+    let (c, d, l) = (frame.color, frame.depth, frame.lens);
+    match settings {
+        MethodSettings::Hammon(s) => hammon::render(c, d, l, s),
+        MethodSettings::Lowrank(s) => lowrank::render(c, d, l, s),
+        MethodSettings::Gaussian(s) => gaussian::render(c, d, l, s),
+        MethodSettings::Poisson(s) => poisson::render(c, d, l, s),
+        other => {
+            let info = other.info();
+            Err(Error::invalid(
+                "method",
+                format!(
+                    "'{}' needs {}, not a colour image with a depth pass: render it from a scene (defocus render --method {})",
+                    info.id,
+                    info.input.describe(),
+                    info.id
+                ),
+            ))
+        }
+    }
+}
+
+/// How the input of a method is made from a scene (what is not the method's own setting).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneOptions {
+    /// Samples per pixel of the pinhole frame that post-process methods blur (box filter, as
+    /// `pinhole --samples N`); the depth stays at pixel centres, as a renderer's Z pass.
+    pub frame_samples: usize,
+    /// Seed of the frame's pixel sampler.
+    pub seed: u64,
+    /// Also return the pinhole depth at pixel centres.
+    pub with_depth: bool,
+}
+
+/// Samples per pixel of the anti-aliased pinhole frame the post-process methods blur when they
+/// run on a scene. Measured on `railing` and `grass` at 640x360 (README, "Anti-aliased input"):
+/// the frame is then within 0.5 dB of a 256-sample frame.
+pub const DEFAULT_FRAME_SAMPLES: usize = 16;
+
+impl Default for SceneOptions {
+    fn default() -> Self {
+        Self {
+            frame_samples: DEFAULT_FRAME_SAMPLES,
+            seed: 0,
+            with_depth: false,
+        }
+    }
+}
+
+/// Runs any method on a scene: scene methods render it directly; post-process methods blur an
+/// anti-aliased pinhole frame rendered first (its passes are timed as `pinhole/...`).
+/// `progress(done, total)` reports views rendered.
+pub fn run_scene(
+    settings: &MethodSettings,
+    scene: &Scene,
+    camera: &Camera,
+    options: &SceneOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<MethodOutput> {
+    match settings {
+        MethodSettings::Reference(s) => {
+            let s = ReferenceSettings {
+                use_lens: true,
+                with_depth: options.with_depth,
+                ..s.clone()
+            };
+            reference::render(scene, camera, &s, progress)
+        }
+        MethodSettings::Pinhole(p) => {
+            let s = ReferenceSettings {
+                samples: p.samples,
+                sampler: p.sampler,
+                seed: p.seed,
+                use_lens: false,
+                with_depth: options.with_depth,
+                ..ReferenceSettings::default()
+            };
+            reference::render(scene, camera, &s, progress)
+        }
+        post => {
+            let frame_settings = ReferenceSettings {
+                samples: options.frame_samples,
+                seed: options.seed,
+                use_lens: false,
+                with_depth: true,
+                ..ReferenceSettings::default()
+            };
+            let pin = reference::render(scene, camera, &frame_settings, progress)?;
+            let depth = pin.depth.ok_or_else(|| {
+                Error::invalid("pinhole frame", "the pinhole pass returned no depth")
+            })?;
+            let lens = camera.thin_lens()?;
+            let frame = Frame {
+                color: &pin.image,
+                depth: &depth,
+                lens: &lens,
+            };
+            let out = run_frame(post, &frame)?;
+            let mut timings = pin.timings;
+            timings.extend(&out.timings);
+            Ok(MethodOutput {
+                image: out.image,
+                depth: Some(depth),
+                timings,
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_registry_entry_has_default_settings_with_its_own_id() {
+        for m in METHODS {
+            let s = MethodSettings::default_for(m.id).unwrap();
+            assert_eq!(s.id(), m.id);
+            assert_eq!(s.info(), m);
+        }
+    }
+
+    #[test]
+    fn unknown_id_lists_the_known_ones() {
+        let e = find("bokeh").unwrap_err().to_string();
+        assert!(e.contains("bokeh") && e.contains("lowrank"), "{e}");
+    }
+}
