@@ -13,8 +13,8 @@ mod taps;
 
 pub use aperture::{Aperture, ApertureImage};
 pub use camera::{Camera, ThinLens};
-pub use sampler::{LensSample, SampleSet, SamplerKind};
 pub(crate) use sampler::SAMPLER_SEED_SALT;
+pub use sampler::{LensSample, SampleSet, SamplerKind};
 pub(crate) use shapes::check_aberration;
 pub use shapes::{aberration_profile, CustomShape, CUSTOM_SHAPE_PX};
 pub use taps::{Taps, CANDIDATES, MAX_TAPS};

@@ -86,4 +86,3 @@ impl Taps {
         Ok(Self { points, weights })
     }
 }
-

@@ -132,4 +132,3 @@ pub fn level_of(coc_px: f32, levels: usize) -> usize {
 pub fn level_radius_px(level: usize) -> f32 {
     level as f32 / LEVELS_PER_PX
 }
-

@@ -22,8 +22,8 @@
 
 use rayon::prelude::*;
 
-use super::coc_map::{level_count, level_of, level_radius_px};
 use super::coc_map;
+use super::coc_map::{level_count, level_of, level_radius_px};
 use super::poisson::rejection_weight;
 use super::MethodOutput;
 use crate::image::{ColorImage, GrayImage, Rgba};

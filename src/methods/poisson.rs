@@ -34,8 +34,8 @@ use rayon::prelude::*;
 use super::coc_map::{check_frame, coc};
 use super::MethodOutput;
 use crate::image::{ColorImage, GrayImage, Rgba};
-pub use crate::lens::{Taps, CANDIDATES, MAX_TAPS};
 use crate::lens::{Aperture, ThinLens};
+pub use crate::lens::{Taps, CANDIDATES, MAX_TAPS};
 use crate::timing::Timings;
 use crate::Result;
 

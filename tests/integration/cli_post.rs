@@ -92,8 +92,13 @@ fn blur_runs_every_method_on_a_multilayer_exr_and_keeps_the_focused_half_sharp()
             .iter()
             .map(|p| p["name"].as_str().unwrap())
             .collect();
-        assert!(names.contains(&"io/read") && names.contains(&"io/write"), "{names:?}");
-        let own = names.iter().filter(|n| n.starts_with(&format!("{method}/")));
+        assert!(
+            names.contains(&"io/read") && names.contains(&"io/write"),
+            "{names:?}"
+        );
+        let own = names
+            .iter()
+            .filter(|n| n.starts_with(&format!("{method}/")));
         assert!(own.count() >= 2, "{method}: {names:?}");
         let img = io::read_color(&out).unwrap();
         assert_eq!((img.width(), img.height()), (W, H));

@@ -9,6 +9,7 @@ mod lowrank;
 mod metrics;
 mod raster;
 mod reference;
+mod registry;
 mod scene_files;
 mod scenes;
 

@@ -97,6 +97,9 @@ pub struct RenderArgs {
     /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
     pub timings: Option<TimingFormat>,
+    /// EXR output options.
+    #[command(flatten)]
+    pub exr: crate::common::ExrArgs,
     /// Camera choice and placement (listed under their own heading).
     #[command(flatten)]
     pub view: Box<ViewArgs>,

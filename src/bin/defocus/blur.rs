@@ -10,8 +10,8 @@ use defocus::lens::{Camera, ThinLens};
 use defocus::methods::lowrank::{self, tilt_shift_coc, TiltShift};
 use defocus::methods::registry::{self, Frame, MethodSettings};
 use defocus::methods::MethodOutput;
-use defocus::timing::{self, Timings};
 use defocus::scene::autofocus::focus_in_depth;
+use defocus::timing::{self, Timings};
 
 use crate::common::{
     check_output, method_parser, parse_aperture, report_timings, TimingFormat, IMAGE_EXTENSIONS,
@@ -115,6 +115,9 @@ pub struct BlurArgs {
     /// Say which channels and parameters were used (on stderr).
     #[arg(long, short)]
     pub verbose: bool,
+    /// EXR output options.
+    #[command(flatten)]
+    pub exr: crate::common::ExrArgs,
     /// Options of the methods.
     #[command(flatten)]
     pub post: PostArgs,
@@ -161,6 +164,8 @@ pub struct BlurJob {
     settings: MethodSettings,
     /// Time spent reading the inputs.
     read_timings: Timings,
+    /// How EXR outputs are written.
+    exr: io::ExrOptions,
     out: PathBuf,
     coc_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
@@ -191,9 +196,9 @@ impl TryFrom<&BlurArgs> for BlurJob {
             (None, None) => "hammon",
             (None, Some(_)) | (Some("lowrank"), Some(_)) => "lowrank",
             (Some(m), None) => m,
-            (Some(m), Some(_)) => bail!(
-                "--tilt-shift works with --method lowrank (McGraw section 4), not {m}"
-            ),
+            (Some(m), Some(_)) => {
+                bail!("--tilt-shift works with --method lowrank (McGraw section 4), not {m}")
+            }
         };
         let info = registry::find(method)?;
         if info.input.needs_scene() {
@@ -241,6 +246,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 input: Input::TiltShift { coc_px },
                 settings,
                 read_timings,
+                exr: a.exr.options(),
                 out: a.out.clone(),
                 coc_out: a.coc_out.clone(),
                 timings: a.timings,
@@ -331,6 +337,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             input: Input::Depth { depth, lens },
             settings,
             read_timings,
+            exr: a.exr.options(),
             out: a.out.clone(),
             coc_out: a.coc_out.clone(),
             timings: a.timings,
@@ -358,7 +365,9 @@ impl BlurJob {
         let mut timings = self.read_timings.clone();
         timings.extend(&output.timings);
         let id = self.settings.id();
-        timings.time(timing::WRITE, || io::write_color(&self.out, &output.image))?;
+        timings.time(timing::WRITE, || {
+            io::write_color_with(&self.out, &output.image, &self.exr)
+        })?;
         if let Some(path) = &self.coc_out {
             let coc: Vec<f32> = match &self.input {
                 Input::Depth { depth, lens } => {

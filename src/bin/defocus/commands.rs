@@ -48,6 +48,7 @@ struct RenderJob {
     camera: Camera,
     settings: MethodSettings,
     options: SceneOptions,
+    exr: io::ExrOptions,
     out: PathBuf,
     depth_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
@@ -148,27 +149,25 @@ impl TryFrom<RenderArgs> for RenderJob {
         }
         let sampler = SamplerKind::parse(&a.sampler).context("invalid --sampler")?;
         let lens = camera.thin_lens()?;
-        let settings = match a.post.settings(
-            &a.method,
-            &aperture,
-            a.seed,
-            camera.height_px,
-            Some(&lens),
-        )? {
-            MethodSettings::Reference(r) => MethodSettings::Reference(ReferenceSettings {
-                samples: a.samples.unwrap_or(r.samples),
-                sampler,
-                seed: a.seed,
-                aperture,
-                ..r
-            }),
-            MethodSettings::Pinhole(p) => MethodSettings::Pinhole(PinholeSettings {
-                samples: a.samples.unwrap_or(p.samples),
-                sampler,
-                seed: a.seed,
-            }),
-            other => other,
-        };
+        let settings =
+            match a
+                .post
+                .settings(&a.method, &aperture, a.seed, camera.height_px, Some(&lens))?
+            {
+                MethodSettings::Reference(r) => MethodSettings::Reference(ReferenceSettings {
+                    samples: a.samples.unwrap_or(r.samples),
+                    sampler,
+                    seed: a.seed,
+                    aperture,
+                    ..r
+                }),
+                MethodSettings::Pinhole(p) => MethodSettings::Pinhole(PinholeSettings {
+                    samples: a.samples.unwrap_or(p.samples),
+                    sampler,
+                    seed: a.seed,
+                }),
+                other => other,
+            };
         let options = SceneOptions {
             frame_samples: a.samples.unwrap_or(DEFAULT_FRAME_SAMPLES),
             seed: a.seed,
@@ -186,6 +185,7 @@ impl TryFrom<RenderArgs> for RenderJob {
             camera,
             settings,
             options,
+            exr: a.exr.options(),
             out: a.out,
             depth_out: a.depth_out,
             timings: a.timings,
@@ -218,7 +218,7 @@ impl RenderJob {
         let mut timings = output.timings.clone();
         let method = self.settings.id();
         timings.time(timing::WRITE, || {
-            io::write_color(&self.out, &output.image)?;
+            io::write_color_with(&self.out, &output.image, &self.exr)?;
             if let (Some(path), Some(depth)) = (&self.depth_out, &output.depth) {
                 // Renderers write a large finite value where nothing was hit (Blender: 1e10).
                 let depth = depth.map(|z| if z.is_finite() { z } else { 1e10 });

@@ -4,10 +4,10 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use defocus::lens::{Aperture, ThinLens};
+use defocus::methods::coc_map;
 use defocus::methods::gaussian::GaussianSettings;
 use defocus::methods::hammon::{CocMode, HammonSettings, LerpDistances};
 use defocus::methods::lowrank::LowRankSettings;
-use defocus::methods::coc_map;
 use defocus::methods::poisson::{self, PoissonSettings};
 use defocus::methods::registry::MethodSettings;
 

@@ -56,7 +56,9 @@ use crate::{Error, Result};
 /// Largest tap table of a [`KernelBank`], in floats (each of the two tables: 256 MB).
 pub const MAX_BANK_FLOATS: usize = 1 << 26;
 
-pub use crate::methods::coc_map::{half_taps, level_count, level_of, level_radius_px, LEVELS_PER_PX};
+pub use crate::methods::coc_map::{
+    half_taps, level_count, level_of, level_radius_px, LEVELS_PER_PX,
+};
 
 /// The tap tables of every radius level for one decomposed kernel at one rank.
 #[derive(Clone, Debug)]

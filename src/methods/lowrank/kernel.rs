@@ -15,13 +15,12 @@
 //! Custom shapes (star, heart, ring; fig. 10) become [`Aperture::Image`] values through
 //! [`CustomShape::aperture`], so the same shape also drives `reference` and the other methods.
 
-
 use glam::Vec2;
 
 use crate::image::GrayImage;
+pub(crate) use crate::lens::check_aberration;
 use crate::lens::Aperture;
 pub use crate::lens::{aberration_profile, CustomShape, CUSTOM_SHAPE_PX};
-pub(crate) use crate::lens::check_aberration;
 use crate::{Error, Result};
 
 /// Largest kernel side in pixels accepted by [`kernel_image`] and [`super::decompose`]
@@ -215,4 +214,3 @@ fn nearest_to_zero(a: f32, b: f32) -> f32 {
         0.0
     }
 }
-
