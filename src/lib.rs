@@ -6,6 +6,7 @@
 //!
 //! The library never prints; it returns values and typed errors ([`Error`]).
 
+pub mod autofocus;
 pub mod error;
 pub mod image;
 pub mod lens;

@@ -151,11 +151,13 @@ impl Camera {
                         format!("{yfov} rad: expected a value in (0, pi)"),
                     ));
                 }
-                self.height_px as f32 / (2.0 * (0.5 * yfov).tan())
+                super::focal_length_px_from_yfov(yfov, self.height_px)
             }
-            None => self.focal_length_mm / self.sensor_width_mm * self.width_px as f32,
+            None => {
+                super::focal_length_px(self.focal_length_mm, self.sensor_width_mm, self.width_px)
+            }
         };
-        let lens_radius_m = self.focal_length_mm * 1e-3 / (2.0 * self.fstop);
+        let lens_radius_m = super::lens_radius_m(self.focal_length_mm, self.fstop);
         Ok(ThinLens {
             width_px: self.width_px,
             height_px: self.height_px,

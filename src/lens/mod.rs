@@ -31,3 +31,34 @@ pub use taps::{Taps, CANDIDATES, MAX_TAPS};
 pub fn coc_px(f_px: f32, lens_radius_m: f32, focus_m: f32, z_m: f32) -> f32 {
     f_px * lens_radius_m * (1.0 / focus_m - 1.0 / z_m)
 }
+
+/// Focal length in pixels with the sensor fit horizontal: `F / sensor_width * width`.
+#[inline]
+pub fn focal_length_px(focal_length_mm: f32, sensor_width_mm: f32, width_px: usize) -> f32 {
+    focal_length_mm / sensor_width_mm * width_px as f32
+}
+
+/// Focal length in pixels of a vertical field of view `yfov_rad` over `height_px` rows.
+#[inline]
+pub fn focal_length_px_from_yfov(yfov_rad: f32, height_px: usize) -> f32 {
+    height_px as f32 / (2.0 * (0.5 * yfov_rad).tan())
+}
+
+/// Focal length in millimetres that gives `f_px` pixels on a sensor `sensor_width_mm` wide
+/// imaged onto `width_px` columns (the inverse of [`focal_length_px`]).
+#[inline]
+pub fn focal_length_mm_from_px(f_px: f32, sensor_width_mm: f32, width_px: usize) -> f32 {
+    sensor_width_mm * f_px / width_px as f32
+}
+
+/// Lens radius in metres `E = F / (2 N)` of focal length `F` in millimetres at f-number `N`.
+#[inline]
+pub fn lens_radius_m(focal_length_mm: f32, fstop: f32) -> f32 {
+    focal_length_mm * 1e-3 / (2.0 * fstop)
+}
+
+/// The f-number `N = F / (2 E)` of a lens of focal length `F` mm and radius `E` m.
+#[inline]
+pub fn fstop_from_radius(focal_length_mm: f32, lens_radius_m: f32) -> f32 {
+    focal_length_mm * 1e-3 / (2.0 * lens_radius_m)
+}

@@ -174,7 +174,11 @@ pub fn frame_all(scene: &Scene, width_px: usize, height_px: usize) -> Camera {
     let mut camera = Camera::look_at(Vec3::Z, Vec3::ZERO, Vec3::Y);
     camera.width_px = width_px.max(1);
     camera.height_px = height_px.max(1);
-    let f_px = camera.focal_length_mm / camera.sensor_width_mm * camera.width_px as f32;
+    let f_px = crate::lens::focal_length_px(
+        camera.focal_length_mm,
+        camera.sensor_width_mm,
+        camera.width_px,
+    );
     let tan_half_x = 0.5 * camera.width_px as f32 / f_px;
     let tan_half_y = 0.5 * camera.height_px as f32 / f_px;
     // The box's front face is the nearest part: if it fits, the rest (farther, smaller) does.

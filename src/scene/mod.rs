@@ -4,7 +4,6 @@
 //! emission (factor times texture times strength), in linear light. Alpha comes from the base
 //! colour; [`AlphaMode`] says how it is used.
 
-pub mod autofocus;
 pub mod builtin;
 pub mod load;
 pub(crate) mod texture;

@@ -5,12 +5,12 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use defocus::autofocus::{focus_at_centre, focus_at_pixel};
 use defocus::image::{io, srgb_decode, ColorImage};
 use defocus::lens::{Aperture, Camera};
 use defocus::methods::reference::{self, ReferenceSettings};
 use defocus::methods::{pinhole, MethodOutput};
 use defocus::metrics;
-use defocus::scene::autofocus::{focus_at_centre, focus_at_pixel};
 use defocus::scene::load::{load_scene_file, read_scene_file, ViewOverride};
 use defocus::scene::{AlphaMode, FilterMode, Material, Scene, WrapMode};
 use glam::{Affine3A, Mat4, Quat, Vec2, Vec3};

@@ -4,13 +4,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
+use defocus::autofocus::focus_in_depth;
 use defocus::image::io::{self, DepthRead};
 use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::{Camera, ThinLens};
 use defocus::methods::lowrank::{self, tilt_shift_coc, TiltShift};
 use defocus::methods::registry::{self, Frame, MethodSettings};
 use defocus::methods::MethodOutput;
-use defocus::scene::autofocus::focus_in_depth;
 use defocus::timing::{self, Timings};
 
 use crate::common::{
@@ -300,7 +300,8 @@ impl TryFrom<&BlurArgs> for BlurJob {
             .thin_lens()
             .context("invalid camera (check --fstop, --focal-length, --sensor-width)")?;
         if a.depth_kind == DepthKind::Radial {
-            let f_px = a.focal_length / a.sensor_width * color.width() as f32;
+            let f_px =
+                defocus::lens::focal_length_px(a.focal_length, a.sensor_width, color.width());
             io::radial_to_view_depth(&mut depth, f_px);
         }
         camera.focus_m = if a.focus.trim() == "auto" {

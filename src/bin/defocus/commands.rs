@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use defocus::autofocus;
 use defocus::image::io;
 use defocus::lens::{Camera, SamplerKind};
 use defocus::methods::reference::ReferenceSettings;
@@ -11,7 +12,7 @@ use defocus::methods::registry::{
 };
 use defocus::methods::MethodOutput;
 use defocus::metrics;
-use defocus::scene::{autofocus, builtin, load, Scene};
+use defocus::scene::{builtin, load, Scene};
 use defocus::timing;
 use glam::Vec3;
 

@@ -31,8 +31,8 @@ use glam::{Vec2, Vec3};
 use super::shapes::{push_box, push_card, ALL_FACES};
 use super::textures::{binding, chart_texture, fbm, smoothstep, srgb, text_width, Canvas, Chart};
 use super::{mesh_for, textured};
-use crate::lens::{Aperture, Camera};
-use crate::scene::{AlphaMode, Material, Scene, SceneDefaults, Texture, WrapMode};
+use crate::lens::Aperture;
+use crate::scene::{AlphaMode, Material, Scene, Texture, WrapMode};
 
 /// Eye position, metres.
 const EYE: Vec3 = Vec3::new(0.0, 1.3, 0.0);
@@ -101,19 +101,14 @@ pub fn glass() -> Scene {
     }
     add_wall(&mut scene);
 
-    let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * WALL_DEPTH_M, Vec3::Y);
-    camera.focal_length_mm = 50.0;
-    camera.sensor_width_mm = 36.0;
-    camera.fstop = 2.0;
-    camera.focus_m = WALL_DEPTH_M;
-    camera.near_m = 0.1;
-    camera.far_m = 50.0;
-    camera.width_px = 1280;
-    camera.height_px = 720;
-    scene.defaults = Some(SceneDefaults {
-        camera,
-        aperture: Aperture::Disc,
-    });
+    super::set_default_camera(
+        &mut scene,
+        EYE,
+        WALL_DEPTH_M,
+        2.0,
+        (0.1, 50.0),
+        Aperture::Disc,
+    );
     scene
 }
 

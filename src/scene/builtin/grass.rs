@@ -25,8 +25,8 @@ use glam::{Vec2, Vec3};
 use super::random::SplitMix64;
 use super::textures::{binding, fbm, mix, scale, smoothstep, srgb, value_noise, Canvas};
 use super::{mesh_for, textured};
-use crate::lens::{Aperture, Camera};
-use crate::scene::{AlphaMode, Material, Mesh, Scene, SceneDefaults, Texture, WrapMode};
+use crate::lens::Aperture;
+use crate::scene::{AlphaMode, Material, Mesh, Scene, Texture, WrapMode};
 
 /// Eye position, metres.
 const EYE: Vec3 = Vec3::new(0.0, 0.3, 0.0);
@@ -95,19 +95,7 @@ pub fn grass() -> Scene {
     add_flowers(&mut scene);
     add_ground_and_sky(&mut scene);
 
-    let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * FOCUS_M, Vec3::Y);
-    camera.focal_length_mm = 50.0;
-    camera.sensor_width_mm = 36.0;
-    camera.fstop = 2.0;
-    camera.focus_m = FOCUS_M;
-    camera.near_m = 0.05;
-    camera.far_m = 100.0;
-    camera.width_px = 1280;
-    camera.height_px = 720;
-    scene.defaults = Some(SceneDefaults {
-        camera,
-        aperture: Aperture::Disc,
-    });
+    super::set_default_camera(&mut scene, EYE, FOCUS_M, 2.0, (0.05, 100.0), Aperture::Disc);
     scene
 }
 

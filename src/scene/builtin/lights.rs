@@ -25,10 +25,10 @@ use glam::{Vec2, Vec3};
 
 use super::random::SplitMix64;
 use super::shapes::{push_box, push_card, push_disc, Face, ALL_FACES};
-use super::textures::{binding, brick_texture, chart_texture, srgb, tile_texture, Chart};
+use super::textures::{binding, chart_texture, srgb, Chart};
 use super::{mesh_for, textured};
-use crate::lens::{Aperture, Camera};
-use crate::scene::{AlphaMode, Material, Scene, SceneDefaults, WrapMode};
+use crate::lens::Aperture;
+use crate::scene::{AlphaMode, Material, Scene, WrapMode};
 
 /// Eye position, metres.
 const EYE: Vec3 = Vec3::new(0.0, 1.4, 0.0);
@@ -106,75 +106,35 @@ pub fn lights() -> Scene {
     add_lights(&mut scene);
     add_room(&mut scene);
 
-    let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * CARD_DEPTH_M, Vec3::Y);
-    camera.focal_length_mm = 50.0;
-    camera.sensor_width_mm = 36.0;
-    camera.fstop = 1.8;
-    camera.focus_m = CARD_DEPTH_M;
-    camera.near_m = 0.1;
-    camera.far_m = 60.0;
-    camera.width_px = 1280;
-    camera.height_px = 720;
-    scene.defaults = Some(SceneDefaults {
-        camera,
-        aperture: Aperture::Polygon {
+    super::set_default_camera(
+        &mut scene,
+        EYE,
+        CARD_DEPTH_M,
+        1.8,
+        (0.1, 60.0),
+        Aperture::Polygon {
             blades: 6,
             rotation_rad: 0.0,
             blade_radius: None,
         },
-    });
+    );
     scene
 }
 
 fn add_room(scene: &mut Scene) {
-    // Dark soot-stained bricks, 24 x 7.5 cm: one repeat is 4 x 16 bricks, 0.96 x 1.2 m.
-    let bricks = scene.add_texture(brick_texture(
-        512,
-        (4, 16),
-        srgb(0x3a2a24),
-        srgb(0x262524),
-        21,
-    ));
-    let (wall_w, wall_h) = (24.0, 9.0);
-    let wall = scene.add_material(textured(
-        "dark brick wall",
-        binding(
-            bricks,
-            WrapMode::Repeat,
-            Vec2::new(wall_w / 0.96, wall_h / 1.2),
-        ),
-        [1.0; 4],
-        AlphaMode::Opaque,
-    ));
-    push_card(
-        mesh_for(scene, wall),
-        Vec3::new(-0.5 * wall_w, wall_h, -WALL_DEPTH_M),
-        wall_w,
-        wall_h,
-    );
-
-    let tiles = scene.add_texture(tile_texture(
-        512,
-        4,
-        (srgb(0x2e2d2b), srgb(0x242321)),
-        srgb(0x121212),
-        22,
-    ));
-    let (floor_w, floor_d) = (24.0, WALL_DEPTH_M + 1.0);
-    let floor = scene.add_material(textured(
-        "dark floor",
-        binding(
-            tiles,
-            WrapMode::Repeat,
-            Vec2::new(floor_w / 3.0, floor_d / 3.0),
-        ),
-        [1.0; 4],
-        AlphaMode::Opaque,
-    ));
-    mesh_for(scene, floor).push_quad(
-        Vec3::new(-0.5 * floor_w, 0.0, -WALL_DEPTH_M),
-        Vec3::X * floor_w,
-        Vec3::Z * floor_d,
+    // Dark soot-stained bricks and dark tiles of 0.75 m.
+    super::add_room(
+        scene,
+        &super::Room {
+            wall_name: "dark brick wall",
+            bricks: (0x3a2a24, 0x262524, 21),
+            wall_size_m: (24.0, 9.0),
+            floor_name: "dark floor",
+            tiles: (0x2e2d2b, 0x242321, 0x121212, 22),
+            floor_width_m: 24.0,
+            tile_repeat_m: 3.0,
+            wall_depth_m: WALL_DEPTH_M,
+        },
     );
 }
 

@@ -23,12 +23,10 @@
 use glam::{Vec2, Vec3};
 
 use super::shapes::{push_box, push_card, push_shaded_cylinder, Face, ALL_FACES};
-use super::textures::{
-    binding, brick_texture, chart_texture, ramp_texture, srgb, tile_texture, Chart,
-};
+use super::textures::{binding, chart_texture, ramp_texture, srgb, Chart};
 use super::{mesh_for, textured};
-use crate::lens::{Aperture, Camera};
-use crate::scene::{AlphaMode, Material, Scene, SceneDefaults, WrapMode};
+use crate::lens::Aperture;
+use crate::scene::{AlphaMode, Material, Scene, WrapMode};
 
 /// Eye position, metres.
 const EYE: Vec3 = Vec3::new(0.0, 1.2, 0.0);
@@ -64,73 +62,31 @@ pub fn railing() -> Scene {
     add_board(&mut scene);
     add_wall_and_floor(&mut scene);
 
-    let mut camera = Camera::look_at(EYE, EYE - Vec3::Z * BOARD_DEPTH_M, Vec3::Y);
-    camera.focal_length_mm = 50.0;
-    camera.sensor_width_mm = 36.0;
-    camera.fstop = 2.0;
-    camera.focus_m = BOARD_DEPTH_M;
-    camera.near_m = 0.1;
-    camera.far_m = 50.0;
-    camera.width_px = 1280;
-    camera.height_px = 720;
-    scene.defaults = Some(SceneDefaults {
-        camera,
-        aperture: Aperture::Disc,
-    });
+    super::set_default_camera(
+        &mut scene,
+        EYE,
+        BOARD_DEPTH_M,
+        2.0,
+        (0.1, 50.0),
+        Aperture::Disc,
+    );
     scene
 }
 
 fn add_wall_and_floor(scene: &mut Scene) {
-    // Bricks of 24 x 7.5 cm: one texture repeat is 4 bricks by 16 courses, 0.96 x 1.2 m.
-    let bricks = scene.add_texture(brick_texture(
-        512,
-        (4, 16),
-        srgb(0x8a4a36),
-        srgb(0xb3aa9d),
-        11,
-    ));
-    let (wall_w, wall_h) = (15.0, 6.0);
-    let wall = scene.add_material(textured(
-        "brick wall",
-        binding(
-            bricks,
-            WrapMode::Repeat,
-            Vec2::new(wall_w / 0.96, wall_h / 1.2),
-        ),
-        [1.0; 4],
-        AlphaMode::Opaque,
-    ));
-    push_card(
-        mesh_for(scene, wall),
-        Vec3::new(-0.5 * wall_w, wall_h, -WALL_DEPTH_M),
-        wall_w,
-        wall_h,
-    );
-
-    // Stone tiles of 0.6 m: one texture repeat is 4 x 4 tiles, 2.4 m.
-    let tiles = scene.add_texture(tile_texture(
-        512,
-        4,
-        (srgb(0x8f8b84), srgb(0x74716b)),
-        srgb(0x45423e),
-        12,
-    ));
-    let (floor_w, floor_d) = (16.0, WALL_DEPTH_M + 1.0);
-    let floor = scene.add_material(textured(
-        "stone floor",
-        binding(
-            tiles,
-            WrapMode::Repeat,
-            Vec2::new(floor_w / 2.4, floor_d / 2.4),
-        ),
-        [1.0; 4],
-        AlphaMode::Opaque,
-    ));
-    // Far edge first so the texture's top row is away from the camera.
-    mesh_for(scene, floor).push_quad(
-        Vec3::new(-0.5 * floor_w, 0.0, -WALL_DEPTH_M),
-        Vec3::X * floor_w,
-        Vec3::Z * floor_d,
+    // Red bricks and stone tiles of 0.6 m.
+    super::add_room(
+        scene,
+        &super::Room {
+            wall_name: "brick wall",
+            bricks: (0x8a4a36, 0xb3aa9d, 11),
+            wall_size_m: (15.0, 6.0),
+            floor_name: "stone floor",
+            tiles: (0x8f8b84, 0x74716b, 0x45423e, 12),
+            floor_width_m: 16.0,
+            tile_repeat_m: 2.4,
+            wall_depth_m: WALL_DEPTH_M,
+        },
     );
 }
 

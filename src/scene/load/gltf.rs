@@ -1004,14 +1004,19 @@ impl<'a> Loader<'a> {
             ),
             _ => (DEFAULT_WIDTH_PX, DEFAULT_HEIGHT_PX),
         };
-        let f_px = height_px as f32 / (2.0 * (0.5 * yfov).tan());
+        let f_px = crate::lens::focal_length_px_from_yfov(yfov, height_px);
         let sensor_width_mm = extras.sensor_width_mm.unwrap_or(DEFAULT_SENSOR_WIDTH_MM);
-        let focal_length_mm = extras
-            .focal_length_mm
-            .unwrap_or(sensor_width_mm * f_px / width_px as f32);
+        let focal_length_mm =
+            extras
+                .focal_length_mm
+                .unwrap_or(crate::lens::focal_length_mm_from_px(
+                    f_px,
+                    sensor_width_mm,
+                    width_px,
+                ));
         let fstop = match (extras.fstop, extras.aperture_radius_m) {
             (Some(n), _) => n,
-            (None, Some(r)) => focal_length_mm * 1e-3 / (2.0 * r),
+            (None, Some(r)) => crate::lens::fstop_from_radius(focal_length_mm, r),
             (None, None) => DEFAULT_FSTOP,
         };
         let focus_m = match extras.focus_m {

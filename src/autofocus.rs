@@ -7,10 +7,10 @@
 //! a surface or covers the whole image. A blended surface counts where it contributes most to
 //! the pixel (see [`crate::raster::GBuffer::depth`]).
 
-use super::Scene;
 use crate::image::GrayImage;
 use crate::lens::Camera;
 use crate::raster::{render_gbuffer, PreparedScene, View};
+use crate::scene::Scene;
 use crate::{Error, Result};
 
 /// Side in pixels of the window whose median depth is taken.
