@@ -152,6 +152,7 @@ pub fn render(
         image,
         depth: None,
         timings,
+        memory_bytes: None,
     })
 }
 

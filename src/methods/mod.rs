@@ -14,6 +14,7 @@ pub mod coc_map;
 pub mod gaussian;
 pub mod hammon;
 pub mod lowrank;
+pub mod multilayer;
 pub mod pinhole;
 pub mod poisson;
 pub mod reference;
@@ -31,4 +32,7 @@ pub struct MethodOutput {
     pub depth: Option<GrayImage>,
     /// Per-pass wall-clock timings, named `<method>/<pass>`.
     pub timings: Timings,
+    /// Peak bytes of the method's own intermediate storage, where the method tracks it (the
+    /// fragment lists and filtered levels of `multilayer`).
+    pub memory_bytes: Option<usize>,
 }

@@ -80,6 +80,7 @@ pub fn render(
         image,
         depth: None,
         timings,
+        memory_bytes: None,
     })
 }
 

@@ -153,6 +153,7 @@ pub fn render(
         image,
         depth,
         timings,
+        memory_bytes: None,
     })
 }
 

@@ -11,6 +11,7 @@ use crate::{Error, Result};
 use super::gaussian::{self, GaussianSettings};
 use super::hammon::{self, HammonSettings};
 use super::lowrank::{self, LowRankSettings};
+use super::multilayer::{self, MultilayerSettings};
 use super::poisson::{self, PoissonSettings};
 use super::reference::{self, ReferenceSettings};
 use super::MethodOutput;
@@ -97,6 +98,12 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "after Scheuermann 2004",
         input: InputKind::PinholeFrame,
     },
+    MethodInfo {
+        id: "multilayer",
+        description: "per-pixel fragment lists filtered into levels of growing blur, blended by CoC: sees behind near blur",
+        paper: "Selgrad et al. 2015, Real-time depth of field using multi-layer filtering",
+        input: InputKind::FragmentLists,
+    },
 ];
 
 /// The registry entry of `id`, or an error listing the known ids.
@@ -152,6 +159,8 @@ pub enum MethodSettings {
     Gaussian(GaussianSettings),
     /// `poisson`.
     Poisson(PoissonSettings),
+    /// `multilayer`.
+    Multilayer(MultilayerSettings),
 }
 
 impl MethodSettings {
@@ -164,6 +173,7 @@ impl MethodSettings {
             "lowrank" => Self::Lowrank(LowRankSettings::default()),
             "gaussian" => Self::Gaussian(GaussianSettings::default()),
             "poisson" => Self::Poisson(PoissonSettings::default()),
+            "multilayer" => Self::Multilayer(MultilayerSettings::default()),
             other => {
                 return Err(Error::invalid(
                     "method",
@@ -182,6 +192,7 @@ impl MethodSettings {
             Self::Lowrank(_) => "lowrank",
             Self::Gaussian(_) => "gaussian",
             Self::Poisson(_) => "poisson",
+            Self::Multilayer(_) => "multilayer",
         }
     }
 
@@ -287,6 +298,11 @@ pub fn run_scene(
             };
             reference::render(scene, camera, &s, progress)
         }
+        MethodSettings::Multilayer(s) => {
+            let out = multilayer::render(scene, camera, s)?;
+            progress(1, 1);
+            Ok(out)
+        }
         post => {
             let frame_settings = ReferenceSettings {
                 samples: options.frame_samples,
@@ -312,6 +328,7 @@ pub fn run_scene(
                 image: out.image,
                 depth: Some(depth),
                 timings,
+                memory_bytes: out.memory_bytes,
             })
         }
     }

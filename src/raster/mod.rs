@@ -20,9 +20,10 @@
 //! offset for anti-aliasing. It stays a projective map with `w = z`, so clipping and
 //! perspective-correct interpolation work unchanged.
 //!
-//! Sinks: [`GBuffer`] (nearest opaque surface with transparent surfaces composited over it).
-//! Per-pixel fragment lists and depth layers are further implementations of [`Sink`].
+//! Sinks: [`GBuffer`] (nearest opaque surface with transparent surfaces composited over it) and
+//! [`FragmentLists`] (every fragment of a pixel, depth-sorted, capped at N).
 
+mod fragments;
 mod gbuffer;
 mod setup;
 mod shade;
@@ -31,6 +32,9 @@ pub mod views;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+pub use fragments::{
+    from_half, to_half, FragmentLists, FragmentTile, HalfRgba, MAX_FRAGMENTS_PER_PIXEL,
+};
 pub use gbuffer::{GBuffer, GBufferTile};
 pub use setup::SetupTriangle;
 pub use views::{accumulate_views, render_view, sample_view, ViewPassLabels};
@@ -369,6 +373,15 @@ impl BinnedView {
             sink.end_tile(rect, tile);
         }
     }
+}
+
+/// Collects the fragment lists of one view of `prepared`, at most `cap` per pixel.
+pub fn render_fragment_lists(prepared: &PreparedScene, view: &View, cap: usize) -> FragmentLists {
+    let binned = BinnedView::new(prepared, view);
+    let mut lists = FragmentLists::new(view.lens.width_px, view.lens.height_px, cap);
+    binned.rasterize(prepared, &mut lists);
+    lists.compact();
+    lists
 }
 
 /// Renders one view of `prepared` into a fresh [`GBuffer`].

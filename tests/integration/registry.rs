@@ -21,6 +21,7 @@ fn registry_lists_every_method_with_its_input_kind() {
         ("lowrank", InputKind::PinholeFrame),
         ("gaussian", InputKind::PinholeFrame),
         ("poisson", InputKind::PinholeFrame),
+        ("multilayer", InputKind::FragmentLists),
     ];
     for (id, input) in want {
         let m = registry::find(id).unwrap();

@@ -8,6 +8,7 @@ use defocus::methods::coc_map;
 use defocus::methods::gaussian::GaussianSettings;
 use defocus::methods::hammon::{CocMode, HammonSettings, LerpDistances};
 use defocus::methods::lowrank::LowRankSettings;
+use defocus::methods::multilayer::{FilterSteps, MultilayerSettings};
 use defocus::methods::poisson::{self, PoissonSettings};
 use defocus::methods::registry::MethodSettings;
 
@@ -134,6 +135,31 @@ pub struct PostArgs {
     /// poisson: taps per pixel, centre included (1 to 1024).
     #[arg(long, default_value_t = 32, value_name = "N")]
     pub taps: usize,
+
+    /// multilayer: fragments kept per pixel, N (1 to 16; the paper keeps 3 or 4).
+    #[arg(long, default_value_t = 4, value_name = "N", help_heading = "multilayer")]
+    pub fragments: usize,
+    /// multilayer: depth threshold for merging fragments while filtering, relative to depth
+    /// (0.05: within 5% of the nearer fragment's depth; 0 to 1).
+    #[arg(
+        long,
+        default_value_t = 0.05,
+        value_name = "REL",
+        allow_negative_numbers = true,
+        help_heading = "multilayer"
+    )]
+    pub epsilon: f32,
+    /// multilayer: the Y-map, M mip-mapping steps then S stack steps (the paper's 1/3, 2/2,
+    /// 4/0), or `auto`: one mip step, then stack steps until the largest CoC is covered.
+    #[arg(long, default_value = "auto", value_name = "M/S|auto", help_heading = "multilayer")]
+    pub filter_steps: String,
+    /// multilayer: keep every fragment in every level (no list truncation, section 6.2).
+    #[arg(long, help_heading = "multilayer")]
+    pub no_truncation: bool,
+    /// multilayer: collect the fragment lists at K x K samples per pixel and merge them down
+    /// (1, 2 or 4; anti-aliases the in-focus surfaces; not in the paper).
+    #[arg(long, default_value_t = 1, value_name = "K", help_heading = "multilayer")]
+    pub ml_supersample: usize,
 }
 
 impl PostArgs {
@@ -234,6 +260,18 @@ impl PostArgs {
                     seed,
                     max_coc_px: self.max_coc,
                 })
+            }
+            "multilayer" => {
+                let m = MultilayerSettings {
+                    fragments: self.fragments,
+                    epsilon: self.epsilon,
+                    filter_steps: FilterSteps::parse(&self.filter_steps)
+                        .context("invalid --filter-steps")?,
+                    truncation: !self.no_truncation,
+                    supersample: self.ml_supersample,
+                };
+                m.validate().context("invalid multilayer option")?;
+                MethodSettings::Multilayer(m)
             }
             other => MethodSettings::default_for(other)?,
         };

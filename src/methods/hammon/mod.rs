@@ -568,6 +568,7 @@ pub fn render(
         image,
         depth: None,
         timings,
+        memory_bytes: None,
     })
 }
 

@@ -344,6 +344,7 @@ fn run(
             image,
             depth: None,
             timings,
+            memory_bytes: None,
         },
         coc_px,
         edges,

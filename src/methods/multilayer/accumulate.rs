@@ -1,0 +1,115 @@
+//! Pass `accumulate` (Selgrad et al. section 6.1): per pixel, the fragments of every level whose
+//! filter size matches their circle of confusion, blended front to back.
+//!
+//! The level borders of the paper's table T are where `lambda(z) = log2(2 |C(z)|)` (the CoC
+//! diameter in pixels against the level's box width `2^S`) crosses a whole number
+//! ([`super::Borders`]). To hide the seams at the borders, as the paper asks, a fragment at depth
+//! `z` is taken from the two levels around `lambda(z)` with linear weights (a hat function in
+//! `lambda`, clamped to the first and last level), so the blur grows continuously with depth.
+//! The weighted fragments of all levels at a pixel are sorted by depth; those within the depth
+//! threshold of each other are one surface seen at two filter sizes: within a level they are
+//! combined with the over operator (the front face of a thin double-sided object hides its back
+//! face, as in a list of section 5.1), across levels their weighted contributions are summed.
+//! The resulting surfaces are blended front to back with the over operator.
+
+use rayon::prelude::*;
+
+use super::filter::Level;
+use super::Borders;
+use crate::image::{ColorImage, Rgba};
+use crate::raster::from_half;
+
+/// Weight of level `s` of `levels` for a fragment at level coordinate `lambda`.
+#[inline]
+pub fn level_weight(lambda: f32, s: usize, levels: usize) -> f32 {
+    let t = lambda.clamp(0.0, (levels - 1) as f32);
+    (1.0 - (t - s as f32).abs()).max(0.0)
+}
+
+/// Blends the levels into the output image (premultiplied linear RGBA).
+pub fn accumulate(
+    levels: &[Level],
+    borders: &Borders,
+    epsilon: f32,
+    width: usize,
+    height: usize,
+) -> ColorImage {
+    let n = levels.len();
+    let mut data = vec![[0.0f32; 4]; width * height];
+    data.par_chunks_mut(width.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let mut entries: Vec<Entry> = Vec::new();
+            for (x, out) in row.iter_mut().enumerate() {
+                entries.clear();
+                for (s, level) in levels.iter().enumerate() {
+                    let (cx, cy) = level.cell_of_pixel(x, y);
+                    let (depths, colors) = level.cell(cx, cy);
+                    for (&z, c) in depths.iter().zip(colors) {
+                        let weight = level_weight(borders.lambda(z), s, n);
+                        if weight > 0.0 {
+                            entries.push(Entry {
+                                depth_m: z,
+                                level: s as u8,
+                                weight,
+                                color: from_half(c),
+                            });
+                        }
+                    }
+                }
+                // Stable: equal depths keep level order.
+                entries.sort_by(|a, b| a.depth_m.total_cmp(&b.depth_m));
+                *out = composite(&entries, n, epsilon);
+            }
+        });
+    ColorImage::from_vec(width, height, data).expect("sizes agree by construction")
+}
+
+/// One fragment of one level at a pixel, with its level weight.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Entry {
+    /// View depth in metres.
+    pub depth_m: f32,
+    /// The level it comes from.
+    pub level: u8,
+    /// The level's weight at this depth (see [`level_weight`]).
+    pub weight: f32,
+    /// Premultiplied linear RGBA, unweighted.
+    pub color: Rgba,
+}
+
+/// Front-to-back blending of depth-sorted weighted fragments: a group opens at the nearest
+/// remaining fragment and takes every fragment within the depth threshold of it; within a
+/// level the group's fragments are combined with the over operator, across levels their
+/// weighted contributions add up; groups are blended with the over operator.
+pub fn composite(entries: &[Entry], levels: usize, epsilon: f32) -> Rgba {
+    let mut out = [0.0f32; 4];
+    let mut transmit = 1.0f32;
+    let mut level_transmit = vec![1.0f32; levels];
+    let mut i = 0;
+    while i < entries.len() && transmit > 1e-5 {
+        let z0 = entries[i].depth_m;
+        let limit = z0 + epsilon * z0.abs();
+        level_transmit.iter_mut().for_each(|t| *t = 1.0);
+        let mut p = [0.0f32; 4];
+        while i < entries.len() && entries[i].depth_m <= limit {
+            let e = &entries[i];
+            let t = &mut level_transmit[e.level as usize];
+            for k in 0..4 {
+                p[k] += *t * e.weight * e.color[k];
+            }
+            *t *= 1.0 - e.color[3];
+            i += 1;
+        }
+        // Weights of one fragment sum to 1 over the levels, so the sum stays a coverage; a
+        // group that still exceeds 1 (rounding) is scaled back to opaque.
+        let scale = if p[3] > 1.0 { 1.0 / p[3] } else { 1.0 };
+        let a = (p[3] * scale).clamp(0.0, 1.0);
+        for k in 0..3 {
+            out[k] += transmit * p[k] * scale;
+        }
+        out[3] += transmit * a;
+        transmit *= 1.0 - a;
+    }
+    out
+}

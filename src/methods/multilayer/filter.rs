@@ -1,0 +1,266 @@
+//! Pass `filter` (Selgrad et al. section 5): from the base fragment lists, levels filtered by
+//! box filters of width 2^S pixels, built incrementally by merging 2x2 lists of the previous
+//! level: `m` mip-mapping steps (section 5.1, half resolution each) then `s` stack steps
+//! (section 5.2, fig. 4: same resolution, the four lists `d = 2^k` cells apart, borders
+//! clamped): the Y-map.
+//!
+//! Merging (section 5.1, fig. 2), merge-sort style: the nearest remaining fragment of the four
+//! sources opens a merged fragment; every fragment within the depth threshold of it joins.
+//! Fragments of one source list are combined with the over operator front to back (a list's
+//! fragments occlude each other); the four per-list results are combined additively, divided by
+//! four, with an empty list counting as transparent (lists are side by side and cannot occlude
+//! each other). In premultiplied colour both rules are sums: `p' = p_a + (1 - a_a) p_b`,
+//! `a' = a_a + (1 - a_a) a_b` within a list, `p = (p'_1 + ... + p'_4) / 4` across. So an opaque
+//! surface stays opaque and a partly covered cell gets partial opacity.
+//!
+//! The depth threshold is relative (`epsilon * z` of the opening fragment): the paper gives it in
+//! depth units without a value; relative to depth, one value fits scenes of any scale, as the
+//! precision of a depth buffer does. The merged fragment's depth is the opacity-weighted mean of
+//! the fragments merged.
+//!
+//! Truncation (section 6.2): a level S only serves depths whose level coordinate `lambda(z)` (see
+//! [`super::Borders`]) is above `S - 1`, and every later level serves only larger ones, so
+//! fragments with `lambda(z) <= S - 1` are dropped while building level S: the paper's middle
+//! interval `z_N,S-1 < z < z_F,S-1`.
+
+use rayon::prelude::*;
+
+use crate::raster::{from_half, to_half, FragmentLists, HalfRgba};
+
+/// Largest number of fragments kept in one list of a filtered level (the farthest are dropped
+/// beyond it; merging keeps lists far shorter in practice).
+pub const MAX_LEVEL_FRAGMENTS: usize = 64;
+
+/// One level of the filtered hierarchy: per-cell fragment lists in compact arrays, and where
+/// the cells sit on the image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Level {
+    /// Cells per row.
+    pub width: usize,
+    /// Rows of cells.
+    pub height: usize,
+    /// Width in image pixels of the box filter this level applies: `2^S` for level S.
+    pub footprint_px: f32,
+    /// Image pixels from one cell to the next (1 for level 0 and stack levels of it).
+    pub stride_px: f32,
+    /// Image position, in pixels, of the centre of cell (0, 0) (0.5 for level 0).
+    pub origin_px: f32,
+    /// Prefix sum of per-cell counts, `width * height + 1` entries.
+    pub offsets: Vec<u32>,
+    /// View depth in metres of each fragment.
+    pub depth: Vec<f32>,
+    /// Premultiplied linear RGBA of each fragment, half precision.
+    pub color: Vec<HalfRgba>,
+}
+
+impl Level {
+    /// Level 0: the base fragment lists themselves.
+    pub fn base(lists: &FragmentLists) -> Self {
+        Self {
+            width: lists.width(),
+            height: lists.height(),
+            footprint_px: 1.0,
+            stride_px: 1.0,
+            origin_px: 0.5,
+            offsets: lists.offsets().to_vec(),
+            depth: lists.depths().to_vec(),
+            color: lists.colors().to_vec(),
+        }
+    }
+
+    /// The fragments of cell `(x, y)`.
+    #[inline]
+    pub fn cell(&self, x: usize, y: usize) -> (&[f32], &[HalfRgba]) {
+        let i = y * self.width + x;
+        let (a, b) = (self.offsets[i] as usize, self.offsets[i + 1] as usize);
+        (&self.depth[a..b], &self.color[a..b])
+    }
+
+    /// The cell whose centre is nearest to the centre of image pixel `(x, y)`.
+    #[inline]
+    pub fn cell_of_pixel(&self, x: usize, y: usize) -> (usize, usize) {
+        let c = |p: usize, n: usize| {
+            let t = ((p as f32 + 0.5 - self.origin_px) / self.stride_px + 0.5).floor();
+            (t.max(0.0) as usize).min(n - 1)
+        };
+        (c(x, self.width), c(y, self.height))
+    }
+
+    /// Number of fragments stored.
+    pub fn len(&self) -> usize {
+        self.depth.len()
+    }
+
+    /// True when no cell has a fragment.
+    pub fn is_empty(&self) -> bool {
+        self.depth.is_empty()
+    }
+
+    /// Bytes of the compact storage.
+    pub fn bytes(&self) -> usize {
+        self.offsets.len() * 4 + self.depth.len() * 4 + self.color.len() * 8
+    }
+}
+
+/// One filtering step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// 2x2 cells into one, half resolution (section 5.1).
+    Mip,
+    /// Same resolution, the four cells `offset` cells apart (section 5.2).
+    Stack {
+        /// Distance in cells between the merged lists: 1, 2, 4, ... for the stack steps in
+        /// turn.
+        offset: usize,
+    },
+}
+
+/// The steps of a Y-map with `mip` mip-mapping steps then `stack` stack steps.
+pub fn y_map(mip: usize, stack: usize) -> Vec<Step> {
+    let mut steps = vec![Step::Mip; mip];
+    steps.extend((0..stack).map(|k| Step::Stack { offset: 1 << k }));
+    steps
+}
+
+/// A fragment being accumulated from one source list (over operator, front to back).
+#[derive(Clone, Copy, Default)]
+struct Partial {
+    p: [f32; 4],
+    depth_weight: f32,
+    depth_sum: f32,
+}
+
+/// Merges four depth-sorted lists into `out` (see the module documentation). `keep(z)` says
+/// whether a merged fragment at depth `z` is kept (truncation).
+pub fn merge4(
+    sources: [(&[f32], &[HalfRgba]); 4],
+    epsilon: f32,
+    keep: &dyn Fn(f32) -> bool,
+    out_depth: &mut Vec<f32>,
+    out_color: &mut Vec<HalfRgba>,
+) -> usize {
+    let mut idx = [0usize; 4];
+    let mut emitted = 0;
+    loop {
+        // The nearest remaining fragment opens the merged fragment.
+        let mut z0 = f32::INFINITY;
+        let mut any = false;
+        for j in 0..4 {
+            if let Some(&z) = sources[j].0.get(idx[j]) {
+                if !any || z < z0 {
+                    z0 = z;
+                    any = true;
+                }
+            }
+        }
+        if !any {
+            break;
+        }
+        let limit = z0 + epsilon * z0.abs();
+        let mut parts = [Partial::default(); 4];
+        for j in 0..4 {
+            let (depths, colors) = sources[j];
+            let part = &mut parts[j];
+            while let Some(&z) = depths.get(idx[j]) {
+                if z > limit {
+                    break;
+                }
+                let c = from_half(&colors[idx[j]]);
+                let t = 1.0 - part.p[3];
+                for k in 0..4 {
+                    part.p[k] += t * c[k];
+                }
+                let w = t * c[3];
+                part.depth_weight += w;
+                part.depth_sum += w * z;
+                idx[j] += 1;
+            }
+        }
+        let mut p = [0.0f32; 4];
+        let (mut dw, mut ds) = (0.0f32, 0.0f32);
+        for part in &parts {
+            for k in 0..4 {
+                p[k] += 0.25 * part.p[k];
+            }
+            dw += part.depth_weight;
+            ds += part.depth_sum;
+        }
+        let z = if dw > 0.0 { ds / dw } else { z0 };
+        if p[3] > 0.0 && keep(z) && emitted < MAX_LEVEL_FRAGMENTS {
+            out_depth.push(z);
+            out_color.push(to_half(p));
+            emitted += 1;
+        }
+    }
+    emitted
+}
+
+/// Applies one step to `level`. `keep(z)` filters the merged fragments (truncation).
+pub fn step(level: &Level, step: Step, epsilon: f32, keep: &(dyn Fn(f32) -> bool + Sync)) -> Level {
+    let (w, h) = (level.width, level.height);
+    let (nw, nh, stride, origin, d) = match step {
+        Step::Mip => (
+            w.div_ceil(2),
+            h.div_ceil(2),
+            level.stride_px * 2.0,
+            level.origin_px + 0.5 * level.stride_px,
+            1,
+        ),
+        Step::Stack { offset } => (
+            w,
+            h,
+            level.stride_px,
+            level.origin_px + 0.5 * offset as f32 * level.stride_px,
+            offset,
+        ),
+    };
+    let rows: Vec<(Vec<u32>, Vec<f32>, Vec<HalfRgba>)> = (0..nh)
+        .into_par_iter()
+        .map(|y| {
+            let mut counts = Vec::with_capacity(nw);
+            let mut depth = Vec::new();
+            let mut color = Vec::new();
+            for x in 0..nw {
+                let (sx, sy, dx) = match step {
+                    Step::Mip => (2 * x, 2 * y, 1),
+                    Step::Stack { .. } => (x, y, d),
+                };
+                let x1 = (sx + dx).min(w - 1);
+                let y1 = (sy + dx).min(h - 1);
+                let (sx, sy) = (sx.min(w - 1), sy.min(h - 1));
+                let sources = [
+                    level.cell(sx, sy),
+                    level.cell(x1, sy),
+                    level.cell(sx, y1),
+                    level.cell(x1, y1),
+                ];
+                let n = merge4(sources, epsilon, keep, &mut depth, &mut color);
+                counts.push(n as u32);
+            }
+            (counts, depth, color)
+        })
+        .collect();
+    let mut offsets = Vec::with_capacity(nw * nh + 1);
+    offsets.push(0u32);
+    let total: usize = rows.iter().map(|r| r.1.len()).sum();
+    let mut depth = Vec::with_capacity(total);
+    let mut color = Vec::with_capacity(total);
+    for (counts, d, c) in rows {
+        for n in counts {
+            let last = *offsets.last().unwrap_or(&0);
+            offsets.push(last + n);
+        }
+        depth.extend_from_slice(&d);
+        color.extend_from_slice(&c);
+    }
+    Level {
+        width: nw,
+        height: nh,
+        footprint_px: level.footprint_px * 2.0,
+        stride_px: stride,
+        origin_px: origin,
+        offsets,
+        depth,
+        color,
+    }
+}

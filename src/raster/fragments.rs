@@ -1,0 +1,265 @@
+//! The `FragmentLists` sink: every fragment of every pixel, sorted by depth and capped at the
+//! N nearest, in compact arrays (Selgrad et al. 2015, section 4; per-pixel linked lists after
+//! Yang et al. 2010, compacted by a prefix sum over the per-pixel counts).
+//!
+//! Unlike [`super::GBuffer`] there is no depth test: fragments behind an opaque one are kept
+//! (up to N), because they are what a blurred foreground reveals. Alpha-masked fragments that
+//! fail their cutoff are discarded by the rasterizer as for every sink; blended ones are kept
+//! whatever their opacity. Storage as the paper: colour and opacity in half precision
+//! (premultiplied here, which makes the merge rules of section 5.1 sums), depth in f32: 12
+//! bytes per fragment.
+//!
+//! Within a tile the fragments arrive in scene order; each pixel's list is sorted by depth with
+//! a stable sort, so equal depths keep scene order and the lists do not depend on the thread
+//! count.
+
+use half::f16;
+
+use super::{Fragment, Sink, TileRect, TileSink};
+use crate::image::Rgba;
+
+/// Largest number of fragments kept per pixel.
+pub const MAX_FRAGMENTS_PER_PIXEL: usize = 16;
+
+/// Colour of one stored fragment: linear premultiplied RGBA in half precision.
+pub type HalfRgba = [f16; 4];
+
+/// Converts linear premultiplied RGBA to half precision, clamping to the largest finite half
+/// (65504) so that HDR values stay finite.
+#[inline]
+pub fn to_half(c: Rgba) -> HalfRgba {
+    c.map(|v| f16::from_f32(v.clamp(-65504.0, 65504.0)))
+}
+
+/// Converts a stored colour back to f32.
+#[inline]
+pub fn from_half(c: &HalfRgba) -> Rgba {
+    [c[0].to_f32(), c[1].to_f32(), c[2].to_f32(), c[3].to_f32()]
+}
+
+/// Per-pixel fragment lists of one view: pixel `i` (row-major) owns the fragments
+/// `offsets[i]..offsets[i + 1]`, nearest first.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FragmentLists {
+    width: usize,
+    height: usize,
+    cap: usize,
+    /// Prefix sum of the per-pixel counts; `width * height + 1` entries.
+    offsets: Vec<u32>,
+    /// View-axis depth in metres of each fragment.
+    depth: Vec<f32>,
+    /// Linear premultiplied RGBA of each fragment (half precision).
+    color: Vec<HalfRgba>,
+    /// Finished tiles, waiting for [`FragmentLists::compact`].
+    tiles: Vec<(TileRect, FragmentTile)>,
+}
+
+impl FragmentLists {
+    /// Empty lists for a `width x height` view keeping at most `cap` fragments per pixel
+    /// (clamped to 1..=[`MAX_FRAGMENTS_PER_PIXEL`]).
+    pub fn new(width: usize, height: usize, cap: usize) -> Self {
+        Self {
+            width,
+            height,
+            cap: cap.clamp(1, MAX_FRAGMENTS_PER_PIXEL),
+            offsets: vec![0; width * height + 1],
+            depth: Vec::new(),
+            color: Vec::new(),
+            tiles: Vec::new(),
+        }
+    }
+
+    /// Builds lists directly from per-pixel fragments `(depth_m, premultiplied colour)` in any
+    /// order (row-major pixels), sorted and capped as the rasterizer's lists are. For tests and
+    /// for inputs that do not come from the rasterizer.
+    pub fn from_pixels(
+        width: usize,
+        height: usize,
+        cap: usize,
+        pixels: &[Vec<(f32, Rgba)>],
+    ) -> Self {
+        let mut lists = Self::new(width, height, cap);
+        let mut total = 0u32;
+        for (i, frags) in pixels.iter().enumerate().take(width * height) {
+            let mut frags = frags.clone();
+            frags.sort_by(|a, b| a.0.total_cmp(&b.0));
+            frags.truncate(lists.cap);
+            for (z, c) in frags {
+                lists.depth.push(z);
+                lists.color.push(to_half(c));
+                total += 1;
+            }
+            lists.offsets[i + 1] = total;
+        }
+        for i in pixels.len().min(width * height)..width * height {
+            lists.offsets[i + 1] = total;
+        }
+        lists
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// The cap N on fragments per pixel.
+    pub fn cap(&self) -> usize {
+        self.cap
+    }
+
+    /// Total number of fragments stored.
+    pub fn len(&self) -> usize {
+        self.depth.len()
+    }
+
+    /// True when no pixel has a fragment.
+    pub fn is_empty(&self) -> bool {
+        self.depth.is_empty()
+    }
+
+    /// Bytes of the compact storage (offsets, depths, colours).
+    pub fn bytes(&self) -> usize {
+        self.offsets.len() * 4 + self.depth.len() * 4 + self.color.len() * 8
+    }
+
+    /// The fragments of pixel `(x, y)`, nearest first: depths in metres and premultiplied
+    /// colours.
+    pub fn pixel(&self, x: usize, y: usize) -> (&[f32], &[HalfRgba]) {
+        let i = y * self.width + x;
+        let (a, b) = (self.offsets[i] as usize, self.offsets[i + 1] as usize);
+        (&self.depth[a..b], &self.color[a..b])
+    }
+
+    /// The prefix sum of per-pixel counts (`width * height + 1` entries).
+    pub fn offsets(&self) -> &[u32] {
+        &self.offsets
+    }
+
+    /// All depths, pixel after pixel.
+    pub fn depths(&self) -> &[f32] {
+        &self.depth
+    }
+
+    /// All colours, pixel after pixel.
+    pub fn colors(&self) -> &[HalfRgba] {
+        &self.color
+    }
+
+    /// Depth of the nearest fragment of each pixel (+inf where there is none): the pinhole
+    /// depth, for outputs that want one.
+    pub fn nearest_depth(&self) -> Vec<f32> {
+        (0..self.width * self.height)
+            .map(|i| {
+                let (a, b) = (self.offsets[i] as usize, self.offsets[i + 1] as usize);
+                if a < b {
+                    self.depth[a]
+                } else {
+                    f32::INFINITY
+                }
+            })
+            .collect()
+    }
+
+    /// Moves the finished tiles into the compact arrays: counts per pixel, prefix sum, fill.
+    /// Called by the rasterizing code after the last tile.
+    pub fn compact(&mut self) {
+        let w = self.width;
+        let mut counts = vec![0u32; w * self.height];
+        for (rect, tile) in &self.tiles {
+            for (k, &c) in tile.counts.iter().enumerate() {
+                let (tx, ty) = (k % rect.width(), k / rect.width());
+                counts[(rect.y0 + ty) * w + rect.x0 + tx] = c;
+            }
+        }
+        self.offsets[0] = 0;
+        for i in 0..counts.len() {
+            self.offsets[i + 1] = self.offsets[i] + counts[i];
+        }
+        let total = self.offsets[counts.len()] as usize;
+        self.depth = vec![0.0; total];
+        self.color = vec![[f16::ZERO; 4]; total];
+        for (rect, tile) in std::mem::take(&mut self.tiles) {
+            let mut src = 0usize;
+            for (k, &c) in tile.counts.iter().enumerate() {
+                let (tx, ty) = (k % rect.width(), k / rect.width());
+                let dst = self.offsets[(rect.y0 + ty) * w + rect.x0 + tx] as usize;
+                let c = c as usize;
+                self.depth[dst..dst + c].copy_from_slice(&tile.out_depth[src..src + c]);
+                self.color[dst..dst + c].copy_from_slice(&tile.out_color[src..src + c]);
+                src += c;
+            }
+        }
+    }
+}
+
+/// Per-tile state of [`FragmentLists`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct FragmentTile {
+    rect: TileRect,
+    cap: usize,
+    /// Fragments as they arrive: (pixel index in tile, depth, premultiplied colour).
+    raw: Vec<(u32, f32, Rgba)>,
+    /// After `finish`: fragments per pixel of the tile.
+    counts: Vec<u32>,
+    /// After `finish`: depths, pixel after pixel.
+    out_depth: Vec<f32>,
+    /// After `finish`: colours, pixel after pixel.
+    out_color: Vec<HalfRgba>,
+}
+
+impl TileSink for FragmentTile {
+    #[inline]
+    fn fragment(&mut self, f: &Fragment) {
+        let i = (f.y as usize - self.rect.y0) * self.rect.width() + (f.x as usize - self.rect.x0);
+        let a = f.color[3];
+        let c = [f.color[0] * a, f.color[1] * a, f.color[2] * a, a];
+        self.raw.push((i as u32, f.depth_m, c));
+    }
+
+    fn finish(&mut self) {
+        // Per pixel, near to far; stable, so equal depths keep scene order.
+        self.raw
+            .sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        self.counts = vec![0; self.rect.width() * self.rect.height()];
+        let mut start = 0;
+        while start < self.raw.len() {
+            let pixel = self.raw[start].0;
+            let mut end = start;
+            while end < self.raw.len() && self.raw[end].0 == pixel {
+                end += 1;
+            }
+            let keep = (end - start).min(self.cap);
+            for &(_, z, c) in &self.raw[start..start + keep] {
+                self.out_depth.push(z);
+                self.out_color.push(to_half(c));
+            }
+            self.counts[pixel as usize] = keep as u32;
+            start = end;
+        }
+        self.raw = Vec::new();
+    }
+}
+
+impl Sink for FragmentLists {
+    type Tile = FragmentTile;
+
+    fn begin_tile(&self, rect: TileRect) -> FragmentTile {
+        FragmentTile {
+            rect,
+            cap: self.cap,
+            raw: Vec::new(),
+            counts: Vec::new(),
+            out_depth: Vec::new(),
+            out_color: Vec::new(),
+        }
+    }
+
+    fn end_tile(&mut self, rect: TileRect, tile: FragmentTile) {
+        self.tiles.push((rect, tile));
+    }
+}
