@@ -9,9 +9,9 @@
 //! (premultiplied here, which makes the merge rules of section 5.1 sums), depth in f32: 12
 //! bytes per fragment.
 //!
-//! Within a tile the fragments arrive in scene order; each pixel's list is sorted by depth with
-//! a stable sort, so equal depths keep scene order and the lists do not depend on the thread
-//! count.
+//! Each tile keeps the N nearest fragments of each pixel in N slots as they arrive (a full
+//! pixel rejects an opaque fragment behind all N before it is shaded); within a tile fragments
+//! arrive in scene order, so the lists do not depend on the thread count.
 
 use half::f16;
 
@@ -177,8 +177,8 @@ impl FragmentLists {
             }
         }
         self.offsets[0] = 0;
-        for i in 0..counts.len() {
-            self.offsets[i + 1] = self.offsets[i] + counts[i];
+        for (i, &c) in counts.iter().enumerate() {
+            self.offsets[i + 1] = self.offsets[i] + c;
         }
         let total = self.offsets[counts.len()] as usize;
         self.depth = vec![0.0; total];
@@ -197,16 +197,20 @@ impl FragmentLists {
     }
 }
 
-/// Per-tile state of [`FragmentLists`].
+/// Per-tile state of [`FragmentLists`]: N slots per pixel holding the N nearest fragments so
+/// far, so that an opaque fragment behind all N of a full pixel is rejected before it is shaded
+/// (the rasterizer's early test), and a nearer one replaces the farthest.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FragmentTile {
     rect: TileRect,
     cap: usize,
-    /// Fragments as they arrive: (pixel index in tile, depth, premultiplied colour).
-    raw: Vec<(u32, f32, Rgba)>,
-    /// After `finish`: fragments per pixel of the tile.
+    /// Fragments held per pixel of the tile.
     counts: Vec<u32>,
-    /// After `finish`: depths, pixel after pixel.
+    /// Farthest depth held by each full pixel (+inf while it has fewer than N).
+    farthest: Vec<f32>,
+    /// N slots per pixel: depth and premultiplied colour.
+    slots: Vec<(f32, Rgba)>,
+    /// After `finish`: depths, pixel after pixel, nearest first.
     out_depth: Vec<f32>,
     /// After `finish`: colours, pixel after pixel.
     out_color: Vec<HalfRgba>,
@@ -214,34 +218,54 @@ pub struct FragmentTile {
 
 impl TileSink for FragmentTile {
     #[inline]
+    fn occluded(&self, x: u32, y: u32, depth_m: f32) -> bool {
+        let i = (y as usize - self.rect.y0) * self.rect.width() + (x as usize - self.rect.x0);
+        depth_m >= self.farthest[i]
+    }
+
+    #[inline]
     fn fragment(&mut self, f: &Fragment) {
         let i = (f.y as usize - self.rect.y0) * self.rect.width() + (f.x as usize - self.rect.x0);
+        if f.depth_m >= self.farthest[i] {
+            return;
+        }
         let a = f.color[3];
         let c = [f.color[0] * a, f.color[1] * a, f.color[2] * a, a];
-        self.raw.push((i as u32, f.depth_m, c));
+        let slots = &mut self.slots[i * self.cap..(i + 1) * self.cap];
+        let n = self.counts[i] as usize;
+        if n < self.cap {
+            slots[n] = (f.depth_m, c);
+            self.counts[i] += 1;
+            if n + 1 == self.cap {
+                self.farthest[i] = slots.iter().map(|s| s.0).fold(f32::MIN, f32::max);
+            }
+        } else {
+            // Replace the farthest (the last of equals, so earlier scene order wins ties).
+            let mut far = 0;
+            for (k, s) in slots.iter().enumerate() {
+                if s.0 >= slots[far].0 {
+                    far = k;
+                }
+            }
+            slots[far] = (f.depth_m, c);
+            self.farthest[i] = slots.iter().map(|s| s.0).fold(f32::MIN, f32::max);
+        }
     }
 
     fn finish(&mut self) {
-        // Per pixel, near to far; stable, so equal depths keep scene order.
-        self.raw
-            .sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
-        self.counts = vec![0; self.rect.width() * self.rect.height()];
-        let mut start = 0;
-        while start < self.raw.len() {
-            let pixel = self.raw[start].0;
-            let mut end = start;
-            while end < self.raw.len() && self.raw[end].0 == pixel {
-                end += 1;
-            }
-            let keep = (end - start).min(self.cap);
-            for &(_, z, c) in &self.raw[start..start + keep] {
+        let n = self.rect.width() * self.rect.height();
+        for i in 0..n {
+            let count = self.counts[i] as usize;
+            let slots = &mut self.slots[i * self.cap..i * self.cap + count];
+            // Near to far; stable, so equal depths keep their order.
+            slots.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for &(z, c) in slots.iter() {
                 self.out_depth.push(z);
                 self.out_color.push(to_half(c));
             }
-            self.counts[pixel as usize] = keep as u32;
-            start = end;
         }
-        self.raw = Vec::new();
+        self.slots = Vec::new();
+        self.farthest = Vec::new();
     }
 }
 
@@ -249,11 +273,13 @@ impl Sink for FragmentLists {
     type Tile = FragmentTile;
 
     fn begin_tile(&self, rect: TileRect) -> FragmentTile {
+        let n = rect.width() * rect.height();
         FragmentTile {
             rect,
             cap: self.cap,
-            raw: Vec::new(),
-            counts: Vec::new(),
+            counts: vec![0; n],
+            farthest: vec![f32::INFINITY; n],
+            slots: vec![(0.0, [0.0; 4]); n * self.cap],
             out_depth: Vec::new(),
             out_color: Vec::new(),
         }

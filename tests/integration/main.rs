@@ -7,6 +7,7 @@ mod image_io;
 mod lens;
 mod lowrank;
 mod metrics;
+mod multilayer;
 mod raster;
 mod reference;
 mod registry;

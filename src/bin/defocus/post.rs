@@ -137,7 +137,12 @@ pub struct PostArgs {
     pub taps: usize,
 
     /// multilayer: fragments kept per pixel, N (1 to 16; the paper keeps 3 or 4).
-    #[arg(long, default_value_t = 4, value_name = "N", help_heading = "multilayer")]
+    #[arg(
+        long,
+        default_value_t = 4,
+        value_name = "N",
+        help_heading = "multilayer"
+    )]
     pub fragments: usize,
     /// multilayer: depth threshold for merging fragments while filtering, relative to depth
     /// (0.05: within 5% of the nearer fragment's depth; 0 to 1).
@@ -151,14 +156,24 @@ pub struct PostArgs {
     pub epsilon: f32,
     /// multilayer: the Y-map, M mip-mapping steps then S stack steps (the paper's 1/3, 2/2,
     /// 4/0), or `auto`: one mip step, then stack steps until the largest CoC is covered.
-    #[arg(long, default_value = "auto", value_name = "M/S|auto", help_heading = "multilayer")]
+    #[arg(
+        long,
+        default_value = "auto",
+        value_name = "M/S|auto",
+        help_heading = "multilayer"
+    )]
     pub filter_steps: String,
     /// multilayer: keep every fragment in every level (no list truncation, section 6.2).
     #[arg(long, help_heading = "multilayer")]
     pub no_truncation: bool,
     /// multilayer: collect the fragment lists at K x K samples per pixel and merge them down
     /// (1, 2 or 4; anti-aliases the in-focus surfaces; not in the paper).
-    #[arg(long, default_value_t = 1, value_name = "K", help_heading = "multilayer")]
+    #[arg(
+        long,
+        default_value_t = 1,
+        value_name = "K",
+        help_heading = "multilayer"
+    )]
     pub ml_supersample: usize,
 }
 

@@ -1,11 +1,12 @@
 //! Pass `accumulate` (Selgrad et al. section 6.1): per pixel, the fragments of every level whose
 //! filter size matches their circle of confusion, blended front to back.
 //!
-//! The level borders of the paper's table T are where `lambda(z) = log2(2 |C(z)|)` (the CoC
-//! diameter in pixels against the level's box width `2^S`) crosses a whole number
-//! ([`super::Borders`]). To hide the seams at the borders, as the paper asks, a fragment at depth
-//! `z` is taken from the two levels around `lambda(z)` with linear weights (a hat function in
-//! `lambda`, clamped to the first and last level), so the blur grows continuously with depth.
+//! The level borders of the paper's table T are where `lambda(z) = log2(sqrt(3) |C(z)|)` (the
+//! width of the box with the variance of the CoC disc, against the level's box width `2^S`)
+//! crosses a whole number ([`super::Borders`]). To hide the seams at the borders, as the paper
+//! asks, a fragment at depth `z` is taken from the two levels around `lambda(z)`, weighted so
+//! that the blend's variance is the disc's (`(1 - t) 4^S / 12 + t 4^(S+1) / 12 = C^2 / 4`),
+//! clamped to the first and last level: the blur grows continuously with depth.
 //! The weighted fragments of all levels at a pixel are sorted by depth; those within the depth
 //! threshold of each other are one surface seen at two filter sizes: within a level they are
 //! combined with the over operator (the front face of a thin double-sided object hides its back
@@ -19,11 +20,27 @@ use super::Borders;
 use crate::image::{ColorImage, Rgba};
 use crate::raster::from_half;
 
-/// Weight of level `s` of `levels` for a fragment at level coordinate `lambda`.
+/// Weight of level `s` of `levels` for a fragment at level coordinate `lambda`: with
+/// `S = floor(lambda)`, level S gets `1 - t` and level S + 1 gets `t`, where
+/// `t = (4^(lambda - S) - 1) / 3` blends the two box variances into the disc's.
 #[inline]
 pub fn level_weight(lambda: f32, s: usize, levels: usize) -> f32 {
-    let t = lambda.clamp(0.0, (levels - 1) as f32);
-    (1.0 - (t - s as f32).abs()).max(0.0)
+    let top = (levels - 1) as f32;
+    let l = lambda.clamp(0.0, top);
+    let base = l.floor();
+    let t = if base >= top {
+        0.0
+    } else {
+        ((4f32).powf(l - base) - 1.0) / 3.0
+    };
+    let b = base as usize;
+    if s == b {
+        1.0 - t
+    } else if s == b + 1 {
+        t
+    } else {
+        0.0
+    }
 }
 
 /// Blends the levels into the output image (premultiplied linear RGBA).
@@ -95,8 +112,8 @@ pub fn composite(entries: &[Entry], levels: usize, epsilon: f32) -> Rgba {
         while i < entries.len() && entries[i].depth_m <= limit {
             let e = &entries[i];
             let t = &mut level_transmit[e.level as usize];
-            for k in 0..4 {
-                p[k] += *t * e.weight * e.color[k];
+            for (pk, ck) in p.iter_mut().zip(e.color) {
+                *pk += *t * e.weight * ck;
             }
             *t *= 1.0 - e.color[3];
             i += 1;

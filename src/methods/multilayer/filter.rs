@@ -102,7 +102,7 @@ impl Level {
     }
 }
 
-/// One filtering step.
+/// One filtering step (the stack steps pair cells `offset` apart, centred: see [`step`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Step {
     /// 2x2 cells into one, half resolution (section 5.1).
@@ -167,8 +167,8 @@ pub fn merge4(
                 }
                 let c = from_half(&colors[idx[j]]);
                 let t = 1.0 - part.p[3];
-                for k in 0..4 {
-                    part.p[k] += t * c[k];
+                for (pk, ck) in part.p.iter_mut().zip(c) {
+                    *pk += t * ck;
                 }
                 let w = t * c[3];
                 part.depth_weight += w;
@@ -179,8 +179,8 @@ pub fn merge4(
         let mut p = [0.0f32; 4];
         let (mut dw, mut ds) = (0.0f32, 0.0f32);
         for part in &parts {
-            for k in 0..4 {
-                p[k] += 0.25 * part.p[k];
+            for (pk, qk) in p.iter_mut().zip(part.p) {
+                *pk += 0.25 * qk;
             }
             dw += part.depth_weight;
             ds += part.depth_sum;
@@ -206,11 +206,19 @@ pub fn step(level: &Level, step: Step, epsilon: f32, keep: &(dyn Fn(f32) -> bool
             level.origin_px + 0.5 * level.stride_px,
             1,
         ),
+        // The first stack step pairs each cell with its right (lower) neighbour and moves the
+        // centres half a cell; the later ones pair the cells d/2 on either side, so the boxes
+        // stay centred on their cells and every cell centre stays inside the image.
         Step::Stack { offset } => (
             w,
             h,
             level.stride_px,
-            level.origin_px + 0.5 * offset as f32 * level.stride_px,
+            level.origin_px
+                + if offset == 1 {
+                    0.5 * level.stride_px
+                } else {
+                    0.0
+                },
             offset,
         ),
     };
@@ -220,14 +228,18 @@ pub fn step(level: &Level, step: Step, epsilon: f32, keep: &(dyn Fn(f32) -> bool
             let mut counts = Vec::with_capacity(nw);
             let mut depth = Vec::new();
             let mut color = Vec::new();
+            // Source cells of a row or column: (lo, hi), clamped to the level (border cells
+            // extended, fig. 4).
+            let pair = |i: usize, n: usize| -> (usize, usize) {
+                match step {
+                    Step::Mip => ((2 * i).min(n - 1), (2 * i + 1).min(n - 1)),
+                    Step::Stack { .. } if d == 1 => (i, (i + 1).min(n - 1)),
+                    Step::Stack { .. } => (i.saturating_sub(d / 2), (i + d / 2).min(n - 1)),
+                }
+            };
+            let (sy, y1) = pair(y, h);
             for x in 0..nw {
-                let (sx, sy, dx) = match step {
-                    Step::Mip => (2 * x, 2 * y, 1),
-                    Step::Stack { .. } => (x, y, d),
-                };
-                let x1 = (sx + dx).min(w - 1);
-                let y1 = (sy + dx).min(h - 1);
-                let (sx, sy) = (sx.min(w - 1), sy.min(h - 1));
+                let (sx, x1) = pair(x, w);
                 let sources = [
                     level.cell(sx, sy),
                     level.cell(x1, sy),

@@ -14,14 +14,20 @@
 //!    over within a list, additive across lists); level S is a box filter of width `2^S`
 //!    pixels. With truncation (section 6.2) a level drops the depths it will never be asked for.
 //! 3. `accumulate` (section 6.1, [`accumulate`]): per pixel, each level's fragments weighted by
-//!    how well the level's filter size matches their CoC diameter (level borders of the table T,
-//!    with linear interpolation between neighbouring levels), blended front to back.
+//!    how well the level's filter size matches their CoC (level borders of the table T, with
+//!    interpolation between neighbouring levels), blended front to back.
 //!
 //! # Where we differ from the paper, and why
 //! - The filter configuration defaults to `auto`: one mip step then as many stack steps as the
 //!   largest CoC diameter in the frame needs (at least the paper's 1/3). The paper's fixed four
 //!   steps give boxes of at most 16 px, while the near bars of `railing` have a CoC diameter of
 //!   71 px at 1280x720; `--filter-steps 1/3`, `2/2` and `4/0` run the paper's configurations.
+//! - The paper matches a level's fragment size to the CoC up to camera constants it leaves
+//!   open (`Coc(z) = F |z - z_f|`). We match the box of width `2^S` to the disc of radius `|C|`
+//!   with the same variance (`sqrt(3) |C| = 2^S`), and interpolate between the two levels
+//!   around it so that the blend has the disc's variance exactly: a point light then spreads
+//!   with the standard deviation of `reference`'s bokeh (matching the diameter `2|C| = 2^S`
+//!   instead spreads it 30% wider; measured in the point-light test).
 //! - The depth threshold is relative to depth (see [`filter`]); the paper gives no value.
 //! - The merged fragment's depth is the opacity-weighted mean depth of what was merged.
 //! - Level interpolation: the paper says only "we interpolate accordingly"; see [`accumulate`].
@@ -181,23 +187,26 @@ impl Borders {
         Self { lens }
     }
 
-    /// `log2` of the CoC diameter `2 |C(z)|` in pixels: level S has the filter size that
-    /// matches the CoC at depths where this equals S (-inf on the focal plane).
+    /// The level coordinate of depth `z_m`: `log2(sqrt(3) |C(z)|)`, the `log2` of the width of
+    /// the box filter with the same variance as the disc of radius `|C|` (a box of width `w` has
+    /// variance `w^2 / 12` per axis, the disc `C^2 / 4`). Level S (a box of `2^S` pixels)
+    /// matches the CoC where this equals S; -inf on the focal plane.
     #[inline]
     pub fn lambda(&self, z_m: f32) -> f32 {
-        (2.0 * self.lens.coc_px(z_m).abs()).log2()
+        (3f32.sqrt() * self.lens.coc_px(z_m).abs()).log2()
     }
 
-    /// `z_N,S`: the depth in front of the focal plane where the CoC diameter is `2^S` pixels.
+    /// `z_N,S`: the depth in front of the focal plane where the CoC matches level S
+    /// (`sqrt(3) |C| = 2^S` pixels).
     pub fn near_m(&self, s: usize) -> f32 {
-        let r = 0.5 * (1u64 << s) as f32;
+        let r = (1u64 << s) as f32 / 3f32.sqrt();
         1.0 / (1.0 / self.lens.focus_m + r / (self.lens.f_px * self.lens.lens_radius_m))
     }
 
-    /// `z_F,S`: the depth behind the focal plane where the CoC diameter is `2^S` pixels, +inf
-    /// when the CoC never grows that large.
+    /// `z_F,S`: the depth behind the focal plane where the CoC matches level S, +inf when the
+    /// CoC never grows that large.
     pub fn far_m(&self, s: usize) -> f32 {
-        let r = 0.5 * (1u64 << s) as f32;
+        let r = (1u64 << s) as f32 / 3f32.sqrt();
         let inv = 1.0 / self.lens.focus_m - r / (self.lens.f_px * self.lens.lens_radius_m);
         if inv > 0.0 {
             1.0 / inv
@@ -237,7 +246,8 @@ pub fn steps_for(settings: &MultilayerSettings, max_diameter_px: f32) -> (usize,
     match settings.filter_steps {
         FilterSteps::Fixed { mip, stack } => (mip, stack),
         FilterSteps::Auto => {
-            let need = max_diameter_px.max(1.0).log2().ceil() as usize;
+            // The largest level must reach the equal-variance box of the largest CoC.
+            let need = (0.5 * 3f32.sqrt() * max_diameter_px).max(1.0).log2().ceil() as usize;
             let total = need.clamp(4, MAX_FILTER_STEPS);
             (1, total - 1)
         }
