@@ -19,6 +19,7 @@ pub mod pinhole;
 pub mod poisson;
 pub mod reference;
 pub mod registry;
+pub mod splat;
 
 use crate::image::{ColorImage, GrayImage};
 use crate::timing::Timings;

@@ -14,6 +14,7 @@ use super::lowrank::{self, LowRankSettings};
 use super::multilayer::{self, MultilayerSettings};
 use super::poisson::{self, PoissonSettings};
 use super::reference::{self, ReferenceSettings};
+use super::splat::{self, SplatSettings};
 use super::MethodOutput;
 
 /// What a method reads.
@@ -99,6 +100,12 @@ pub const METHODS: &[MethodInfo] = &[
         input: InputKind::PinholeFrame,
     },
     MethodInfo {
+        id: "splat",
+        description: "tiled scatter: every fragment splatted in the aperture's shape, blended in depth order per tile (--layers N: from fragment lists)",
+        paper: "Fast depth of field rendering (poster; tiled DoF splatting)",
+        input: InputKind::PinholeFrame,
+    },
+    MethodInfo {
         id: "multilayer",
         description: "per-pixel fragment lists filtered into levels of growing blur, blended by CoC: sees behind near blur",
         paper: "Selgrad et al. 2015, Real-time depth of field using multi-layer filtering",
@@ -159,6 +166,8 @@ pub enum MethodSettings {
     Gaussian(GaussianSettings),
     /// `poisson`.
     Poisson(PoissonSettings),
+    /// `splat`.
+    Splat(SplatSettings),
     /// `multilayer`.
     Multilayer(MultilayerSettings),
 }
@@ -173,6 +182,7 @@ impl MethodSettings {
             "lowrank" => Self::Lowrank(LowRankSettings::default()),
             "gaussian" => Self::Gaussian(GaussianSettings::default()),
             "poisson" => Self::Poisson(PoissonSettings::default()),
+            "splat" => Self::Splat(SplatSettings::default()),
             "multilayer" => Self::Multilayer(MultilayerSettings::default()),
             other => {
                 return Err(Error::invalid(
@@ -192,6 +202,7 @@ impl MethodSettings {
             Self::Lowrank(_) => "lowrank",
             Self::Gaussian(_) => "gaussian",
             Self::Poisson(_) => "poisson",
+            Self::Splat(_) => "splat",
             Self::Multilayer(_) => "multilayer",
         }
     }
@@ -226,6 +237,14 @@ pub fn run_frame(settings: &MethodSettings, frame: &Frame) -> Result<MethodOutpu
         MethodSettings::Lowrank(s) => lowrank::render(c, d, l, s),
         MethodSettings::Gaussian(s) => gaussian::render(c, d, l, s),
         MethodSettings::Poisson(s) => poisson::render(c, d, l, s),
+        MethodSettings::Splat(s) if s.layers == 1 => splat::render(c, d, l, s),
+        MethodSettings::Splat(s) => Err(Error::invalid(
+            "layers",
+            format!(
+                "{}: splatting several layers needs the fragment lists of a 3D scene (defocus render --method splat --layers {}); a colour image with a depth pass has one layer",
+                s.layers, s.layers
+            ),
+        )),
         other => {
             let info = other.info();
             Err(Error::invalid(
@@ -297,6 +316,11 @@ pub fn run_scene(
                 ..ReferenceSettings::default()
             };
             reference::render(scene, camera, &s, progress)
+        }
+        MethodSettings::Splat(s) if s.layers > 1 => {
+            let (out, _) = splat::render_scene(scene, camera, s)?;
+            progress(1, 1);
+            Ok(out)
         }
         MethodSettings::Multilayer(s) => {
             let out = multilayer::render(scene, camera, s)?;

@@ -13,6 +13,7 @@ mod reference;
 mod registry;
 mod scene_files;
 mod scenes;
+mod splat;
 
 /// Path of the shared assets folder, or `None` (with a printed reason) when it is absent.
 pub fn shared_assets() -> Option<std::path::PathBuf> {

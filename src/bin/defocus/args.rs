@@ -97,6 +97,10 @@ pub struct RenderArgs {
     /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
     pub timings: Option<TimingFormat>,
+    /// Say what was run: method, paper, lens, and the peak bytes of the method's own storage
+    /// where it tracks them (multilayer: fragment lists and filtered levels), on stderr.
+    #[arg(long, short)]
+    pub verbose: bool,
     /// EXR output options.
     #[command(flatten)]
     pub exr: crate::common::ExrArgs,

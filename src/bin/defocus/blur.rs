@@ -389,6 +389,7 @@ impl BlurJob {
             self.color.width(),
             self.color.height(),
             &timings,
+            output.memory_bytes,
         );
         Ok(())
     }

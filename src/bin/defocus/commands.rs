@@ -50,6 +50,7 @@ struct RenderJob {
     settings: MethodSettings,
     options: SceneOptions,
     exr: io::ExrOptions,
+    verbose: bool,
     out: PathBuf,
     depth_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
@@ -187,6 +188,7 @@ impl TryFrom<RenderArgs> for RenderJob {
             settings,
             options,
             exr: a.exr.options(),
+            verbose: a.verbose,
             out: a.out,
             depth_out: a.depth_out,
             timings: a.timings,
@@ -227,12 +229,35 @@ impl RenderJob {
             }
             anyhow::Ok(())
         })?;
+        if self.verbose {
+            let info = self.settings.info();
+            eprintln!("method: {} ({})", info.id, info.description);
+            if !info.paper.is_empty() {
+                eprintln!("paper: {}", info.paper);
+            }
+            if let Ok(lens) = self.camera.thin_lens() {
+                eprintln!(
+                    "lens: f_px {:.2}, lens radius {:.5} m, focus {:.4} m, CoC at infinity {:.2} px",
+                    lens.f_px,
+                    lens.lens_radius_m,
+                    lens.focus_m,
+                    lens.coc_at_infinity_px()
+                );
+            }
+            if let Some(bytes) = output.memory_bytes {
+                eprintln!(
+                    "memory: {bytes} bytes ({:.1} MiB) peak of the method's own storage",
+                    bytes as f64 / (1024.0 * 1024.0)
+                );
+            }
+        }
         report_timings(
             self.timings,
             method,
             self.camera.width_px,
             self.camera.height_px,
             &timings,
+            output.memory_bytes,
         );
         Ok(())
     }

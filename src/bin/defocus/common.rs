@@ -107,6 +107,7 @@ pub fn report_timings(
     width: usize,
     height: usize,
     timings: &Timings,
+    memory_bytes: Option<usize>,
 ) {
     match format {
         None => {}
@@ -124,6 +125,9 @@ pub fn report_timings(
                 eprintln!("{:<name_width$} {:>10.2}", p.name, p.ms);
             }
             eprintln!("{:<name_width$} {:>10.2}", "total", timings.total_ms());
+            if let Some(b) = memory_bytes {
+                eprintln!("{:<name_width$} {:>10.1}", "peak MiB", b as f64 / 1048576.0);
+            }
         }
         Some(TimingFormat::Json) => {
             let value = serde_json::json!({
@@ -132,6 +136,7 @@ pub fn report_timings(
                 "height": height,
                 "passes": timings.passes,
                 "total_ms": timings.total_ms(),
+                "memory_bytes": memory_bytes,
             });
             #[expect(
                 clippy::print_stdout,

@@ -11,6 +11,7 @@ use defocus::methods::lowrank::LowRankSettings;
 use defocus::methods::multilayer::{FilterSteps, MultilayerSettings};
 use defocus::methods::poisson::{self, PoissonSettings};
 use defocus::methods::registry::MethodSettings;
+use defocus::methods::splat::SplatSettings;
 
 use crate::common::parse_numbers;
 
@@ -25,10 +26,10 @@ pub enum HammonCoc {
 
 /// Options of the post-process methods (each applies to the methods its heading names).
 #[derive(Debug, Args, Clone)]
-#[command(next_help_heading = "Post-process methods (hammon, lowrank, gaussian, poisson)")]
+#[command(next_help_heading = "Method options (each names the methods it applies to)")]
 pub struct PostArgs {
-    /// Largest CoC radius in pixels the lowrank, gaussian and poisson methods blur; larger
-    /// blurs are clamped to it (0 to 512).
+    /// Largest CoC radius in pixels the lowrank, gaussian, poisson and splat methods blur;
+    /// larger blurs are clamped to it (greater than 0, at most 512).
     #[arg(
         long,
         default_value_t = 64.0,
@@ -135,6 +136,24 @@ pub struct PostArgs {
     /// poisson: taps per pixel, centre included (1 to 1024).
     #[arg(long, default_value_t = 32, value_name = "N")]
     pub taps: usize,
+
+    /// splat: merge M x M fragments before distribution where the blur hides it (1, 2 or 4).
+    #[arg(long, default_value_t = 1, value_name = "M", help_heading = "splat")]
+    pub merge: usize,
+    /// splat: fragments per pixel: 1 splats the pinhole frame, N > 1 (up to 16, `render` only)
+    /// the N nearest fragments of every pixel, so hidden surfaces show through near blur.
+    #[arg(long, default_value_t = 1, value_name = "N", help_heading = "splat")]
+    pub layers: usize,
+    /// splat: fragments whose CoCs differ by at most this many pixels are one surface (summed
+    /// before blending).
+    #[arg(
+        long,
+        default_value_t = 2.0,
+        value_name = "PX",
+        allow_negative_numbers = true,
+        help_heading = "splat"
+    )]
+    pub group: f32,
 
     /// multilayer: fragments kept per pixel, N (1 to 16; the paper keeps 3 or 4).
     #[arg(
@@ -275,6 +294,17 @@ impl PostArgs {
                     seed,
                     max_coc_px: self.max_coc,
                 })
+            }
+            "splat" => {
+                let sp = SplatSettings {
+                    aperture: aperture.clone(),
+                    merge: self.merge,
+                    layers: self.layers,
+                    group_px: self.group,
+                    max_coc_px: self.max_coc,
+                };
+                sp.validate().context("invalid splat option")?;
+                MethodSettings::Splat(sp)
             }
             "multilayer" => {
                 let m = MultilayerSettings {

@@ -1,0 +1,544 @@
+//! Pass `blend`: each pixel of a tile walks the tile's depth-sorted list front to back and
+//! blends every fragment that covers it (the poster's point: true depth order, unlike a
+//! gather).
+//!
+//! A fragment with signed CoC `C` centred at `p0` covers pixel `p` when `v = (p - p0) / C` lies
+//! in the unit aperture (a far-field bokeh shows the aperture as defined, a near-field one turned
+//! 180 degrees, as `reference`), with an edge one pixel soft (a merged fragment's as wide as its
+//! block) for the disc and straight-bladed polygons (coverage `clamp(1/2 - d, 0, 1)` with `d` the signed distance to the edge in
+//! pixels); curved blades and image apertures use their density. The radius is at least half
+//! a pixel, so an in-focus fragment covers exactly its own pixel. Its weight is the coverage
+//! times `1 / area`, the area of its footprint in pixels (summed exactly over the pixel grid
+//! below 4 px of radius, `area * C^2` above), so a point light keeps its energy.
+//!
+//! Fragments of one surface lie side by side, not in front of each other: consecutive
+//! fragments of a tile's sorted list whose CoCs are within `group_px` of the first of their run
+//! are one surface and are summed (a batch); the batches are blended front to back with the over
+//! operator. A batch is linear, so a fragment adds its fully covered span of each row through a
+//! difference array (constant work per row) and only its soft edge pixel by pixel; the batch is
+//! resolved over its bounding box when the next surface starts. A tile whose pixels are all
+//! opaque stops walking its list.
+//!
+//! Tiles are independent and run in parallel; within a tile fragments are taken in list order,
+//! so the result does not depend on the thread count.
+
+use glam::Vec2;
+use rayon::prelude::*;
+
+use super::build::{reach_px, SplatFragment, TileLists, TILE_PX};
+use crate::image::{ColorImage, Rgba};
+use crate::lens::Aperture;
+
+/// The aperture, prepared for coverage tests.
+#[derive(Clone, Debug)]
+pub struct Shape {
+    kind: ShapeKind,
+    /// Area of the unit aperture (pi for the disc).
+    area: f32,
+}
+
+#[derive(Clone, Debug)]
+enum ShapeKind {
+    Disc,
+    /// Outward unit normals of the edges and the apothem (distance of the edges from the
+    /// centre), in units of the aperture radius.
+    Polygon {
+        normals: Vec<Vec2>,
+        apothem: f32,
+    },
+    /// Curved blades or an image: the density, no soft edge.
+    Density(Aperture),
+}
+
+impl Shape {
+    /// Prepares `aperture`.
+    pub fn new(aperture: &Aperture) -> Self {
+        let kind = match aperture {
+            Aperture::Disc => ShapeKind::Disc,
+            Aperture::Polygon {
+                blade_radius: None, ..
+            } => {
+                let v = aperture.vertices();
+                let n = v.len();
+                let normals: Vec<Vec2> = (0..n)
+                    .map(|k| {
+                        let mid = (v[k] + v[(k + 1) % n]) * 0.5;
+                        mid.normalize()
+                    })
+                    .collect();
+                let apothem = ((v[0] + v[1 % n]) * 0.5).length();
+                ShapeKind::Polygon { normals, apothem }
+            }
+            other => ShapeKind::Density(other.clone()),
+        };
+        Self {
+            kind,
+            area: aperture.area(),
+        }
+    }
+
+    /// Coverage in [0, 1] of the pixel at offset `d_px` from a fragment's centre, for the
+    /// signed radius `c` (|c| >= 0.5) and an edge `soft_px` pixels wide (1, or the block size
+    /// of a merged fragment: the footprint of a block is its disc widened by the block).
+    #[inline]
+    pub fn coverage(&self, d_px: Vec2, c: f32, soft_px: f32) -> f32 {
+        let r = c.abs();
+        let v = d_px / c;
+        let inv = 1.0 / soft_px;
+        match &self.kind {
+            ShapeKind::Disc => (0.5 - (v.length() - 1.0) * r * inv).clamp(0.0, 1.0),
+            ShapeKind::Polygon { normals, apothem } => {
+                let mut m = f32::MIN;
+                for n in normals {
+                    m = m.max(n.dot(v));
+                }
+                (0.5 - (m - apothem) * r * inv).clamp(0.0, 1.0)
+            }
+            ShapeKind::Density(a) => a.density(v),
+        }
+    }
+
+    /// `1 / (summed coverage)`: the weight that makes a fragment's footprint sum to 1.
+    pub fn norm(&self, centre: Vec2, c: f32, soft_px: f32) -> f32 {
+        let r = c.abs();
+        if r >= 4.0 {
+            return 1.0 / (self.area * r * r);
+        }
+        let reach = reach_px(c, soft_px);
+        let (x0, x1) = (
+            (centre.x - reach).floor() as i64,
+            (centre.x + reach).ceil() as i64,
+        );
+        let (y0, y1) = (
+            (centre.y - reach).floor() as i64,
+            (centre.y + reach).ceil() as i64,
+        );
+        let mut sum = 0.0f32;
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let d = Vec2::new(x as f32 + 0.5, y as f32 + 0.5) - centre;
+                sum += self.coverage(d, c, soft_px);
+            }
+        }
+        if sum > 0.0 {
+            1.0 / sum
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The signed radius a fragment is drawn with: its CoC, at least half a pixel.
+#[inline]
+pub fn draw_radius(coc_px: f32) -> f32 {
+    if coc_px.abs() < 0.5 {
+        0.5
+    } else {
+        coc_px
+    }
+}
+
+/// What the blend pass reads besides the tile lists.
+pub struct BlendInput<'a> {
+    /// The fragments.
+    pub fragments: &'a [SplatFragment],
+    /// `norms[i]`: fragment i's weight normalisation ([`Shape::norm`]).
+    pub norms: &'a [f32],
+    /// The aperture.
+    pub shape: &'a Shape,
+    /// CoC difference in pixels within which fragments are one surface.
+    pub group_px: f32,
+    /// Block size of merged fragments.
+    pub merge: usize,
+}
+
+/// Most polygon blades handled by the fast row spans (more fall back to per-pixel density).
+const MAX_BLADES: usize = 16;
+
+/// One fragment's footprint, prepared for its rows: the shape at signed radius `c` with an
+/// edge `soft` pixels wide, in pixel units.
+struct Footprint<'a> {
+    shape: &'a Shape,
+    c: f32,
+    r: f32,
+    soft: f32,
+    inv_soft: f32,
+    /// Disc: squared radii of the outer (coverage above 0) and inner (coverage 1) discs.
+    outer2: f32,
+    inner2: f32,
+    /// Polygon: the edges' outward normals in pixel space (turned for a negative CoC), their
+    /// distance from the centre in pixels, and `1 / normal.x`.
+    blades: usize,
+    nx: [f32; MAX_BLADES],
+    ny: [f32; MAX_BLADES],
+    inv_nx: [f32; MAX_BLADES],
+    dist: f32,
+}
+
+impl<'a> Footprint<'a> {
+    #[inline]
+    fn new(shape: &'a Shape, c: f32, soft: f32) -> Self {
+        let r = c.abs();
+        let (o, i) = (r + 0.5 * soft, r - 0.5 * soft);
+        let mut fp = Self {
+            shape,
+            c,
+            r,
+            soft,
+            inv_soft: 1.0 / soft,
+            outer2: o * o,
+            inner2: if i > 0.0 { i * i } else { -1.0 },
+            blades: 0,
+            nx: [0.0; MAX_BLADES],
+            ny: [0.0; MAX_BLADES],
+            inv_nx: [0.0; MAX_BLADES],
+            dist: 0.0,
+        };
+        if let ShapeKind::Polygon { normals, apothem } = &shape.kind {
+            if normals.len() <= MAX_BLADES {
+                let sign = c.signum();
+                fp.blades = normals.len();
+                for (k, n) in normals.iter().enumerate() {
+                    fp.nx[k] = sign * n.x;
+                    fp.ny[k] = sign * n.y;
+                    fp.inv_nx[k] = if fp.nx[k].abs() < 1e-6 {
+                        0.0
+                    } else {
+                        1.0 / fp.nx[k]
+                    };
+                }
+                fp.dist = apothem * r;
+            }
+        }
+        fp
+    }
+
+    /// The outer and inner spans of row offset `dy` (pixel offsets from the centre where the
+    /// coverage is above 0, and exactly 1); `None` when the row misses; an outer `None` inside
+    /// `Some` means "evaluate every pixel" (density shapes).
+    #[inline]
+    #[expect(clippy::type_complexity, reason = "two optional intervals, read once")]
+    fn spans(&self, dy: f32) -> Option<(Option<(f32, f32)>, Option<(f32, f32)>)> {
+        match self.shape.kind {
+            ShapeKind::Disc => {
+                let d2 = dy * dy;
+                let o = self.outer2 - d2;
+                if o < 0.0 {
+                    return None;
+                }
+                let ho = o.sqrt();
+                let i = self.inner2 - d2;
+                let inner = (self.inner2 >= 0.0 && i >= 0.0).then(|| {
+                    let hi = i.sqrt();
+                    (-hi, hi)
+                });
+                Some((Some((-ho, ho)), inner))
+            }
+            ShapeKind::Polygon { .. } if self.blades > 0 => {
+                // Edge k keeps nx dx <= dist + grow - ny dy.
+                let g = 0.5 * self.soft;
+                let (mut olo, mut ohi) = (f32::NEG_INFINITY, f32::INFINITY);
+                let (mut ilo, mut ihi) = (f32::NEG_INFINITY, f32::INFINITY);
+                for k in 0..self.blades {
+                    let base = self.dist - self.ny[k] * dy;
+                    let (to, ti) = (base + g, base - g);
+                    let inv = self.inv_nx[k];
+                    if inv == 0.0 {
+                        if to < 0.0 {
+                            return None;
+                        }
+                        if ti < 0.0 {
+                            ilo = f32::INFINITY;
+                        }
+                    } else if inv > 0.0 {
+                        let (a, b) = (to * inv, ti * inv);
+                        if a < ohi {
+                            ohi = a;
+                        }
+                        if b < ihi {
+                            ihi = b;
+                        }
+                    } else {
+                        let (a, b) = (to * inv, ti * inv);
+                        if a > olo {
+                            olo = a;
+                        }
+                        if b > ilo {
+                            ilo = b;
+                        }
+                    }
+                }
+                if olo > ohi {
+                    return None;
+                }
+                Some((Some((olo, ohi)), (ilo <= ihi).then_some((ilo, ihi))))
+            }
+            _ => Some((None, None)),
+        }
+    }
+
+    /// Coverage of the pixel at offset `(dx, dy)`.
+    #[inline]
+    fn coverage(&self, dx: f32, dy: f32) -> f32 {
+        match self.shape.kind {
+            ShapeKind::Disc => {
+                let d = (dx * dx + dy * dy).sqrt();
+                (0.5 - (d - self.r) * self.inv_soft).clamp(0.0, 1.0)
+            }
+            ShapeKind::Polygon { .. } if self.blades > 0 => {
+                let mut m = f32::NEG_INFINITY;
+                for k in 0..self.blades {
+                    let v = self.nx[k] * dx + self.ny[k] * dy;
+                    if v > m {
+                        m = v;
+                    }
+                }
+                (0.5 - (m - self.dist) * self.inv_soft).clamp(0.0, 1.0)
+            }
+            _ => self.shape.coverage(Vec2::new(dx, dy), self.c, self.soft),
+        }
+    }
+}
+
+/// Per-tile blending state: the output, the transmittance, and the current batch (one surface)
+/// as a per-row difference array for fully covered spans plus direct sums for edge pixels.
+struct TileState {
+    w: usize,
+    out: Vec<Rgba>,
+    transmit: Vec<f32>,
+    /// `w + 1` entries per row.
+    diff: Vec<Rgba>,
+    edge: Vec<Rgba>,
+    /// Bounding box of what the batch touched: x0, x1 (exclusive), y0, y1 (exclusive).
+    touched: (usize, usize, usize, usize),
+    /// Pixels not yet opaque.
+    open: usize,
+}
+
+impl TileState {
+    fn new(w: usize, h: usize) -> Self {
+        Self {
+            w,
+            out: vec![[0.0; 4]; w * h],
+            transmit: vec![1.0; w * h],
+            diff: vec![[0.0; 4]; (w + 1) * h],
+            edge: vec![[0.0; 4]; w * h],
+            touched: (usize::MAX, 0, usize::MAX, 0),
+            open: w * h,
+        }
+    }
+
+    #[inline]
+    fn touch(&mut self, x0: usize, x1: usize, y: usize) {
+        let t = &mut self.touched;
+        t.0 = t.0.min(x0);
+        t.1 = t.1.max(x1);
+        t.2 = t.2.min(y);
+        t.3 = t.3.max(y + 1);
+    }
+
+    /// Blends the batch over what is behind... in front of it: the batch is behind everything
+    /// blended so far, so it is seen through the transmittance.
+    fn flush(&mut self) {
+        let (x0, x1, y0, y1) = self.touched;
+        if x0 >= x1 {
+            return;
+        }
+        let w = self.w;
+        for y in y0..y1 {
+            let mut run = [0.0f32; 4];
+            for x in x0..x1 {
+                let d = &mut self.diff[y * (w + 1) + x];
+                for k in 0..4 {
+                    run[k] += d[k];
+                }
+                *d = [0.0; 4];
+                let i = y * w + x;
+                let e = std::mem::take(&mut self.edge[i]);
+                let g = [run[0] + e[0], run[1] + e[1], run[2] + e[2], run[3] + e[3]];
+                if g[3] <= 0.0 && g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0 {
+                    continue;
+                }
+                let t = self.transmit[i];
+                if t < OPAQUE {
+                    continue;
+                }
+                let scale = if g[3] > 1.0 { 1.0 / g[3] } else { 1.0 };
+                let a = (g[3] * scale).clamp(0.0, 1.0);
+                let o = &mut self.out[i];
+                for k in 0..3 {
+                    o[k] += t * g[k] * scale;
+                }
+                o[3] += t * a;
+                let nt = t * (1.0 - a);
+                if nt < OPAQUE {
+                    self.open -= 1;
+                }
+                self.transmit[i] = nt;
+            }
+            self.diff[y * (w + 1) + x1] = [0.0; 4];
+        }
+        self.touched = (usize::MAX, 0, usize::MAX, 0);
+    }
+}
+
+/// `floor` without a libm call (the x86-64 baseline has no rounding instruction), for values
+/// well inside the `i32` range, as pixel coordinates are.
+#[inline]
+fn floor_px(v: f32) -> f32 {
+    let t = v as i32 as f32;
+    if t > v {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
+/// `ceil` without a libm call (see [`floor_px`]).
+#[inline]
+fn ceil_px(v: f32) -> f32 {
+    let t = v as i32 as f32;
+    if t < v {
+        t + 1.0
+    } else {
+        t
+    }
+}
+
+/// `floor` as an integer without a libm call (the x86-64 baseline has no rounding
+/// instruction); saturates far outside the image.
+#[inline]
+fn floor_i(v: f32) -> i32 {
+    let t = v as i32;
+    t - i32::from((t as f32) > v)
+}
+
+/// `ceil` as an integer (see [`floor_i`]).
+#[inline]
+fn ceil_i(v: f32) -> i32 {
+    let t = v as i32;
+    t + i32::from((t as f32) < v)
+}
+
+/// Transmittance below which a pixel counts as opaque.
+const OPAQUE: f32 = 1e-5;
+
+/// Blends every tile (see the module documentation).
+pub fn blend(input: &BlendInput, lists: &TileLists, width: usize, height: usize) -> ColorImage {
+    let BlendInput {
+        fragments,
+        norms,
+        shape,
+        group_px,
+        merge,
+    } = *input;
+    let tiles: Vec<Vec<Rgba>> = (0..lists.tiles_x * lists.tiles_y)
+        .into_par_iter()
+        .map(|t| {
+            let (tx, ty) = (t % lists.tiles_x, t / lists.tiles_x);
+            let x0 = tx * TILE_PX;
+            let y0 = ty * TILE_PX;
+            let x1 = (x0 + TILE_PX).min(width);
+            let y1 = (y0 + TILE_PX).min(height);
+            let tw = x1 - x0;
+            let mut st = TileState::new(tw, y1 - y0);
+            let mut batch_coc = f32::NAN;
+            for &(_, idx) in &lists.entries[lists.offsets[t]..lists.offsets[t + 1]] {
+                let f = &fragments[idx as usize];
+                // The list is in depth (CoC) order: a fragment beyond the batch's CoC range
+                // opens the next surface.
+                let same_surface = (f.coc_px - batch_coc).abs() <= group_px;
+                if !same_surface {
+                    st.flush();
+                    if st.open == 0 {
+                        break;
+                    }
+                    batch_coc = f.coc_px;
+                }
+                let centre = f.centre();
+                let c = draw_radius(f.coc_px);
+                let soft = f.soft_px(merge);
+                let reach = reach_px(f.coc_px, soft);
+                let py0 = (floor_px(centre.y - reach).max(y0 as f32) as usize).max(y0);
+                let py1 = (ceil_px(centre.y + reach).max(0.0) as usize + 1).min(y1);
+                let bx0 = (floor_px(centre.x - reach).max(x0 as f32) as usize).max(x0);
+                let bx1 = (ceil_px(centre.x + reach).max(0.0) as usize + 1).min(x1);
+                if bx0 >= bx1 || py0 >= py1 {
+                    continue;
+                }
+                let col = f.rgba();
+                let norm = norms[idx as usize];
+                let wcol = col.map(|v| v * norm);
+                // Pixel x is inside offsets [lo, hi] when lo <= x + 0.5 - cx <= hi.
+                let (bx0i, bx1i) = (bx0 as i32, bx1 as i32);
+                let first = |lo: f32| ceil_i(centre.x + lo - 0.5).clamp(bx0i, bx1i) as usize;
+                let last = |hi: f32| (floor_i(centre.x + hi - 0.5) + 1).clamp(bx0i, bx1i) as usize;
+                let fp = Footprint::new(shape, c, soft);
+                for py in py0..py1 {
+                    let dy = py as f32 + 0.5 - centre.y;
+                    let row = py - y0;
+                    let Some((outer, inner)) = fp.spans(dy) else {
+                        continue;
+                    };
+                    let (ox0, ox1) = match outer {
+                        Some((lo, hi)) => (first(lo), last(hi)),
+                        None => (bx0, bx1),
+                    };
+                    if ox0 >= ox1 {
+                        continue;
+                    }
+                    let (ix0, ix1) = match inner {
+                        Some((lo, hi)) => {
+                            let (a, b) = (first(lo).max(ox0), last(hi).min(ox1));
+                            if a < b {
+                                (a, b)
+                            } else {
+                                (ox0, ox0)
+                            }
+                        }
+                        None => (ox0, ox0),
+                    };
+                    st.touch(ox0 - x0, ox1 - x0, row);
+                    let edge_row = &mut st.edge[row * tw..(row + 1) * tw];
+                    if ix0 < ix1 {
+                        let base = row * (tw + 1);
+                        let (a, b) = (base + ix0 - x0, base + ix1 - x0);
+                        for (k, v) in wcol.iter().enumerate() {
+                            st.diff[a][k] += v;
+                            st.diff[b][k] -= v;
+                        }
+                        for px in (ox0..ix0).chain(ix1..ox1) {
+                            let cov = fp.coverage(px as f32 + 0.5 - centre.x, dy);
+                            let e = &mut edge_row[px - x0];
+                            for k in 0..4 {
+                                e[k] += cov * wcol[k];
+                            }
+                        }
+                    } else {
+                        for px in ox0..ox1 {
+                            let cov = fp.coverage(px as f32 + 0.5 - centre.x, dy);
+                            let e = &mut edge_row[px - x0];
+                            for k in 0..4 {
+                                e[k] += cov * wcol[k];
+                            }
+                        }
+                    }
+                }
+            }
+            st.flush();
+            st.out
+        })
+        .collect();
+    let mut data = vec![[0.0f32; 4]; width * height];
+    for (t, tile) in tiles.into_iter().enumerate() {
+        let (tx, ty) = (t % lists.tiles_x, t / lists.tiles_x);
+        let x0 = tx * TILE_PX;
+        let y0 = ty * TILE_PX;
+        let tw = (x0 + TILE_PX).min(width) - x0;
+        for (row, chunk) in tile.chunks(tw.max(1)).enumerate() {
+            let dst = (y0 + row) * width + x0;
+            data[dst..dst + chunk.len()].copy_from_slice(chunk);
+        }
+    }
+    ColorImage::from_vec(width, height, data).expect("sizes agree by construction")
+}

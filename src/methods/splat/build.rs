@@ -1,0 +1,311 @@
+//! Pass `build`: the splat fragments (the poster's compact 16-byte format), optional merging of
+//! 2x2 or 4x4 fragments, and their distribution into the lists of every 16x16 tile their shape
+//! overlaps: count per tile, prefix sum, fill, in parallel over chunks of fragments with no
+//! locks (each chunk lays out its own entries by tile, then each tile gathers its runs).
+
+use glam::Vec2;
+use half::f16;
+use rayon::prelude::*;
+
+use crate::image::{ColorImage, GrayImage, Rgba};
+use crate::lens::ThinLens;
+use crate::raster::{from_half, FragmentLists};
+
+/// Tile side in pixels (the poster's 16x16).
+pub const TILE_PX: usize = 16;
+
+/// The poster's compact fragment: 16-bit colour, 16-bit position, 32-bit CoC (16 bytes). The
+/// CoC also orders fragments by depth (it grows monotonically with depth).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C)]
+pub struct SplatFragment {
+    /// Premultiplied linear RGBA, half precision, times the number of pixels the fragment
+    /// stands for (1, or 4 / 16 when merged).
+    pub color: [f16; 4],
+    /// Centre in half pixels (x, y): pixel `(i, j)`'s centre is `(2i + 1, 2j + 1)`.
+    pub pos_half_px: [u16; 2],
+    /// Signed CoC radius in pixels.
+    pub coc_px: f32,
+}
+
+impl SplatFragment {
+    /// Centre in pixels.
+    #[inline]
+    pub fn centre(&self) -> Vec2 {
+        Vec2::new(
+            self.pos_half_px[0] as f32 * 0.5,
+            self.pos_half_px[1] as f32 * 0.5,
+        )
+    }
+
+    /// Width in pixels of the soft edge of its footprint: 1, or the block size `merge` for a
+    /// merged fragment (merged fragments sit on whole pixels, single ones on pixel centres).
+    #[inline]
+    pub fn soft_px(&self, merge: usize) -> f32 {
+        if self.pos_half_px[0] % 2 == 0 {
+            merge as f32
+        } else {
+            1.0
+        }
+    }
+
+    /// Colour in f32.
+    #[inline]
+    pub fn rgba(&self) -> Rgba {
+        from_half(&self.color)
+    }
+}
+
+/// Largest image side the 16-bit half-pixel positions address.
+pub const MAX_SIDE_PX: usize = 32767;
+
+fn fragment(x2: u32, y2: u32, c: Rgba, coc_px: f32) -> SplatFragment {
+    SplatFragment {
+        color: crate::raster::to_half(c),
+        pos_half_px: [x2 as u16, y2 as u16],
+        coc_px,
+    }
+}
+
+/// Fragments of one layer: every pixel of a colour + CoC frame with some opacity.
+pub fn from_frame(color: &ColorImage, coc_px: &GrayImage) -> Vec<Vec<(Rgba, f32)>> {
+    color
+        .pixels()
+        .iter()
+        .zip(coc_px.pixels())
+        .map(|(&c, &k)| if c[3] > 0.0 { vec![(c, k)] } else { Vec::new() })
+        .collect()
+}
+
+/// Fragments of fragment lists (multi-layer input), per pixel. Consecutive fragments of a
+/// pixel whose CoCs differ by at most `group_px` are one surface seen twice (the front and back
+/// faces of a thin double-sided object): they are combined with the over operator first, so a
+/// surface is never counted twice.
+pub fn from_lists(lists: &FragmentLists, lens: &ThinLens, group_px: f32) -> Vec<Vec<(Rgba, f32)>> {
+    let w = lists.width();
+    (0..w * lists.height())
+        .map(|i| {
+            let (depths, colors) = lists.pixel(i % w, i / w);
+            let mut out: Vec<(Rgba, f32)> = Vec::with_capacity(depths.len());
+            for (&z, c) in depths.iter().zip(colors) {
+                let k = lens.coc_px(z);
+                let c = from_half(c);
+                match out.last_mut() {
+                    Some((acc, k0)) if (k - *k0).abs() <= group_px => {
+                        let t = 1.0 - acc[3];
+                        for (a, v) in acc.iter_mut().zip(c) {
+                            *a += t * v;
+                        }
+                    }
+                    _ => out.push((c, k)),
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+/// Turns per-pixel layers into splat fragments, merging `merge` x `merge` blocks (1, 2 or 4)
+/// where the blur hides it: every pixel of the block has the same number of layers, and each
+/// layer's CoCs are within `group_px` of each other and at least `merge` pixels in radius, so
+/// in-focus detail is never merged. A merged fragment sits at the block centre with the mean
+/// CoC and the summed colour of the block (it stands for `merge^2` pixels).
+pub fn fragments(
+    layers: &[Vec<(Rgba, f32)>],
+    width: usize,
+    height: usize,
+    merge: usize,
+    group_px: f32,
+) -> Vec<SplatFragment> {
+    let m = merge.max(1);
+    let bw = width.div_ceil(m);
+    let bh = height.div_ceil(m);
+    let rows: Vec<Vec<SplatFragment>> = (0..bh)
+        .into_par_iter()
+        .map(|by| {
+            let mut out = Vec::new();
+            for bx in 0..bw {
+                let (x0, y0) = (bx * m, by * m);
+                let (x1, y1) = ((x0 + m).min(width), (y0 + m).min(height));
+                let full = x1 - x0 == m && y1 - y0 == m;
+                let first = &layers[y0 * width + x0];
+                let mergeable = m > 1
+                    && full
+                    && !first.is_empty()
+                    && (y0..y1).all(|y| {
+                        (x0..x1).all(|x| {
+                            let l = &layers[y * width + x];
+                            l.len() == first.len()
+                                && l.iter().zip(first).all(|(a, b)| {
+                                    (a.1 - b.1).abs() <= group_px && a.1.abs() >= m as f32
+                                })
+                        })
+                    });
+                if mergeable {
+                    for j in 0..first.len() {
+                        let mut c = [0.0f32; 4];
+                        let mut k = 0.0f32;
+                        for y in y0..y1 {
+                            for layer in &layers[y * width + x0..y * width + x1] {
+                                let (v, kk) = layer[j];
+                                for (a, b) in c.iter_mut().zip(v) {
+                                    *a += b;
+                                }
+                                k += kk;
+                            }
+                        }
+                        k /= (m * m) as f32;
+                        // Block centre in half pixels: x0 + m/2 pixels.
+                        out.push(fragment((2 * x0 + m) as u32, (2 * y0 + m) as u32, c, k));
+                    }
+                } else {
+                    for y in y0..y1 {
+                        for x in x0..x1 {
+                            for &(c, k) in &layers[y * width + x] {
+                                out.push(fragment((2 * x + 1) as u32, (2 * y + 1) as u32, c, k));
+                            }
+                        }
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    rows.concat()
+}
+
+/// Radius in pixels within which a fragment's shape (with its soft edge `soft_px` wide) can
+/// cover a pixel centre: `max(|C|, 0.5) + soft_px`.
+#[inline]
+pub fn reach_px(coc_px: f32, soft_px: f32) -> f32 {
+    coc_px.abs().max(0.5) + soft_px
+}
+
+/// Tile lists: tile `t` holds the fragment indices `entries[offsets[t]..offsets[t + 1]]` with
+/// their sort keys, in order of entry (fragment order) until sorted.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TileLists {
+    /// Tiles per row.
+    pub tiles_x: usize,
+    /// Rows of tiles.
+    pub tiles_y: usize,
+    /// Prefix sum of list lengths, `tiles_x * tiles_y + 1` entries.
+    pub offsets: Vec<usize>,
+    /// (depth key, fragment index) of every list entry.
+    pub entries: Vec<(u32, u32)>,
+}
+
+impl TileLists {
+    /// Mean list length over the tiles.
+    pub fn mean_length(&self) -> f64 {
+        self.entries.len() as f64 / (self.tiles_x * self.tiles_y).max(1) as f64
+    }
+}
+
+/// One chunk's entries laid out by tile: per-tile offsets and (key, fragment) pairs.
+type ChunkLists = (Vec<usize>, Vec<(u32, u32)>);
+
+/// The tiles `[tx0, tx1] x [ty0, ty1]` a fragment's shape overlaps.
+#[inline]
+fn tile_range(
+    f: &SplatFragment,
+    merge: usize,
+    tiles_x: usize,
+    tiles_y: usize,
+) -> (usize, usize, usize, usize) {
+    let c = f.centre();
+    let r = reach_px(f.coc_px, f.soft_px(merge));
+    let t = TILE_PX as f32;
+    let clamp = |v: f32, n: usize| ((v / t).floor().max(0.0) as usize).min(n - 1);
+    (
+        clamp(c.x - r, tiles_x),
+        clamp(c.x + r, tiles_x),
+        clamp(c.y - r, tiles_y),
+        clamp(c.y + r, tiles_y),
+    )
+}
+
+/// Distributes `fragments` into the lists of the tiles they overlap (count, prefix sum, fill).
+pub fn distribute(
+    fragments: &[SplatFragment],
+    merge: usize,
+    width: usize,
+    height: usize,
+) -> TileLists {
+    let tiles_x = width.div_ceil(TILE_PX).max(1);
+    let tiles_y = height.div_ceil(TILE_PX).max(1);
+    let tiles = tiles_x * tiles_y;
+    let chunk = fragments.len().div_ceil(16).max(1024);
+    let chunks: Vec<&[SplatFragment]> = fragments.chunks(chunk).collect();
+    // Count per chunk and tile.
+    let counts: Vec<Vec<u32>> = chunks
+        .par_iter()
+        .map(|ch| {
+            let mut count = vec![0u32; tiles];
+            for f in ch.iter() {
+                let (x0, x1, y0, y1) = tile_range(f, merge, tiles_x, tiles_y);
+                for ty in y0..=y1 {
+                    for tx in x0..=x1 {
+                        count[ty * tiles_x + tx] += 1;
+                    }
+                }
+            }
+            count
+        })
+        .collect();
+    // Each chunk lays its entries out by tile (its own prefix sum), in fragment order.
+    let local: Vec<ChunkLists> = chunks
+        .par_iter()
+        .zip(counts.par_iter())
+        .enumerate()
+        .map(|(c, (ch, count))| {
+            let mut off = vec![0usize; tiles + 1];
+            for t in 0..tiles {
+                off[t + 1] = off[t] + count[t] as usize;
+            }
+            let mut cursor = off.clone();
+            let mut buf = vec![(0u32, 0u32); off[tiles]];
+            let first = c * chunk;
+            for (i, f) in ch.iter().enumerate() {
+                let (x0, x1, y0, y1) = tile_range(f, merge, tiles_x, tiles_y);
+                let k = super::sort::key(f.coc_px);
+                for ty in y0..=y1 {
+                    for tx in x0..=x1 {
+                        let slot = &mut cursor[ty * tiles_x + tx];
+                        buf[*slot] = (k, (first + i) as u32);
+                        *slot += 1;
+                    }
+                }
+            }
+            (off, buf)
+        })
+        .collect();
+    // Prefix sum over tiles; each tile's list is its chunks' runs in chunk order, so every
+    // list is in fragment order whatever the thread count.
+    let mut offsets = vec![0usize; tiles + 1];
+    for t in 0..tiles {
+        offsets[t + 1] = offsets[t] + counts.iter().map(|c| c[t] as usize).sum::<usize>();
+    }
+    let mut entries = vec![(0u32, 0u32); offsets[tiles]];
+    let mut slices: Vec<&mut [(u32, u32)]> = Vec::with_capacity(tiles);
+    let mut rest: &mut [(u32, u32)] = &mut entries;
+    for t in 0..tiles {
+        let (head, tail) = rest.split_at_mut(offsets[t + 1] - offsets[t]);
+        slices.push(head);
+        rest = tail;
+    }
+    slices.into_par_iter().enumerate().for_each(|(t, dst)| {
+        let mut at = 0;
+        for (off, buf) in &local {
+            let run = &buf[off[t]..off[t + 1]];
+            dst[at..at + run.len()].copy_from_slice(run);
+            at += run.len();
+        }
+    });
+    TileLists {
+        tiles_x,
+        tiles_y,
+        offsets,
+        entries,
+    }
+}
