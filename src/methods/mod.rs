@@ -15,6 +15,7 @@ pub mod gaussian;
 pub mod hammon;
 pub mod lowrank;
 pub mod multilayer;
+pub mod multiview;
 pub mod pinhole;
 pub mod poisson;
 pub mod reference;

@@ -12,6 +12,7 @@ use super::gaussian::{self, GaussianSettings};
 use super::hammon::{self, HammonSettings};
 use super::lowrank::{self, LowRankSettings};
 use super::multilayer::{self, MultilayerSettings};
+use super::multiview::{self, MultiviewSettings};
 use super::poisson::{self, PoissonSettings};
 use super::reference::{self, ReferenceSettings};
 use super::splat::{self, SplatSettings};
@@ -111,6 +112,12 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Selgrad et al. 2015, Real-time depth of field using multi-layer filtering",
         input: InputKind::FragmentLists,
     },
+    MethodInfo {
+        id: "multiview",
+        description: "lens rays traced through CoC-spaced depth layers rendered once: reference-like, cost independent of the scene",
+        paper: "Lee, Eisemann, Seidel 2009, Depth-of-field rendering with multiview synthesis",
+        input: InputKind::DepthLayers,
+    },
 ];
 
 /// The registry entry of `id`, or an error listing the known ids.
@@ -170,6 +177,8 @@ pub enum MethodSettings {
     Splat(SplatSettings),
     /// `multilayer`.
     Multilayer(MultilayerSettings),
+    /// `multiview`.
+    Multiview(MultiviewSettings),
 }
 
 impl MethodSettings {
@@ -184,6 +193,7 @@ impl MethodSettings {
             "poisson" => Self::Poisson(PoissonSettings::default()),
             "splat" => Self::Splat(SplatSettings::default()),
             "multilayer" => Self::Multilayer(MultilayerSettings::default()),
+            "multiview" => Self::Multiview(MultiviewSettings::default()),
             other => {
                 return Err(Error::invalid(
                     "method",
@@ -204,6 +214,7 @@ impl MethodSettings {
             Self::Poisson(_) => "poisson",
             Self::Splat(_) => "splat",
             Self::Multilayer(_) => "multilayer",
+            Self::Multiview(_) => "multiview",
         }
     }
 
@@ -319,6 +330,11 @@ pub fn run_scene(
         }
         MethodSettings::Splat(s) if s.layers > 1 => {
             let (out, _) = splat::render_scene(scene, camera, s)?;
+            progress(1, 1);
+            Ok(out)
+        }
+        MethodSettings::Multiview(s) => {
+            let out = multiview::render(scene, camera, s)?;
             progress(1, 1);
             Ok(out)
         }

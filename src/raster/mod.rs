@@ -21,10 +21,12 @@
 //! perspective-correct interpolation work unchanged.
 //!
 //! Sinks: [`GBuffer`] (nearest opaque surface with transparent surfaces composited over it) and
-//! [`FragmentLists`] (every fragment of a pixel, depth-sorted, capped at N).
+//! [`FragmentLists`] (every fragment of a pixel, depth-sorted, capped at N) and [`DepthLayers`]
+//! (the nearest surface within each of several CoC-spaced depth intervals).
 
 mod fragments;
 mod gbuffer;
+mod layers;
 mod setup;
 mod shade;
 pub mod views;
@@ -36,6 +38,7 @@ pub use fragments::{
     from_half, to_half, FragmentLists, FragmentTile, HalfRgba, MAX_FRAGMENTS_PER_PIXEL,
 };
 pub use gbuffer::{GBuffer, GBufferTile};
+pub use layers::{DepthLayers, LayerSpacing, LayersTile};
 pub use setup::SetupTriangle;
 pub use views::{accumulate_views, render_view, sample_view, ViewPassLabels};
 
@@ -238,6 +241,11 @@ impl<'a> PreparedScene<'a> {
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.triangles.len()
+    }
+
+    /// Vertex positions in camera space (metres).
+    pub fn positions(&self) -> &[Vec3] {
+        &self.positions
     }
 }
 

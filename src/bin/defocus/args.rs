@@ -47,7 +47,8 @@ pub struct RenderArgs {
     /// DoF method (the library's registry).
     #[arg(long, default_value = "reference", value_parser = method_parser())]
     pub method: String,
-    /// Samples: lens views for `reference` (default 256); samples per pixel for `pinhole`
+    /// Samples: lens views for `reference` (default 256); lens rays per pixel for `multiview`
+    /// (default 32); samples per pixel for `pinhole`
     /// (default 1 = pixel centres) and for the anti-aliased pinhole frame that the post-process
     /// methods blur (default 16, within 0.5 dB of a 256-sample frame on `railing` and `grass`;
     /// depth stays at pixel centres, as a renderer's Z pass).

@@ -6,6 +6,7 @@ use anyhow::{bail, Context, Result};
 use defocus::autofocus;
 use defocus::image::io;
 use defocus::lens::{Camera, SamplerKind};
+use defocus::methods::multiview::MultiviewSettings;
 use defocus::methods::reference::ReferenceSettings;
 use defocus::methods::registry::{
     self, MethodSettings, PinholeSettings, SceneOptions, DEFAULT_FRAME_SAMPLES,
@@ -168,6 +169,15 @@ impl TryFrom<RenderArgs> for RenderJob {
                     sampler,
                     seed: a.seed,
                 }),
+                MethodSettings::Multiview(m) => {
+                    let m = MultiviewSettings {
+                        samples: a.samples.unwrap_or(m.samples),
+                        sampler,
+                        ..m
+                    };
+                    m.validate().context("invalid multiview option")?;
+                    MethodSettings::Multiview(m)
+                }
                 other => other,
             };
         let options = SceneOptions {

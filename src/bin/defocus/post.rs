@@ -9,6 +9,7 @@ use defocus::methods::gaussian::GaussianSettings;
 use defocus::methods::hammon::{CocMode, HammonSettings, LerpDistances};
 use defocus::methods::lowrank::LowRankSettings;
 use defocus::methods::multilayer::{FilterSteps, MultilayerSettings};
+use defocus::methods::multiview::{LayerCount, MultiviewSettings};
 use defocus::methods::poisson::{self, PoissonSettings};
 use defocus::methods::registry::MethodSettings;
 use defocus::methods::splat::SplatSettings;
@@ -140,10 +141,12 @@ pub struct PostArgs {
     /// splat: merge M x M fragments before distribution where the blur hides it (1, 2 or 4).
     #[arg(long, default_value_t = 1, value_name = "M", help_heading = "splat")]
     pub merge: usize,
-    /// splat: fragments per pixel: 1 splats the pinhole frame, N > 1 (up to 16, `render` only)
-    /// the N nearest fragments of every pixel, so hidden surfaces show through near blur.
-    #[arg(long, default_value_t = 1, value_name = "N", help_heading = "splat")]
-    pub layers: usize,
+    /// splat: fragments per pixel: 1 (default) splats the pinhole frame, N > 1 (up to 16,
+    /// `render` only) the N nearest fragments of every pixel, so hidden surfaces show through
+    /// near blur. multiview: the number of depth layers (1 to 64) [default: from
+    /// --layer-spacing].
+    #[arg(long, value_name = "N", help_heading = "splat, multiview")]
+    pub layers: Option<usize>,
     /// splat: fragments whose CoCs differ by at most this many pixels are one surface (summed
     /// before blending).
     #[arg(
@@ -154,6 +157,26 @@ pub struct PostArgs {
         help_heading = "splat"
     )]
     pub group: f32,
+
+    /// multiview: spacing of the depth layers in pixels of CoC (the paper's delta).
+    #[arg(
+        long,
+        default_value_t = 4.0,
+        value_name = "PX",
+        allow_negative_numbers = true,
+        conflicts_with = "layers",
+        help_heading = "multiview"
+    )]
+    pub layer_spacing: f32,
+    /// multiview: no approximate cone tracing (plain rays).
+    #[arg(long, help_heading = "multiview")]
+    pub no_cone: bool,
+    /// multiview: the same lens samples for every pixel (no jitter).
+    #[arg(long, help_heading = "multiview")]
+    pub no_jitter: bool,
+    /// multiview: no early layer culling (same image, slower).
+    #[arg(long, help_heading = "multiview")]
+    pub no_culling: bool,
 
     /// multilayer: fragments kept per pixel, N (1 to 16; the paper keeps 3 or 4).
     #[arg(
@@ -299,12 +322,30 @@ impl PostArgs {
                 let sp = SplatSettings {
                     aperture: aperture.clone(),
                     merge: self.merge,
-                    layers: self.layers,
+                    layers: self.layers.unwrap_or(1),
                     group_px: self.group,
                     max_coc_px: self.max_coc,
                 };
                 sp.validate().context("invalid splat option")?;
                 MethodSettings::Splat(sp)
+            }
+            "multiview" => {
+                let mv = MultiviewSettings {
+                    aperture: aperture.clone(),
+                    seed,
+                    layers: match self.layers {
+                        Some(n) => LayerCount::Count(n),
+                        None => LayerCount::Spacing {
+                            spacing_px: self.layer_spacing,
+                        },
+                    },
+                    cone: !self.no_cone,
+                    jitter: !self.no_jitter,
+                    culling: !self.no_culling,
+                    ..MultiviewSettings::default()
+                };
+                mv.validate().context("invalid multiview option")?;
+                MethodSettings::Multiview(mv)
             }
             "multilayer" => {
                 let m = MultilayerSettings {
