@@ -8,6 +8,7 @@ mod lens;
 mod lowrank;
 mod metrics;
 mod multilayer;
+mod multiview;
 mod raster;
 mod reference;
 mod registry;

@@ -10,7 +10,7 @@
 //! the first sample behind the surface brackets the hit with the one before, and three steps of
 //! the paper's false-position iteration (the surface taken as linear between the bracketing
 //! samples) with bisection as a guard refine it. Empty pixels hold +inf and are never hit. A
-//! ray whose positions leave the image is discarded, as in the paper. A layer the pixel's rays
+//! ray whose segment in a layer leaves the image is discarded, as in the paper. A layer the pixel's rays
 //! cannot hit (the N-buffer minimum over the region they can reach lies beyond the layer) is
 //! skipped.
 //!
@@ -29,6 +29,14 @@ use rayon::prelude::*;
 use super::nbuffer::NBuffer;
 use crate::image::{ColorImage, Rgba};
 use crate::raster::{from_half, DepthLayers};
+
+/// How far behind the surface under it, in pixels of CoC, a ray may be at its refined hit and
+/// still count as crossing it.
+pub const THICKNESS_PX: f32 = 0.1;
+
+/// Neighbouring height-field pixels whose CoCs differ by at most this many pixels are one
+/// continuous surface: a ray stepping from one onto the other meets it.
+pub const CONTINUITY_PX: f32 = 2.0;
 
 /// Side of the jitter noise tile in pixels.
 pub const NOISE_TILE: usize = 16;
@@ -83,8 +91,9 @@ impl LayerMip {
         Self { levels }
     }
 
-    /// The premultiplied colour and coverage at level `level` (>= 1) under image position
-    /// `q` (pixels), clamped to the coarsest level kept.
+    /// The premultiplied colour and coverage at level `level` (>= 1) at image position `q`
+    /// (pixels), filtered bilinearly between the level's texel centres, clamped to the coarsest
+    /// level kept.
     #[inline]
     pub fn fetch(&self, level: usize, q: Vec2) -> Rgba {
         let k = level.min(self.levels.len());
@@ -93,9 +102,24 @@ impl LayerMip {
         }
         let (w, h, data) = &self.levels[k - 1];
         let s = (1u32 << k) as f32;
-        let x = ((q.x / s) as usize).min(w - 1);
-        let y = ((q.y / s) as usize).min(h - 1);
-        data[y * w + x]
+        let (u, v) = ((q.x / s - 0.5).max(0.0), (q.y / s - 0.5).max(0.0));
+        let (x0, y0) = ((u as usize).min(w - 1), (v as usize).min(h - 1));
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = (u - x0 as f32, v - y0 as f32);
+        let (fx, fy) = (fx.clamp(0.0, 1.0), fy.clamp(0.0, 1.0));
+        let mut out = [0.0f32; 4];
+        for (x, y, wgt) in [
+            (x0, y0, (1.0 - fx) * (1.0 - fy)),
+            (x1, y0, fx * (1.0 - fy)),
+            (x0, y1, (1.0 - fx) * fy),
+            (x1, y1, fx * fy),
+        ] {
+            let c = data[y * w + x];
+            for (o, v) in out.iter_mut().zip(c) {
+                *o += wgt * v;
+            }
+        }
+        out
     }
 
     /// Bytes held.
@@ -194,35 +218,45 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
     let spacing = &layers.spacing;
     let mut col = [0.0f32; 4];
     let mut weight = 1.0f32;
-    let lookup = |l: usize, q: Vec2| -> Option<usize> {
-        if q.x < 0.0 || q.y < 0.0 || q.x >= w || q.y >= h {
-            return None;
-        }
-        Some(layers.index(l, q.x as usize, q.y as usize))
-    };
+    let inside = |q: Vec2| q.x >= 0.0 && q.y >= 0.0 && q.x < w && q.y < h;
     for l in 0..spacing.layers {
+        let (ca, cb) = spacing.bounds(l);
+        // A ray that leaves the image in this layer's segment is discarded (q is linear in C,
+        // so the ends decide), whether or not the layer can be skipped: culling must not
+        // change which rays count.
+        if !inside(p - ca * v) || !inside(p - cb * v) {
+            return Ray::Discarded;
+        }
         if !open[l] {
             continue;
         }
-        let (ca, cb) = spacing.bounds(l);
         let steps = ((cb - ca) * v.length()).ceil().max(1.0) as usize;
-        let mut prev = ca;
+        // The ray was in front of the surface under it at the previous sample; a crossing from
+        // there to behind it brackets a hit. It enters the layer in front of everything the
+        // layer holds: the overlap margin before its front bound.
+        let mut prev = ca - spacing.overlap * spacing.delta_px;
+        let mut prev_front = true;
         let mut hit = None;
         for k in 0..=steps {
             let c = ca + (cb - ca) * k as f32 / steps as f32;
             let q = p - c * v;
-            let Some(i) = lookup(l, q) else {
-                return Ray::Discarded;
-            };
-            let hv = layers.coc_px[i];
-            if hv <= c {
-                hit = Some(if k == 0 {
-                    (c, i)
-                } else {
-                    refine(layers, l, p, v, prev, c).unwrap_or((c, i))
-                });
-                break;
+            let i = layers.index(l, q.x as usize, q.y as usize);
+            let behind = layers.coc_px[i] <= c;
+            if behind && prev_front {
+                let (c_hit, i_hit, h_front) =
+                    refine(layers, l, p, v, prev, c).unwrap_or((c, i, f32::INFINITY));
+                // A ray meets the surface where it crosses it (refined to within
+                // THICKNESS_PX), or where it steps onto it from a continuation of the same
+                // surface (a slanted surface sampled pixel by pixel); one that comes in from
+                // the side of a thin object, from empty space or from a surface far in
+                // front, passes behind it.
+                let h_hit = layers.coc_px[i_hit];
+                if c_hit - h_hit <= THICKNESS_PX || (h_front - h_hit).abs() <= CONTINUITY_PX {
+                    hit = Some((c_hit, i_hit));
+                    break;
+                }
             }
+            prev_front = !behind;
             prev = c;
         }
         let Some((c_hit, i)) = hit else {
@@ -231,18 +265,20 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
         let color = from_half(&layers.color[i]);
         let (v1, c1) = match input.mips {
             Some(mips) => {
+                // Trilinear: the footprint's level between two mip levels (level 0 is the hit
+                // pixel itself, fully covered).
                 let d = input.lambda * c_hit.abs();
-                let level = if d > 1.0 {
-                    d.log2().round() as usize
-                } else {
-                    0
-                };
-                if level == 0 {
-                    (1.0, color)
-                } else {
+                if d > 1.0 {
+                    let f = d.log2();
+                    let k0 = f.floor() as usize;
+                    let t = f - k0 as f32;
                     let q = p - c_hit * v;
-                    let m = mips[l].fetch(level, q);
+                    let a = if k0 == 0 { color } else { mips[l].fetch(k0, q) };
+                    let b = mips[l].fetch(k0 + 1, q);
+                    let m: Rgba = std::array::from_fn(|k| a[k] + t * (b[k] - a[k]));
                     (m[3].clamp(0.0, 1.0), m)
+                } else {
+                    (1.0, color)
                 }
             }
             None => (1.0, color),
@@ -262,6 +298,8 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
 
 /// Between `lo` (in front of the surface) and `hi` (at or behind it): three false-position
 /// steps, each checked, with bisection when the linear guess does not shrink the bracket.
+/// Returns the refined hit (ray CoC and layer pixel) and the surface CoC under the ray just
+/// in front of it.
 fn refine(
     layers: &DepthLayers,
     l: usize,
@@ -269,7 +307,7 @@ fn refine(
     v: Vec2,
     mut lo: f32,
     mut hi: f32,
-) -> Option<(f32, usize)> {
+) -> Option<(f32, usize, f32)> {
     let (w, h) = (layers.width as f32, layers.height as f32);
     let at = |c: f32| -> Option<(f32, usize)> {
         let q = p - c * v;
@@ -303,7 +341,7 @@ fn refine(
         }
     }
     let _ = h_hi;
-    Some((hi, i_hi))
+    Some((hi, i_hi, h_lo))
 }
 
 /// Mean distance from each sample to its nearest neighbour (the paper's lambda).
