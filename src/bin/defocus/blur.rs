@@ -347,9 +347,9 @@ impl TryFrom<&BlurArgs> for BlurJob {
 }
 
 impl BlurJob {
-    /// Runs the method and writes the output.
-    pub fn run(self) -> Result<()> {
-        let output: MethodOutput = match (&self.input, &self.settings) {
+    /// Runs the method: its output, with the time spent reading the inputs in its timings.
+    pub fn compute(&self) -> Result<MethodOutput> {
+        let mut output: MethodOutput = match (&self.input, &self.settings) {
             (Input::Depth { depth, lens }, settings) => registry::run_frame(
                 settings,
                 &Frame {
@@ -365,6 +365,14 @@ impl BlurJob {
         };
         let mut timings = self.read_timings.clone();
         timings.extend(&output.timings);
+        output.timings = timings;
+        Ok(output)
+    }
+
+    /// Runs the method and writes the output.
+    pub fn run(self) -> Result<()> {
+        let output = self.compute()?;
+        let mut timings = output.timings.clone();
         let id = self.settings.id();
         timings.time(timing::WRITE, || {
             io::write_color_with(&self.out, &output.image, &self.exr)

@@ -39,13 +39,19 @@ pub fn run(cli: Cli) -> Result<()> {
             job.run(cli.quiet)
         }
         Command::Blur(args) => crate::blur::BlurJob::try_from(args.as_ref())?.run(),
-        Command::Compare(args) => compare(&args),
+        Command::Compare(args) => {
+            if args.is_report() {
+                crate::report::run(&args, cli.quiet)
+            } else {
+                compare(&args)
+            }
+        }
         Command::Kernel(args) => crate::kernel::run(&args),
     }
 }
 
 /// A validated `render` job.
-struct RenderJob {
+pub(crate) struct RenderJob {
     scene: Scene,
     camera: Camera,
     settings: MethodSettings,
@@ -56,6 +62,14 @@ struct RenderJob {
     depth_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
     inputs: Vec<PathBuf>,
+}
+
+/// `compare A B` with both images given.
+struct TwoImages {
+    a: PathBuf,
+    b: PathBuf,
+    diff: Option<PathBuf>,
+    json: bool,
 }
 
 fn load_scene(spec: &str, camera: Option<&str>) -> Result<Scene> {
@@ -208,6 +222,22 @@ impl TryFrom<RenderArgs> for RenderJob {
 }
 
 impl RenderJob {
+    /// The camera, after every override.
+    pub(crate) fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// Runs the method on the scene; `progress(done, total)` reports views.
+    pub(crate) fn compute(&self, progress: &mut dyn FnMut(usize, usize)) -> Result<MethodOutput> {
+        Ok(registry::run_scene(
+            &self.settings,
+            &self.scene,
+            &self.camera,
+            &self.options,
+            progress,
+        )?)
+    }
+
     fn run(self, quiet: bool) -> Result<()> {
         for input in &self.inputs {
             for out in std::iter::once(&self.out).chain(self.depth_out.as_ref()) {
@@ -220,13 +250,7 @@ impl RenderJob {
             _ => self.options.frame_samples,
         };
         let bar = progress_bar(quiet, views as u64, "views");
-        let output: MethodOutput = registry::run_scene(
-            &self.settings,
-            &self.scene,
-            &self.camera,
-            &self.options,
-            &mut |done, _| bar.set_position(done as u64),
-        )?;
+        let output: MethodOutput = self.compute(&mut |done, _| bar.set_position(done as u64))?;
         bar.finish_and_clear();
         let mut timings = output.timings.clone();
         let method = self.settings.id();
@@ -274,6 +298,16 @@ impl RenderJob {
 }
 
 fn compare(args: &CompareArgs) -> Result<()> {
+    let (Some(a_path), Some(b_path)) = (&args.a, &args.b) else {
+        bail!("compare needs two images A B, or a report: --scene NAME --out DIR, or --color C --depth D --truth T --out DIR");
+    };
+    let args = TwoImages {
+        a: a_path.clone(),
+        b: b_path.clone(),
+        diff: args.diff.clone(),
+        json: args.json,
+    };
+    let args = &args;
     if let Some(diff) = &args.diff {
         check_output(diff, "--diff", IMAGE_EXTENSIONS)?;
         io::ensure_not_same_file(&args.a, diff)?;

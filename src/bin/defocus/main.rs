@@ -7,6 +7,7 @@ mod commands;
 mod common;
 mod kernel;
 mod post;
+mod report;
 
 use std::process::ExitCode;
 

@@ -1,0 +1,762 @@
+//! `defocus compare --scene S --out DIR` (or `--color C --depth D --truth T --out DIR`): every
+//! method of the library's registry against the reference, as a page a person reads in a
+//! browser (`index.html`: images, error maps, a table, a time/PSNR plot), the same numbers for
+//! scripts (`results.json`), and every image as PNG (preview) and EXR (linear).
+//!
+//! Each method runs through the same jobs as `render` and `blur`, so a report's image is the
+//! image those commands write with the same flags. A method that fails is reported in the page
+//! with its error; the others still run.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use base64::Engine as _;
+use defocus::image::{io, ColorImage};
+use defocus::methods::registry::{self, MethodInfo, METHODS};
+use defocus::methods::MethodOutput;
+use defocus::metrics;
+use defocus::timing::Timings;
+use serde::Serialize;
+
+use crate::args::{CompareArgs, RenderArgs};
+use crate::blur::{BlurArgs, BlurJob, DepthKind};
+use crate::commands::RenderJob;
+use crate::common::progress_bar;
+
+/// Sweep keys and the methods each applies to (the flag of that name changes their settings).
+const SWEEPS: &[(&str, &[&str])] = &[
+    (
+        "samples",
+        &[
+            "pinhole",
+            "hammon",
+            "lowrank",
+            "gaussian",
+            "poisson",
+            "splat",
+            "multiview",
+        ],
+    ),
+    ("merge", &["splat"]),
+    ("layers", &["splat", "multiview"]),
+    ("fragments", &["multilayer"]),
+    ("epsilon", &["multilayer"]),
+    ("filter-steps", &["multilayer"]),
+    ("rank", &["lowrank"]),
+    ("taps", &["poisson"]),
+    ("layer-spacing", &["multiview"]),
+];
+
+/// One method run of the report, with the sweep setting it has (if any).
+struct Run {
+    info: &'static MethodInfo,
+    setting: Option<(String, String)>,
+}
+
+impl Run {
+    /// File-name-safe label: `lowrank`, `splat-merge4`, `multilayer-filter-steps1-3`.
+    fn label(&self) -> String {
+        match &self.setting {
+            None => self.info.id.to_string(),
+            Some((k, v)) => format!("{}-{k}{}", self.info.id, v.replace(['/', ' ', '.'], "-")),
+        }
+    }
+
+    fn setting_text(&self) -> String {
+        self.setting
+            .as_ref()
+            .map(|(k, v)| format!("{k}={v}"))
+            .unwrap_or_default()
+    }
+}
+
+/// What one run gave.
+#[derive(Serialize)]
+struct RunResult {
+    method: String,
+    setting: String,
+    label: String,
+    status: String,
+    error: Option<String>,
+    psnr_db: Option<f64>,
+    ssim: Option<f64>,
+    mse: Option<f64>,
+    total_ms: Option<f64>,
+    passes: Vec<defocus::timing::PassTiming>,
+    memory_bytes: Option<usize>,
+    image_png: Option<String>,
+    image_exr: Option<String>,
+    error_map_png: Option<String>,
+}
+
+#[derive(Serialize)]
+struct Report {
+    title: String,
+    width: usize,
+    height: usize,
+    parameters: Vec<(String, String)>,
+    reference: ReferenceInfo,
+    error_map_top: f32,
+    runs: Vec<RunResult>,
+}
+
+#[derive(Serialize)]
+struct ReferenceInfo {
+    source: String,
+    total_ms: Option<f64>,
+    image_png: String,
+    image_exr: String,
+}
+
+fn parse_methods(spec: &str) -> Result<Vec<&'static MethodInfo>> {
+    if spec.trim() == "all" {
+        return Ok(METHODS.iter().filter(|m| m.id != "reference").collect());
+    }
+    let mut out = Vec::new();
+    for id in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let m = registry::find(id).with_context(|| format!("invalid --methods '{spec}'"))?;
+        if !out.iter().any(|o: &&MethodInfo| o.id == m.id) {
+            out.push(m);
+        }
+    }
+    if out.is_empty() {
+        bail!("invalid --methods '{spec}': expected all or a comma-separated list of method ids");
+    }
+    Ok(out)
+}
+
+fn parse_sweeps(specs: &[String]) -> Result<Vec<(String, Vec<String>)>> {
+    let mut out = Vec::new();
+    for spec in specs {
+        let (k, v) = spec.split_once('=').with_context(|| {
+            format!("invalid --sweep '{spec}': expected KEY=V1,V2,... (e.g. samples=8,16,32)")
+        })?;
+        let k = k.trim().to_string();
+        if !SWEEPS.iter().any(|(key, _)| *key == k) {
+            bail!(
+                "invalid --sweep '{spec}': unknown key '{k}' (expected one of: {})",
+                SWEEPS.iter().map(|s| s.0).collect::<Vec<_>>().join(", ")
+            );
+        }
+        let values: Vec<String> = v
+            .split(',')
+            .map(|s| s.trim().to_string())
+            .filter(|s| !s.is_empty())
+            .collect();
+        if values.is_empty() {
+            bail!("invalid --sweep '{spec}': no values");
+        }
+        out.push((k, values));
+    }
+    Ok(out)
+}
+
+fn runs(methods: &[&'static MethodInfo], sweeps: &[(String, Vec<String>)]) -> Vec<Run> {
+    let mut out = Vec::new();
+    for &info in methods {
+        let mut swept = false;
+        for (key, values) in sweeps {
+            let applies = SWEEPS
+                .iter()
+                .any(|(k, ids)| k == key && ids.contains(&info.id));
+            if applies {
+                swept = true;
+                for v in values {
+                    out.push(Run {
+                        info,
+                        setting: Some((key.clone(), v.clone())),
+                    });
+                }
+            }
+        }
+        if !swept {
+            out.push(Run {
+                info,
+                setting: None,
+            });
+        }
+    }
+    out
+}
+
+/// Applies a sweep setting to the flags.
+fn apply_setting(
+    post: &mut crate::post::PostArgs,
+    samples: &mut Option<usize>,
+    setting: &Option<(String, String)>,
+) -> Result<()> {
+    let Some((k, v)) = setting else {
+        return Ok(());
+    };
+    let bad = || anyhow::anyhow!("invalid --sweep {k}={v}: not a valid value of --{k}");
+    match k.as_str() {
+        "samples" => *samples = Some(v.parse().map_err(|_| bad())?),
+        "merge" => post.merge = v.parse().map_err(|_| bad())?,
+        "layers" => post.layers = Some(v.parse().map_err(|_| bad())?),
+        "fragments" => post.fragments = v.parse().map_err(|_| bad())?,
+        "epsilon" => post.epsilon = v.parse().map_err(|_| bad())?,
+        "filter-steps" => post.filter_steps = v.clone(),
+        "rank" => post.rank = v.parse().map_err(|_| bad())?,
+        "taps" => post.taps = v.parse().map_err(|_| bad())?,
+        "layer-spacing" => post.layer_spacing = v.parse().map_err(|_| bad())?,
+        _ => return Err(bad()),
+    }
+    Ok(())
+}
+
+/// The `render` flags of a run on a scene.
+fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> RenderArgs {
+    RenderArgs {
+        scene: scene.to_string(),
+        method: method.to_string(),
+        samples: a.samples,
+        width: a.width,
+        height: a.height,
+        focus: a.focus,
+        fstop: a.fstop,
+        focal_length: a.focal_length,
+        sensor_width: a.sensor_width,
+        aperture: a.aperture.clone(),
+        sampler: "halton".to_string(),
+        seed: a.seed,
+        out: out.to_path_buf(),
+        depth_out: None,
+        timings: None,
+        verbose: false,
+        exr: crate::common::ExrArgs {
+            exr_compression: crate::common::ExrCompressionArg::None,
+            half: false,
+        },
+        view: a.view.clone(),
+        post: a.post.clone(),
+    }
+}
+
+/// The `blur` flags of a run on a frame.
+fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
+    Ok(BlurArgs {
+        color: a.color.clone().context("--color")?,
+        depth: a.depth.clone(),
+        depth_channel: None,
+        depth_kind: DepthKind::View,
+        depth_scale: 1.0,
+        method: Some(method.to_string()),
+        focus: match a.focus {
+            Some(crate::args::Focus::Metres(m)) => m.to_string(),
+            _ => "auto".to_string(),
+        },
+        fstop: a.fstop.unwrap_or(2.8),
+        focal_length: a.focal_length.unwrap_or(50.0),
+        sensor_width: a.sensor_width.unwrap_or(36.0),
+        aperture: a.aperture.clone().unwrap_or_else(|| "disc".to_string()),
+        seed: a.seed,
+        tilt_shift: None,
+        out: out.to_path_buf(),
+        timings: None,
+        coc_out: None,
+        verbose: false,
+        exr: crate::common::ExrArgs {
+            exr_compression: crate::common::ExrCompressionArg::None,
+            half: false,
+        },
+        post: (*a.post).clone(),
+    })
+}
+
+/// Runs the report.
+pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
+    let dir = a.out.clone().context(
+        "a report needs --out DIR (the folder for index.html, results.json and the images)",
+    )?;
+    if dir.exists() && !dir.is_dir() {
+        bail!(
+            "invalid --out {}: it exists and is not a folder",
+            dir.display()
+        );
+    }
+    if !(1..=1 << 20).contains(&a.reference_samples) {
+        bail!(
+            "invalid --reference-samples {}: expected 1 to {}",
+            a.reference_samples,
+            1 << 20
+        );
+    }
+    let methods = parse_methods(&a.methods)?;
+    let sweeps = parse_sweeps(&a.sweep)?;
+    let runs = runs(&methods, &sweeps);
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("could not create the report folder {}", dir.display()))?;
+    let bar = progress_bar(quiet, runs.len() as u64 + 1, "methods");
+
+    // The reference: rendered, or read.
+    let mut parameters: Vec<(String, String)> = Vec::new();
+    let (truth, truth_ms, title, source) = if let Some(scene) = &a.scene {
+        let mut args = render_args(a, scene, "reference", &dir.join("reference.exr"));
+        args.samples = Some(a.reference_samples);
+        let job = RenderJob::try_from(args)?;
+        let cam = job.camera().clone();
+        let lens = cam.thin_lens()?;
+        parameters.extend([
+            ("scene".to_string(), scene.clone()),
+            (
+                "resolution".to_string(),
+                format!("{}x{}", cam.width_px, cam.height_px),
+            ),
+            ("focus".to_string(), format!("{:.4} m", cam.focus_m)),
+            ("f-number".to_string(), format!("{}", cam.fstop)),
+            (
+                "focal length".to_string(),
+                format!("{} mm", cam.focal_length_mm),
+            ),
+            (
+                "CoC at infinity".to_string(),
+                format!("{:.2} px", lens.coc_at_infinity_px()),
+            ),
+            (
+                "aperture".to_string(),
+                a.aperture.clone().unwrap_or_else(|| "scene default".into()),
+            ),
+            (
+                "reference".to_string(),
+                format!(
+                    "{} lens samples (Halton, seed {})",
+                    a.reference_samples, a.seed
+                ),
+            ),
+        ]);
+        let out = job.compute(&mut |_, _| {})?;
+        let ms = out.timings.total_ms();
+        (
+            out.image,
+            Some(ms),
+            format!("defocus report: {scene}"),
+            format!("reference, {} lens samples", a.reference_samples),
+        )
+    } else {
+        let truth_path = a.truth.clone().context("--truth")?;
+        let truth = io::read_color(&truth_path)?;
+        let color_path = a.color.clone().context("--color")?;
+        parameters.extend([
+            ("colour".to_string(), color_path.display().to_string()),
+            (
+                "depth".to_string(),
+                a.depth
+                    .as_ref()
+                    .map(|p| p.display().to_string())
+                    .unwrap_or_default(),
+            ),
+            ("truth".to_string(), truth_path.display().to_string()),
+            (
+                "resolution".to_string(),
+                format!("{}x{}", truth.width(), truth.height()),
+            ),
+            (
+                "f-number".to_string(),
+                format!("{}", a.fstop.unwrap_or(2.8)),
+            ),
+            (
+                "focal length".to_string(),
+                format!("{} mm", a.focal_length.unwrap_or(50.0)),
+            ),
+        ]);
+        (
+            truth,
+            None,
+            format!(
+                "defocus report: {}",
+                color_path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            ),
+            format!("ground truth {}", truth_path.display()),
+        )
+    };
+    if !a.sweep.is_empty() {
+        parameters.push(("sweeps".to_string(), a.sweep.join(" ")));
+    }
+    bar.inc(1);
+    let reference_exr = dir.join("reference.exr");
+    let reference_png = dir.join("reference.png");
+    io::write_color(&reference_exr, &truth)?;
+    io::write_color(&reference_png, &truth)?;
+
+    // Every run.
+    let mut outputs: Vec<(usize, MethodOutput)> = Vec::new();
+    let mut results: Vec<RunResult> = Vec::new();
+    for (i, run) in runs.iter().enumerate() {
+        bar.set_message(run.label());
+        let label = run.label();
+        let out_path = dir.join(format!("{label}.exr"));
+        let outcome: Result<MethodOutput> = (|| {
+            if a.scene.is_some() {
+                let mut args =
+                    render_args(a, a.scene.as_deref().unwrap_or(""), run.info.id, &out_path);
+                apply_setting(&mut args.post, &mut args.samples, &run.setting)?;
+                RenderJob::try_from(args)?.compute(&mut |_, _| {})
+            } else {
+                if run.info.input.needs_scene() {
+                    bail!("not applicable: needs {}", run.info.input.describe());
+                }
+                let mut args = blur_args(a, run.info.id, &out_path)?;
+                let mut samples = None;
+                apply_setting(&mut args.post, &mut samples, &run.setting)?;
+                if samples.is_some() {
+                    bail!("not applicable: the frame is given, so its samples cannot change");
+                }
+                BlurJob::try_from(&args)?.compute()
+            }
+        })();
+        let mut r = RunResult {
+            method: run.info.id.to_string(),
+            setting: run.setting_text(),
+            label: label.clone(),
+            status: "ok".to_string(),
+            error: None,
+            psnr_db: None,
+            ssim: None,
+            mse: None,
+            total_ms: None,
+            passes: Vec::new(),
+            memory_bytes: None,
+            image_png: None,
+            image_exr: None,
+            error_map_png: None,
+        };
+        match outcome.and_then(|o| {
+            if !o.image.same_size(&truth) {
+                bail!(
+                    "the output is {}x{} but the reference is {}x{}",
+                    o.image.width(),
+                    o.image.height(),
+                    truth.width(),
+                    truth.height()
+                );
+            }
+            Ok(o)
+        }) {
+            Ok(o) => {
+                let m = metrics::compare(&o.image, &truth)?;
+                r.psnr_db = Some(m.psnr_db);
+                r.ssim = Some(m.ssim);
+                r.mse = Some(m.mse_linear);
+                r.total_ms = Some(without_io(&o.timings));
+                r.passes = o.timings.passes.clone();
+                r.memory_bytes = o.memory_bytes;
+                io::write_color(&out_path, &o.image)?;
+                io::write_color(&dir.join(format!("{label}.png")), &o.image)?;
+                r.image_exr = Some(format!("{label}.exr"));
+                r.image_png = Some(format!("{label}.png"));
+                outputs.push((i, o));
+            }
+            Err(e) => {
+                let text = format!("{e:#}");
+                r.status = if text.starts_with("not applicable") {
+                    "not applicable".to_string()
+                } else {
+                    "failed".to_string()
+                };
+                r.error = Some(text);
+            }
+        }
+        results.push(r);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+
+    // Error maps on one scale: the largest of the methods' 99th-percentile differences.
+    let mut top = metrics::ERROR_MAP_MIN_TOP;
+    for (_, o) in &outputs {
+        top = top.max(metrics::error_map_top(&metrics::srgb_abs_diff(
+            &o.image, &truth,
+        )?));
+    }
+    for (i, o) in &outputs {
+        let map = metrics::error_map_with_top(&o.image, &truth, top)?;
+        let name = format!("{}-error.png", results[*i].label);
+        io::write_color(&dir.join(&name), &map)?;
+        results[*i].error_map_png = Some(name);
+    }
+    let legend = legend_image()?;
+    io::write_color(&dir.join("error-legend.png"), &legend)?;
+
+    let report = Report {
+        title,
+        width: truth.width(),
+        height: truth.height(),
+        parameters,
+        reference: ReferenceInfo {
+            source,
+            total_ms: truth_ms,
+            image_png: "reference.png".to_string(),
+            image_exr: "reference.exr".to_string(),
+        },
+        error_map_top: top,
+        runs: results,
+    };
+    let json = serde_json::to_string_pretty(&report)?;
+    write_text(&dir.join("results.json"), &json)?;
+    let html = page(&report, &dir)?;
+    write_text(&dir.join("index.html"), &html)?;
+    eprintln!("report: {}", dir.join("index.html").display());
+    Ok(())
+}
+
+/// Total time of the method's own passes (reading and writing files excluded).
+fn without_io(t: &Timings) -> f64 {
+    t.passes
+        .iter()
+        .filter(|p| !p.name.starts_with("io/"))
+        .map(|p| p.ms)
+        .sum()
+}
+
+fn write_text(path: &Path, text: &str) -> Result<()> {
+    let tmp = path.with_extension("tmp-write");
+    std::fs::write(&tmp, text).with_context(|| format!("could not write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("could not write {}", path.display()))?;
+    Ok(())
+}
+
+/// The error ramp from no difference (left) to the top (right), 256x16.
+fn legend_image() -> Result<ColorImage> {
+    let (w, h) = (256usize, 16usize);
+    let mut data = Vec::with_capacity(w * h);
+    for _ in 0..h {
+        for x in 0..w {
+            let [r, g, b] = metrics::error_ramp(x as f32 / (w - 1) as f32);
+            data.push([r, g, b, 1.0]);
+        }
+    }
+    Ok(ColorImage::from_vec(w, h, data)?)
+}
+
+fn data_uri(dir: &Path, name: &str) -> Result<String> {
+    let bytes = std::fs::read(dir.join(name))
+        .with_context(|| format!("could not read {}", dir.join(name).display()))?;
+    Ok(format!(
+        "data:image/png;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(bytes)
+    ))
+}
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// Time (log scale) against PSNR, one point per run, as SVG.
+fn plot(report: &Report) -> Result<String> {
+    use plotters::prelude::*;
+    let points: Vec<(f64, f64, String)> = report
+        .runs
+        .iter()
+        .filter_map(|r| {
+            let (t, p) = (r.total_ms?, r.psnr_db?);
+            (t > 0.0 && p.is_finite()).then(|| {
+                let name = if r.setting.is_empty() {
+                    r.method.clone()
+                } else {
+                    format!("{} {}", r.method, r.setting)
+                };
+                (t, p, name)
+            })
+        })
+        .collect();
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (760, 440)).into_drawing_area();
+        root.fill(&WHITE)
+            .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        let (tmin, tmax) = points.iter().fold((f64::INFINITY, 0.0f64), |(a, b), p| {
+            (a.min(p.0), b.max(p.0))
+        });
+        let (pmin, pmax) = points
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+                (a.min(p.1), b.max(p.1))
+            });
+        let (tmin, tmax) = if points.is_empty() {
+            (1.0, 10.0)
+        } else {
+            (tmin / 1.5, tmax * 1.5)
+        };
+        let (pmin, pmax) = if points.is_empty() {
+            (0.0, 40.0)
+        } else {
+            ((pmin - 1.0).floor(), (pmax + 1.0).ceil())
+        };
+        let mut chart = ChartBuilder::on(&root)
+            .caption("time against quality", ("sans-serif", 18))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(56)
+            .build_cartesian_2d((tmin..tmax).log_scale(), pmin..pmax)
+            .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        chart
+            .configure_mesh()
+            .x_desc("total time, ms (log scale)")
+            .y_desc("PSNR against the reference, dB")
+            .draw()
+            .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        let palette = [
+            RGBColor(0x1f, 0x77, 0xb4),
+            RGBColor(0xd6, 0x27, 0x28),
+            RGBColor(0x2c, 0xa0, 0x2c),
+            RGBColor(0x94, 0x67, 0xbd),
+            RGBColor(0xff, 0x7f, 0x0e),
+            RGBColor(0x8c, 0x56, 0x4b),
+            RGBColor(0xe3, 0x77, 0xc2),
+            RGBColor(0x17, 0xbe, 0xcf),
+        ];
+        let methods: Vec<String> = {
+            let mut m: Vec<String> = report.runs.iter().map(|r| r.method.clone()).collect();
+            m.dedup();
+            m
+        };
+        for (t, p, name) in &points {
+            let k = methods
+                .iter()
+                .position(|m| name.starts_with(m.as_str()))
+                .unwrap_or(0);
+            let color = palette[k % palette.len()];
+            chart
+                .draw_series(std::iter::once(Circle::new((*t, *p), 5, color.filled())))
+                .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    name.clone(),
+                    (*t, *p + 0.35),
+                    ("sans-serif", 12).into_font().color(&color),
+                )))
+                .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        }
+        root.present().map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    }
+    Ok(svg)
+}
+
+fn page(report: &Report, dir: &Path) -> Result<String> {
+    let mut h = String::new();
+    let _ = write!(
+        h,
+        "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title>\n<style>\
+body{{font-family:system-ui,sans-serif;margin:24px;color:#222}}table{{border-collapse:collapse;margin:8px 0}}\
+td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right;font-size:13px}}th{{background:#f2f2f2}}\
+td.l,th.l{{text-align:left}}.grid{{display:flex;flex-wrap:wrap;gap:14px}}figure{{margin:0}}\
+figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{{font-size:13px;margin-top:3px}}\
+.err{{color:#a00}}.na{{color:#777}}</style></head><body>\n",
+        esc(&report.title)
+    );
+    let _ = writeln!(h, "<h1>{}</h1>", esc(&report.title));
+    h.push_str("<h2>Parameters</h2><table id=\"parameters\">");
+    for (k, v) in &report.parameters {
+        let _ = write!(
+            h,
+            "<tr><th class=\"l\">{}</th><td class=\"l\">{}</td></tr>",
+            esc(k),
+            esc(v)
+        );
+    }
+    let _ = writeln!(
+        h,
+        "<tr><th class=\"l\">compared with</th><td class=\"l\">{}{}</td></tr></table>",
+        esc(&report.reference.source),
+        report
+            .reference
+            .total_ms
+            .map(|t| format!(", rendered in {t:.0} ms"))
+            .unwrap_or_default()
+    );
+    h.push_str(
+        "<h2>Quality and time</h2><p>PSNR and SSIM (Wang 2004) on the sRGB image clamped to [0, 1]; MSE in linear light; time: the method's own passes (file reading and writing excluded; post-process methods on a scene include rendering their pinhole frame).</p>\n\
+<table id=\"results\"><tr><th class=\"l\">method</th><th class=\"l\">setting</th><th>PSNR dB</th><th>SSIM</th><th>MSE</th><th>total ms</th><th class=\"l\">passes (ms)</th><th>peak MiB</th></tr>\n",
+    );
+    for r in &report.runs {
+        let passes: Vec<String> = r
+            .passes
+            .iter()
+            .filter(|p| !p.name.starts_with("io/"))
+            .map(|p| format!("{} {:.1}", esc(&p.name), p.ms))
+            .collect();
+        match &r.error {
+            None => {
+                let _ = writeln!(
+                    h,
+                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{:.2}</td><td>{:.4}</td><td>{:.3e}</td><td>{:.1}</td><td class=\"l\">{}</td><td>{}</td></tr>",
+                    esc(&r.method),
+                    esc(&r.setting),
+                    r.psnr_db.unwrap_or(f64::NAN),
+                    r.ssim.unwrap_or(f64::NAN),
+                    r.mse.unwrap_or(f64::NAN),
+                    r.total_ms.unwrap_or(f64::NAN),
+                    passes.join(", "),
+                    r.memory_bytes
+                        .map(|b| format!("{:.1}", b as f64 / 1048576.0))
+                        .unwrap_or_default()
+                );
+            }
+            Some(e) => {
+                let class = if r.status == "not applicable" {
+                    "na"
+                } else {
+                    "err"
+                };
+                let _ = writeln!(
+                    h,
+                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td class=\"l {class}\" colspan=\"6\">{}: {}</td></tr>",
+                    esc(&r.method),
+                    esc(&r.setting),
+                    esc(&r.status),
+                    esc(e)
+                );
+            }
+        }
+    }
+    h.push_str("</table>\n<h2>Time against PSNR</h2><div id=\"plot\">\n");
+    h.push_str(&plot(report)?);
+    h.push_str("</div>\n<h2>Images</h2>\n<p>Each method's image and its false-colour absolute error against the reference (sRGB), all maps on one scale: ");
+    let _ = writeln!(
+        h,
+        "<img id=\"legend\" alt=\"error scale\" src=\"{}\" style=\"vertical-align:middle;width:256px;height:16px\"> 0 to {:.3} (and more).</p>\n<div class=\"grid\">",
+        data_uri(dir, "error-legend.png")?,
+        report.error_map_top
+    );
+    let _ = writeln!(
+        h,
+        "<figure><img alt=\"reference\" src=\"{}\"><figcaption>reference ({})</figcaption></figure>",
+        data_uri(dir, &report.reference.image_png)?,
+        esc(&report.reference.source)
+    );
+    h.push_str("</div>\n");
+    for r in &report.runs {
+        let (Some(img), Some(err)) = (&r.image_png, &r.error_map_png) else {
+            continue;
+        };
+        let name = if r.setting.is_empty() {
+            r.method.clone()
+        } else {
+            format!("{} ({})", r.method, r.setting)
+        };
+        let _ = writeln!(
+            h,
+            "<div class=\"grid\"><figure><img alt=\"{n}\" src=\"{}\"><figcaption>{n}: {:.2} dB, SSIM {:.3}, {:.0} ms</figcaption></figure>\
+<figure><img alt=\"{n} error\" src=\"{}\"><figcaption>{n}: error</figcaption></figure></div>",
+            data_uri(dir, img)?,
+            r.psnr_db.unwrap_or(f64::NAN),
+            r.ssim.unwrap_or(f64::NAN),
+            r.total_ms.unwrap_or(f64::NAN),
+            data_uri(dir, err)?,
+            n = esc(&name)
+        );
+    }
+    // Marks the page once every image has decoded, for automated checks.
+    h.push_str(
+        "<script>window.addEventListener('load',()=>{const i=[...document.images];\
+document.body.dataset.imagesLoaded=i.filter(x=>x.complete&&x.naturalWidth>0).length+'/'+i.length;});</script>\n</body></html>\n",
+    );
+    Ok(h)
+}

@@ -1,0 +1,236 @@
+//! Tests: `defocus compare` reports (every method against the reference).
+
+use std::path::Path;
+use std::process::Command;
+
+use crate::cli::{defocus, s, stderr, temp_dir};
+
+fn results(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("results.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+#[test]
+fn report_numbers_equal_compare_of_the_written_images() {
+    let dir = temp_dir("report-numbers");
+    let out = dir.join("report");
+    // Two methods on railing at 160x90: a few seconds.
+    let o = defocus(&[
+        "compare",
+        "--scene",
+        "railing",
+        "--methods",
+        "lowrank,multilayer",
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--reference-samples",
+        "64",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = results(&out);
+    let runs = r["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2);
+    for run in runs {
+        assert_eq!(run["status"], "ok", "{run}");
+        let exr = out.join(run["image_exr"].as_str().unwrap());
+        let o = defocus(&["compare", s(&exr), s(&out.join("reference.exr")), "--json"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let m: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        for (a, b) in [("psnr_db", "psnr"), ("ssim", "ssim"), ("mse", "mse")] {
+            let (x, y) = (run[a].as_f64().unwrap(), m[b].as_f64().unwrap());
+            assert!((x - y).abs() <= 1e-12 * y.abs().max(1.0), "{a}: {x} vs {y}");
+        }
+        assert!(out.join(run["image_png"].as_str().unwrap()).is_file());
+        assert!(out.join(run["error_map_png"].as_str().unwrap()).is_file());
+        assert!(run["total_ms"].as_f64().unwrap() > 0.0);
+    }
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(html.contains("<svg") && html.contains("id=\"results\""));
+    // Self-contained: no address to fetch.
+    for fetch in ["src=\"http", "href=\"http", "url(http", "src=\"//"] {
+        assert!(!html.contains(fetch), "the page fetches {fetch}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn report_sweeps_settings_and_reports_a_failing_setting_while_the_others_run() {
+    let dir = temp_dir("report-sweep");
+    let out = dir.join("report");
+    let o = defocus(&[
+        "compare",
+        "--scene",
+        "lights",
+        "--methods",
+        "poisson,splat",
+        "--width",
+        "96",
+        "--height",
+        "54",
+        "--reference-samples",
+        "16",
+        "--sweep",
+        "taps=0,8",
+        "--sweep",
+        "merge=1,2",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = results(&out);
+    let runs = r["runs"].as_array().unwrap();
+    let labels: Vec<&str> = runs.iter().map(|r| r["label"].as_str().unwrap()).collect();
+    assert_eq!(
+        labels,
+        [
+            "poisson-taps0",
+            "poisson-taps8",
+            "splat-merge1",
+            "splat-merge2"
+        ]
+    );
+    assert_eq!(runs[0]["status"], "failed");
+    assert!(runs[0]["error"].as_str().unwrap().contains("taps"));
+    for run in &runs[1..] {
+        assert_eq!(run["status"], "ok", "{run}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn frame_report_lists_scene_methods_as_not_applicable() {
+    let dir = temp_dir("report-frame");
+    let (frame, depth, truth) = (dir.join("f.exr"), dir.join("z.exr"), dir.join("t.exr"));
+    let common = ["--width", "64", "--height", "36"];
+    let mut a = vec![
+        "render",
+        "--method",
+        "pinhole",
+        "--samples",
+        "4",
+        "--out",
+        s(&frame),
+    ];
+    a.extend(["--depth-out", s(&depth)]);
+    a.extend(common);
+    assert!(defocus(&a).status.success());
+    let mut b = vec!["render", "--samples", "16", "--out", s(&truth)];
+    b.extend(common);
+    assert!(defocus(&b).status.success());
+    let out = dir.join("report");
+    let o = defocus(&[
+        "compare",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&depth),
+        "--truth",
+        s(&truth),
+        "--focus",
+        "2.5",
+        "--fstop",
+        "2",
+        "--methods",
+        "hammon,multilayer",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = results(&out);
+    let runs = r["runs"].as_array().unwrap();
+    assert_eq!(runs[0]["status"], "ok");
+    assert_eq!(runs[1]["status"], "not applicable");
+    assert!(runs[1]["error"].as_str().unwrap().contains("scene"));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Debian's Chromium, if the machine has it.
+fn chromium() -> Option<String> {
+    for c in ["/usr/bin/chromium", "/usr/bin/chromium-browser"] {
+        if Path::new(c).is_file() {
+            return Some(c.to_string());
+        }
+    }
+    None
+}
+
+#[test]
+fn report_page_loads_every_image_in_a_real_browser() {
+    let Some(browser) = chromium() else {
+        eprintln!("skipped: no chromium on this machine (.ci/run installs Debian's package)");
+        return;
+    };
+    let dir = temp_dir("report-browser");
+    let out = dir.join("report");
+    let o = defocus(&[
+        "compare",
+        "--scene",
+        "railing",
+        "--methods",
+        "hammon,splat,multiview",
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--reference-samples",
+        "32",
+        "--sweep",
+        "samples=8,16",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let runs = results(&out)["runs"].as_array().unwrap().len();
+    let page = format!("file://{}", out.join("index.html").display());
+    let profile = dir.join("profile");
+    let flags = [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--virtual-time-budget=5000",
+    ];
+    let dom = Command::new(&browser)
+        .args(flags)
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("--dump-dom")
+        .arg(&page)
+        .output()
+        .expect("run chromium");
+    let dom = String::from_utf8_lossy(&dom.stdout);
+    // Every image decoded (naturalWidth > 0), counted by the page itself on load.
+    let attr = dom
+        .split("data-images-loaded=\"")
+        .nth(1)
+        .and_then(|t| t.split('"').next())
+        .unwrap_or_else(|| panic!("no load mark in the DOM: {}", &dom[..dom.len().min(400)]));
+    let (loaded, total) = attr.split_once('/').unwrap();
+    assert_eq!(loaded, total, "images loaded: {attr}");
+    // reference + legend + image and error map per run.
+    assert_eq!(total.parse::<usize>().unwrap(), 2 + 2 * runs);
+    assert_eq!(dom.matches("class=\"run\"").count(), runs);
+    assert!(dom.contains("<svg"), "the plot is present");
+    let shot = dir.join("screenshot.png");
+    let o = Command::new(&browser)
+        .args(flags)
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg(format!("--screenshot={}", shot.display()))
+        .arg("--window-size=1200,1600")
+        .arg(&page)
+        .output()
+        .expect("run chromium");
+    assert!(
+        shot.is_file(),
+        "screenshot: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("screenshot kept in {}", shot.display());
+}
