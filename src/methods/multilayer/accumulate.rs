@@ -52,6 +52,30 @@ pub fn accumulate(
     height: usize,
 ) -> ColorImage {
     let n = levels.len();
+    // Per level, the depths it can serve (weight above 0 needs lambda in (s - 1, s + 1)):
+    // inside (near(s + 1), far(s + 1)) and outside [near(s - 1), far(s - 1)], widened a little
+    // so that only fragments of weight 0 are skipped; the weight itself decides the rest.
+    let gates: Vec<(f32, f32, f32, f32)> = (0..n)
+        .map(|s| {
+            let (i0, i1) = if s + 1 < n {
+                (
+                    borders.near_at(s as f32 + 1.0) * (1.0 - 1e-4),
+                    borders.far_at(s as f32 + 1.0) * (1.0 + 1e-4),
+                )
+            } else {
+                (f32::NEG_INFINITY, f32::INFINITY)
+            };
+            let (o0, o1) = if s > 0 {
+                (
+                    borders.near_at(s as f32 - 1.0) * (1.0 + 1e-4),
+                    borders.far_at(s as f32 - 1.0) * (1.0 - 1e-4),
+                )
+            } else {
+                (f32::INFINITY, f32::NEG_INFINITY)
+            };
+            (i0, i1, o0, o1)
+        })
+        .collect();
     let mut data = vec![[0.0f32; 4]; width * height];
     data.par_chunks_mut(width.max(1))
         .enumerate()
@@ -62,7 +86,11 @@ pub fn accumulate(
                 for (s, level) in levels.iter().enumerate() {
                     let (cx, cy) = level.cell_of_pixel(x, y);
                     let (depths, colors) = level.cell(cx, cy);
+                    let (i0, i1, o0, o1) = gates[s];
                     for (&z, c) in depths.iter().zip(colors) {
+                        if z <= i0 || z >= i1 || (z > o0 && z < o1) {
+                            continue;
+                        }
                         let weight = level_weight(borders.lambda(z), s, n);
                         if weight > 0.0 {
                             entries.push(Entry {

@@ -79,8 +79,10 @@ impl Level {
     /// The cell whose centre is nearest to the centre of image pixel `(x, y)`.
     #[inline]
     pub fn cell_of_pixel(&self, x: usize, y: usize) -> (usize, usize) {
+        // Truncation toward zero is the floor here once negatives are clamped to 0 (and it
+        // needs no libm call).
         let c = |p: usize, n: usize| {
-            let t = ((p as f32 + 0.5 - self.origin_px) / self.stride_px + 0.5).floor();
+            let t = (p as f32 + 0.5 - self.origin_px) / self.stride_px + 0.5;
             (t.max(0.0) as usize).min(n - 1)
         };
         (c(x, self.width), c(y, self.height))

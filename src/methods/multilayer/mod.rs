@@ -199,20 +199,30 @@ impl Borders {
     /// `z_N,S`: the depth in front of the focal plane where the CoC matches level S
     /// (`sqrt(3) |C| = 2^S` pixels).
     pub fn near_m(&self, s: usize) -> f32 {
-        let r = (1u64 << s) as f32 / 3f32.sqrt();
+        self.near_at(s as f32)
+    }
+
+    /// The depth in front of the focal plane where `lambda(z) = t` (t may be fractional).
+    pub fn near_at(&self, t: f32) -> f32 {
+        let r = t.exp2() / 3f32.sqrt();
         1.0 / (1.0 / self.lens.focus_m + r / (self.lens.f_px * self.lens.lens_radius_m))
     }
 
-    /// `z_F,S`: the depth behind the focal plane where the CoC matches level S, +inf when the
-    /// CoC never grows that large.
-    pub fn far_m(&self, s: usize) -> f32 {
-        let r = (1u64 << s) as f32 / 3f32.sqrt();
+    /// The depth behind the focal plane where `lambda(z) = t`, +inf when there is none.
+    pub fn far_at(&self, t: f32) -> f32 {
+        let r = t.exp2() / 3f32.sqrt();
         let inv = 1.0 / self.lens.focus_m - r / (self.lens.f_px * self.lens.lens_radius_m);
         if inv > 0.0 {
             1.0 / inv
         } else {
             f32::INFINITY
         }
+    }
+
+    /// `z_F,S`: the depth behind the focal plane where the CoC matches level S, +inf when the
+    /// CoC never grows that large.
+    pub fn far_m(&self, s: usize) -> f32 {
+        self.far_at(s as f32)
     }
 
     /// The table T for `levels` levels: `(z_N,n-1, n-1), ..., (z_N,0, 0), (z_F,0, 1), ...,
