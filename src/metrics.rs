@@ -111,9 +111,37 @@ fn mean_over_rgb(a: &ColorImage, b: &ColorImage, f: impl Fn(f32, f32) -> f64 + S
     row_sums.iter().sum::<f64>() / (3 * a.pixels().len()) as f64
 }
 
-/// Mean squared difference over R, G, B in linear light, no clamping.
+/// Fails naming the image (`first` or `second`), pixel, channel and value when a colour value
+/// is NaN or infinite: a metric over it would claim a perfect or a meaningless match.
+fn check_finite(a: &ColorImage, b: &ColorImage) -> Result<()> {
+    for (which, img) in [("first", a), ("second", b)] {
+        if let Some((i, p)) = img
+            .pixels()
+            .iter()
+            .enumerate()
+            .find(|(_, p)| p.iter().any(|v| !v.is_finite()))
+        {
+            let k = p.iter().position(|v| !v.is_finite()).unwrap_or(0);
+            return Err(Error::invalid(
+                "image value",
+                format!(
+                    "the {which} image has {} in channel {} at pixel ({}, {}): metrics need finite values",
+                    p[k],
+                    ["R", "G", "B", "A"][k],
+                    i % img.width().max(1),
+                    i / img.width().max(1)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Mean squared difference over R, G, B in linear light, no clamping. Fails on NaN or
+/// infinite values.
 pub fn mse_linear(a: &ColorImage, b: &ColorImage) -> Result<f64> {
     check_same_size(a, b)?;
+    check_finite(a, b)?;
     Ok(mean_over_rgb(a, b, |p, q| {
         let d = p as f64 - q as f64;
         d * d
@@ -121,9 +149,11 @@ pub fn mse_linear(a: &ColorImage, b: &ColorImage) -> Result<f64> {
 }
 
 /// Peak signal-to-noise ratio in dB over R, G, B, each clamped to [0, 1] and sRGB-encoded,
-/// peak 1: 10 log10(1 / MSE). `f64::INFINITY` when the encoded images are identical.
+/// peak 1: 10 log10(1 / MSE). `f64::INFINITY` when the encoded images are identical. Fails
+/// on NaN or infinite values.
 pub fn psnr_srgb(a: &ColorImage, b: &ColorImage) -> Result<f64> {
     check_same_size(a, b)?;
+    check_finite(a, b)?;
     let mse = mean_over_rgb(a, b, |p, q| {
         let d = srgb_encode(p) as f64 - srgb_encode(q) as f64;
         d * d
@@ -141,6 +171,7 @@ pub fn psnr_srgb(a: &ColorImage, b: &ColorImage) -> Result<f64> {
 /// (min(width, height) - 1) / 2, with the same sigma 1.5, truncated and renormalised; a 1-pixel
 /// side gives a 1x1 window (SSIM then compares only the means of single pixels).
 pub fn ssim_srgb_luma(a: &ColorImage, b: &ColorImage) -> Result<f64> {
+    check_finite(a, b)?;
     let (_, _, map) = ssim_valid(a, b)?;
     // Fixed-order sum: independent of the thread count.
     Ok(map.iter().sum::<f64>() / map.len() as f64)

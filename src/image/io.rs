@@ -472,6 +472,53 @@ pub fn ensure_not_same_file(input: &Path, output: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Fails naming the file, channel, pixel and value of the first NaN or infinite value of a
+/// colour image read from `path` (an HDR render can hold them after a bad sample; every method
+/// would spread them over their blur).
+pub fn check_finite_color(path: &Path, img: &ColorImage) -> Result<()> {
+    let w = img.width().max(1);
+    if let Some((i, p)) = img
+        .pixels()
+        .iter()
+        .enumerate()
+        .find(|(_, p)| p.iter().any(|v| !v.is_finite()))
+    {
+        let bad = img
+            .pixels()
+            .iter()
+            .filter(|p| p.iter().any(|v| !v.is_finite()))
+            .count();
+        let k = p.iter().position(|v| !v.is_finite()).unwrap_or(0);
+        return Err(Error::format(
+            path,
+            format!(
+                "channel {} at pixel ({}, {}) is {} ({bad} pixel(s) not finite): expected finite colour values (--sanitize replaces them with 0)",
+                ["R", "G", "B", "A"][k],
+                i % w,
+                i / w,
+                p[k]
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Replaces every NaN or infinite value of `img` by 0; returns how many pixels had one.
+pub fn sanitize_color(img: &mut ColorImage) -> usize {
+    let mut n = 0;
+    for p in img.pixels_mut() {
+        if p.iter().any(|v| !v.is_finite()) {
+            n += 1;
+            for v in p.iter_mut() {
+                if !v.is_finite() {
+                    *v = 0.0;
+                }
+            }
+        }
+    }
+    n
+}
+
 // ---------------------------------------------------------------------------------------------
 // Public writing API
 // ---------------------------------------------------------------------------------------------
@@ -1184,7 +1231,143 @@ impl Drop for TempFile {
             // Best effort: the write already failed, and that error is the one to report.
             let _ = std::fs::remove_file(&self.path);
         }
+        unregister_temporary(&self.path);
     }
+}
+
+/// Temporary files being written or staged, so that an interrupted process can remove them
+/// ([`remove_pending_temporaries`]).
+static PENDING: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn register_temporary(path: &Path) {
+    if let Ok(mut p) = PENDING.lock() {
+        p.push(path.to_path_buf());
+    }
+}
+
+fn unregister_temporary(path: &Path) {
+    if let Ok(mut p) = PENDING.lock() {
+        p.retain(|q| q != path);
+    }
+}
+
+/// Removes every temporary file this process is writing or has staged and not committed: for a
+/// Ctrl-C or SIGTERM handler, so that an interrupted command leaves no litter.
+pub fn remove_pending_temporaries() {
+    if let Ok(mut p) = PENDING.lock() {
+        for path in p.drain(..) {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+}
+
+/// The outputs of one command as one transaction: each output is written to a staged
+/// temporary file beside it (same extension, so the writers pick the same format), and all are
+/// renamed over their targets only by [`OutputSet::commit`], after every write succeeded. If the
+/// set is dropped without a commit (an error, a panic), the staged files are removed and no
+/// target is touched.
+#[derive(Debug, Default)]
+pub struct OutputSet {
+    staged: Vec<(PathBuf, PathBuf)>,
+}
+
+impl OutputSet {
+    /// An empty set.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The path to write `target`'s content to: `.<stem>.defocus-<pid>-<n>.<ext>` in the same
+    /// folder.
+    pub fn stage(&mut self, target: &Path) -> Result<PathBuf> {
+        let Some(name) = target.file_name() else {
+            return Err(Error::invalid(
+                "output path",
+                format!(
+                    "{}: expected a path ending in a file name",
+                    target.display()
+                ),
+            ));
+        };
+        let dir = match target.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let mut temp_name = std::ffi::OsString::from(".staged-");
+        temp_name.push(format!(
+            "{}-{}-",
+            std::process::id(),
+            TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+        ));
+        temp_name.push(name);
+        let temp = dir.join(temp_name);
+        register_temporary(&temp);
+        self.staged.push((temp.clone(), target.to_path_buf()));
+        Ok(temp)
+    }
+
+    /// Renames every staged file over its target. Every target is checked first (a folder in
+    /// the way fails before anything is renamed); a rename that still fails leaves the staged
+    /// files of the later targets to be removed.
+    pub fn commit(mut self) -> Result<()> {
+        for (_, target) in &self.staged {
+            if target.is_dir() {
+                return Err(Error::invalid(
+                    "output path",
+                    format!("{} is a folder: expected a file name", target.display()),
+                ));
+            }
+        }
+        while !self.staged.is_empty() {
+            let (temp, target) = self.staged.remove(0);
+            let renamed = std::fs::rename(&temp, &target).map_err(|e| Error::io(&target, e));
+            if renamed.is_err() {
+                let _ = std::fs::remove_file(&temp);
+            }
+            unregister_temporary(&temp);
+            renamed?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for OutputSet {
+    fn drop(&mut self) {
+        for (temp, _) in self.staged.drain(..) {
+            let _ = std::fs::remove_file(&temp);
+            unregister_temporary(&temp);
+        }
+    }
+}
+
+/// Fails when two of the named outputs are one file (the same path, however written, or one
+/// existing file under two names): the later write would silently replace the earlier.
+pub fn check_distinct_outputs(outputs: &[(&str, &Path)]) -> Result<()> {
+    let key = |p: &Path| -> PathBuf {
+        if let Ok(c) = p.canonicalize() {
+            return c;
+        }
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let dir = dir.canonicalize().unwrap_or(dir);
+        dir.join(p.file_name().unwrap_or_default())
+    };
+    for (i, (fa, pa)) in outputs.iter().enumerate() {
+        for (fb, pb) in &outputs[i + 1..] {
+            if key(pa) == key(pb) {
+                return Err(Error::invalid(
+                    "output path",
+                    format!(
+                        "{fa} and {fb} both name {}: give each output its own file",
+                        pb.display()
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Writes `path` atomically: `write` fills a temporary file `.<name>.tmp-<pid>-<n>` in the same
@@ -1210,6 +1393,7 @@ fn write_atomic(path: &Path, write: impl FnOnce(&mut BufWriter<File>) -> Result<
     ));
     let temp_path = dir.join(temp_name);
     let file = File::create_new(&temp_path).map_err(|e| Error::io(path, e))?;
+    register_temporary(&temp_path);
     let mut temp = TempFile {
         path: temp_path,
         committed: false,

@@ -12,6 +12,7 @@ mod multiview;
 mod raster;
 mod reference;
 mod registry;
+mod reliability;
 mod report;
 mod scene_files;
 mod scenes;

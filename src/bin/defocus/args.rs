@@ -17,7 +17,7 @@ pub struct Cli {
     /// What to do.
     #[command(subcommand)]
     pub command: Command,
-    /// Worker threads (default: all cores). Output is bit-identical for any count.
+    /// Worker threads, 1 to 512 (default: all cores). Output is bit-identical for any count.
     #[arg(long, global = true, value_name = "N")]
     pub threads: Option<usize>,
     /// No progress bar.

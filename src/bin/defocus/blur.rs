@@ -115,6 +115,9 @@ pub struct BlurArgs {
     /// Say which channels and parameters were used (on stderr).
     #[arg(long, short)]
     pub verbose: bool,
+    /// Replace NaN and infinite colour values by 0 (and say how many) instead of refusing them.
+    #[arg(long)]
+    pub sanitize: bool,
     /// EXR output options.
     #[command(flatten)]
     pub exr: crate::common::ExrArgs,
@@ -178,12 +181,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
         check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
         if let Some(c) = &a.coc_out {
             check_output(c, "--coc-out", &["exr"])?;
-            if c == &a.out {
-                bail!(
-                    "--coc-out and --out both name {}: give two files",
-                    c.display()
-                );
-            }
+            io::check_distinct_outputs(&[("--out", &a.out), ("--coc-out", c)])?;
         }
         for out in std::iter::once(&a.out).chain(&a.coc_out) {
             io::ensure_not_same_file(&a.color, out)?;
@@ -229,7 +227,18 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 );
             }
         }
-        let color = read_timings.time(timing::READ, || io::read_color(&a.color))?;
+        let mut color = read_timings.time(timing::READ, || io::read_color(&a.color))?;
+        if a.sanitize {
+            let n = io::sanitize_color(&mut color);
+            if n > 0 {
+                eprintln!(
+                    "--sanitize: {n} pixel(s) of {} had NaN or infinite values, set to 0",
+                    a.color.display()
+                );
+            }
+        } else {
+            io::check_finite_color(&a.color, &color)?;
+        }
         if let Some(ts) = tilt_shift {
             let mut post = a.post.clone();
             post.max_coc = post.max_coc.max(ts.max_coc_px);
@@ -374,10 +383,13 @@ impl BlurJob {
         let output = self.compute()?;
         let mut timings = output.timings.clone();
         let id = self.settings.id();
+        // Both outputs or neither: staged, renamed when both are written.
+        let mut set = io::OutputSet::new();
         timings.time(timing::WRITE, || {
-            io::write_color_with(&self.out, &output.image, &self.exr)
+            io::write_color_with(&set.stage(&self.out)?, &output.image, &self.exr)
         })?;
         if let Some(path) = &self.coc_out {
+            let path = &set.stage(path)?;
             let coc: Vec<f32> = match &self.input {
                 Input::Depth { depth, lens } => {
                     depth.pixels().iter().map(|&z| lens.coc_px(z)).collect()
@@ -391,6 +403,7 @@ impl BlurJob {
                 &[("CoC", &coc)],
             )?;
         }
+        set.commit()?;
         report_timings(
             self.timings,
             id,

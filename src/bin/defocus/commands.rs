@@ -22,11 +22,15 @@ use crate::common::{
     check_output, parse_aperture, progress_bar, report_timings, TimingFormat, IMAGE_EXTENSIONS,
 };
 
+/// Most worker threads `--threads` accepts (a thread per core of the largest machines, with
+/// room; more only adds start-up time and memory).
+pub const MAX_THREADS: usize = 512;
+
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
     if let Some(n) = cli.threads {
-        if n == 0 {
-            bail!("invalid --threads: 0 (expected at least 1)");
+        if !(1..=MAX_THREADS).contains(&n) {
+            bail!("invalid --threads {n}: expected 1 to {MAX_THREADS}");
         }
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)
@@ -100,6 +104,7 @@ impl TryFrom<RenderArgs> for RenderJob {
         check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
         if let Some(d) = &a.depth_out {
             check_output(d, "--depth-out", &["exr"])?;
+            io::check_distinct_outputs(&[("--out", &a.out), ("--depth-out", d)])?;
         }
         let scene = load_scene(&a.scene, a.view.camera.as_deref())?;
         let defaults = scene
@@ -255,12 +260,15 @@ impl RenderJob {
         let mut timings = output.timings.clone();
         let method = self.settings.id();
         timings.time(timing::WRITE, || {
-            io::write_color_with(&self.out, &output.image, &self.exr)?;
+            // Both outputs or neither: staged, renamed when both are written.
+            let mut set = io::OutputSet::new();
+            io::write_color_with(&set.stage(&self.out)?, &output.image, &self.exr)?;
             if let (Some(path), Some(depth)) = (&self.depth_out, &output.depth) {
                 // Renderers write a large finite value where nothing was hit (Blender: 1e10).
                 let depth = depth.map(|z| if z.is_finite() { z } else { 1e10 });
-                io::write_depth_exr(path, &depth)?;
+                io::write_depth_exr(&set.stage(path)?, &depth)?;
             }
+            set.commit()?;
             anyhow::Ok(())
         })?;
         if self.verbose {
@@ -315,6 +323,8 @@ fn compare(args: &CompareArgs) -> Result<()> {
     }
     let a = io::read_color(&args.a)?;
     let b = io::read_color(&args.b)?;
+    io::check_finite_color(&args.a, &a)?;
+    io::check_finite_color(&args.b, &b)?;
     if !a.same_size(&b) {
         bail!(
             "size mismatch: {} is {}x{} but {} is {}x{}",

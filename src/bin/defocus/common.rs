@@ -56,6 +56,12 @@ pub fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> 
             extensions.join(", .")
         );
     }
+    if path.is_dir() {
+        bail!(
+            "invalid {flag} {}: it is a folder, expected a file name",
+            path.display()
+        );
+    }
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         if !parent.is_dir() {
             bail!(

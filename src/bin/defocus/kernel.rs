@@ -34,7 +34,7 @@ pub struct KernelArgs {
         allow_negative_numbers = true
     )]
     pub aberration: f32,
-    /// Samples per kernel pixel and axis when rasterizing the aperture (1 to 64).
+    /// Samples per kernel pixel and axis when rasterizing the aperture (1 to 32).
     #[arg(long, default_value_t = 8, value_name = "N")]
     pub supersample: usize,
     /// Write the kernel as an image, scaled so its largest value is 1 (.png, .exr or .pfm).
@@ -100,6 +100,11 @@ pub fn run(a: &KernelArgs) -> Result<()> {
             }
         }
     }
+    let named: Vec<(&str, &std::path::Path)> = outputs
+        .iter()
+        .filter_map(|(p, f)| p.as_deref().map(|p| (*f, p)))
+        .collect();
+    io::check_distinct_outputs(&named)?;
     let (r0, r1) = parse_ranks(&a.rank)?;
     let aperture = parse_aperture(&a.aperture)?;
     if let Some(p) = a.aperture.strip_prefix("image:") {
@@ -127,16 +132,19 @@ pub fn run(a: &KernelArgs) -> Result<()> {
     }
     let peak = kernel.pixels().iter().fold(0.0f32, |m, &v| m.max(v));
     let scale = if peak > 0.0 { 1.0 / peak } else { 1.0 };
+    // Every output is staged and renamed only when all are written.
+    let mut set = io::OutputSet::new();
     if let Some(p) = &a.out {
-        io::write_color(p, &to_color(&kernel, scale))?;
+        io::write_color(&set.stage(p)?, &to_color(&kernel, scale))?;
     }
     if let Some(p) = &a.approx_out {
-        io::write_color(p, &to_color(&lr.approximation(r1), scale))?;
+        io::write_color(&set.stage(p)?, &to_color(&lr.approximation(r1), scale))?;
     }
     let filtered = match (&a.filter, &a.filter_out) {
-        (Some(input), Some(out)) => Some(filter_image(input, out, a, &kernel, &lr, r1)?),
+        (Some(input), Some(out)) => Some(filter_image(input, out, a, &kernel, &lr, r1, &mut set)?),
         _ => None,
     };
+    set.commit()?;
     let ranks: Vec<(usize, f64, f64)> = (r0..=r1)
         .map(|r| (r, lr.relative_error(r), lr.approximation_sum(r)))
         .collect();
@@ -214,18 +222,19 @@ fn filter_image(
     kernel: &GrayImage,
     lr: &defocus::methods::lowrank::LowRank,
     rank: usize,
+    set: &mut io::OutputSet,
 ) -> Result<Filtered> {
     let img = io::read_color(input)?;
     let start = std::time::Instant::now();
     let low = filter_separable(&img, lr, rank);
     let separable_ms = start.elapsed().as_secs_f64() * 1e3;
-    io::write_color(out, &low)?;
+    io::write_color(&set.stage(out)?, &low)?;
     let (full_2d_ms, against_2d) = match &a.full_2d_out {
         Some(p) => {
             let start = std::time::Instant::now();
             let full = filter_full_2d(&img, kernel);
             let ms = start.elapsed().as_secs_f64() * 1e3;
-            io::write_color(p, &full)?;
+            io::write_color(&set.stage(p)?, &full)?;
             (Some(ms), Some(metrics::compare(&low, &full)?))
         }
         None => (None, None),

@@ -14,6 +14,11 @@ use std::process::ExitCode;
 use clap::Parser;
 
 fn main() -> ExitCode {
+    // Ctrl-C or SIGTERM: remove the temporary files of unfinished outputs, then stop.
+    let _ = ctrlc::set_handler(|| {
+        defocus::image::io::remove_pending_temporaries();
+        std::process::exit(130);
+    });
     let cli = args::Cli::parse();
     match commands::run(cli) {
         Ok(()) => ExitCode::SUCCESS,

@@ -256,6 +256,7 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
         timings: None,
         coc_out: None,
         verbose: false,
+        sanitize: false,
         exr: crate::common::ExrArgs {
             exr_compression: crate::common::ExrCompressionArg::None,
             half: false,

@@ -1,0 +1,244 @@
+//! Tests: bad inputs and colliding outputs, as a hostile user would try them.
+
+use defocus::image::{io, ColorImage, GrayImage};
+
+use crate::cli::{defocus, s, stderr, temp_dir};
+
+/// A small frame and its depth, written to `dir`.
+fn frame(dir: &std::path::Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let (c, d) = (dir.join("c.exr"), dir.join("z.exr"));
+    let color = ColorImage::new(8, 6, [0.5, 0.25, 0.125, 1.0]);
+    io::write_color(&c, &color).unwrap();
+    io::write_depth_exr(&d, &GrayImage::new(8, 6, 3.0)).unwrap();
+    (c, d)
+}
+
+fn files_in(dir: &std::path::Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn absurd_thread_counts_are_refused_at_once() {
+    for n in ["0", "20000"] {
+        let o = defocus(&["--threads", n, "render", "--width", "8", "--height", "8"]);
+        assert_eq!(o.status.code(), Some(1), "{n}");
+        assert!(stderr(&o).contains("--threads"), "{}", stderr(&o));
+    }
+}
+
+#[test]
+fn two_outputs_at_one_path_are_refused_before_any_work() {
+    let dir = temp_dir("collide");
+    let x = dir.join("x.exr");
+    let o = defocus(&[
+        "render",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        s(&x),
+        "--depth-out",
+        s(&x),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("--out and --depth-out"),
+        "{}",
+        stderr(&o)
+    );
+    // The same file written two ways.
+    let other = format!("{}/./x.exr", dir.display());
+    let o = defocus(&[
+        "render",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        s(&x),
+        "--depth-out",
+        &other,
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let k = dir.join("k.png");
+    let f = dir.join("f.png");
+    let img = dir.join("in.png");
+    io::write_color(&img, &ColorImage::new(8, 8, [0.5; 4])).unwrap();
+    for args in [
+        vec![
+            "kernel",
+            "--size",
+            "17",
+            "--rank",
+            "1..3",
+            "--out",
+            s(&k),
+            "--approx-out",
+            s(&k),
+        ],
+        vec![
+            "kernel",
+            "--size",
+            "17",
+            "--rank",
+            "1..3",
+            "--filter",
+            s(&img),
+            "--filter-out",
+            s(&f),
+            "--full-2d-out",
+            s(&f),
+        ],
+    ] {
+        let o = defocus(&args);
+        assert_eq!(o.status.code(), Some(1), "{args:?}");
+        assert!(stderr(&o).contains("both name"), "{}", stderr(&o));
+    }
+    assert_eq!(files_in(&dir), vec!["in.png"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_failing_second_output_leaves_no_first_output() {
+    let dir = temp_dir("half-written");
+    // A folder where the second output should go.
+    let blocked = dir.join("blocked.exr");
+    std::fs::create_dir(&blocked).unwrap();
+    let out = dir.join("r.png");
+    let o = defocus(&[
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        s(&out),
+        "--depth-out",
+        s(&blocked),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let (c, d) = frame(&dir);
+    let b = dir.join("b.exr");
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&c),
+        "--depth",
+        s(&d),
+        "--focus",
+        "2",
+        "--out",
+        s(&b),
+        "--coc-out",
+        s(&blocked),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let blocked_png = dir.join("blocked.png");
+    std::fs::create_dir(&blocked_png).unwrap();
+    let k = dir.join("k.png");
+    let o = defocus(&[
+        "kernel",
+        "--size",
+        "17",
+        "--rank",
+        "1..2",
+        "--out",
+        s(&k),
+        "--approx-out",
+        s(&blocked_png),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    // Only the inputs and the blocking folders: no output, no temporary file.
+    assert_eq!(
+        files_in(&dir),
+        vec!["blocked.exr", "blocked.png", "c.exr", "z.exr"]
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn non_finite_colour_is_refused_with_its_place_or_sanitized_on_request() {
+    let dir = temp_dir("nan-colour");
+    let (c, d) = frame(&dir);
+    let mut color = io::read_color(&c).unwrap();
+    color.pixels_mut()[2 * 8 + 3][1] = f32::NAN;
+    color.pixels_mut()[4 * 8 + 1][0] = f32::INFINITY;
+    io::write_color(&c, &color).unwrap();
+    let out = dir.join("o.exr");
+    for method in ["hammon", "lowrank", "gaussian", "poisson", "splat"] {
+        let o = defocus(&[
+            "blur",
+            "--color",
+            s(&c),
+            "--depth",
+            s(&d),
+            "--focus",
+            "2",
+            "--method",
+            method,
+            "--out",
+            s(&out),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{method}");
+        let e = stderr(&o);
+        assert!(
+            e.contains("c.exr") && e.contains("channel G") && e.contains("(3, 2)"),
+            "{e}"
+        );
+        assert!(!out.exists());
+    }
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&c),
+        "--depth",
+        s(&d),
+        "--focus",
+        "2",
+        "--sanitize",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("2 pixel(s)"), "{}", stderr(&o));
+    let img = io::read_color(&out).unwrap();
+    assert!(img.pixels().iter().flatten().all(|v| v.is_finite()));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn compare_refuses_non_finite_images_instead_of_claiming_a_match() {
+    let dir = temp_dir("nan-compare");
+    let (a, b) = (dir.join("a.exr"), dir.join("b.exr"));
+    let mut img = ColorImage::new(4, 4, [0.0, 0.0, 0.0, 1.0]);
+    io::write_color(&b, &img).unwrap();
+    img.pixels_mut()[5] = [f32::NAN, 0.0, 0.0, 1.0];
+    io::write_color(&a, &img).unwrap();
+    for json in [false, true] {
+        let mut args = vec!["compare", s(&a), s(&b)];
+        if json {
+            args.push("--json");
+        }
+        let o = defocus(&args);
+        assert_eq!(o.status.code(), Some(1));
+        assert!(o.stdout.is_empty(), "no numbers are printed");
+        assert!(
+            stderr(&o).contains("a.exr") && stderr(&o).contains("NaN"),
+            "{}",
+            stderr(&o)
+        );
+    }
+    // The library's metrics refuse too.
+    let clean = io::read_color(&b).unwrap();
+    assert!(defocus::metrics::compare(&img, &clean).is_err());
+    assert!(defocus::metrics::psnr_srgb(&clean, &img).is_err());
+    std::fs::remove_dir_all(dir).unwrap();
+}
