@@ -126,6 +126,29 @@ fn file_format(path: &Path, role: &'static str) -> Result<FileFormat> {
     }
 }
 
+/// The format of an existing file from its first bytes (PNG signature, OpenEXR magic number,
+/// PFM header), or `None` when it is none of them or cannot be read.
+fn sniff(path: &Path) -> Option<FileFormat> {
+    let mut head = [0u8; 4];
+    let mut f = File::open(path).ok()?;
+    let n = f.read(&mut head).ok()?;
+    match &head[..n] {
+        [0x89, b'P', b'N', b'G'] => Some(FileFormat::Png),
+        [0x76, 0x2f, 0x31, 0x01] => Some(FileFormat::Exr),
+        [b'P', b'F' | b'f', c, _] if c.is_ascii_whitespace() => Some(FileFormat::Pfm),
+        _ => None,
+    }
+}
+
+/// The format of an input file: from its content when recognised (a PNG named `.exr` is read
+/// as the PNG it is), else from its extension.
+fn input_format(path: &Path, role: &'static str) -> Result<FileFormat> {
+    match sniff(path) {
+        Some(f) => Ok(f),
+        None => file_format(path, role),
+    }
+}
+
 /// [`check_size`] for a size read from a file header: the error names the file.
 fn check_file_size(path: &Path, width: usize, height: usize) -> Result<()> {
     check_size(width, height).map_err(|e| {
@@ -158,7 +181,7 @@ fn open(path: &Path) -> Result<File> {
 ///   alpha, which is read as stored.
 /// - `.pfm`: colour (`PF`) or grey (`Pf`), either byte order.
 pub fn read_color(path: &Path) -> Result<ColorImage> {
-    match file_format(path, "input image path")? {
+    match input_format(path, "input image path")? {
         FileFormat::Exr => color_from_exr(path, &read_exr_channels(path)?),
         FileFormat::Png => color_from_png(read_png(path)?),
         FileFormat::Pfm => color_from_pfm(read_pfm(path)?),
@@ -373,7 +396,7 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
             ),
         ));
     }
-    let (width, height, mut values, what) = match file_format(path, "depth path")? {
+    let (width, height, mut values, what) = match input_format(path, "depth path")? {
         FileFormat::Exr => {
             let channels = read_exr_channels(path)?;
             let (name, samples) = depth_channel(path, &channels, opts.channel.as_deref())?;

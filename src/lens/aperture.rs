@@ -6,6 +6,10 @@ use glam::Vec2;
 use crate::image::GrayImage;
 use crate::{Error, Result};
 
+/// Every aperture spec the command line takes, for messages and help.
+pub const APERTURE_SPECS: &str =
+    "disc, poly:B[,rot=DEG][,curve=R], star[:N[,INNER]], heart, ring[:INNER] or image:PATH";
+
 /// The shape of the lens opening, in the unit aperture.
 ///
 /// A lens point `v` is given in image axes (x right, y down) inside the unit disc; the lens point
@@ -134,7 +138,7 @@ impl Aperture {
         }
         Err(Error::invalid(
             "aperture",
-            format!("'{spec}': expected disc, poly:B[,rot=DEG][,curve=R] or image:PATH"),
+            format!("'{spec}': expected {APERTURE_SPECS}"),
         ))
     }
 

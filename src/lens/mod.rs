@@ -11,7 +11,7 @@ mod sampler;
 mod shapes;
 mod taps;
 
-pub use aperture::{Aperture, ApertureImage};
+pub use aperture::{Aperture, ApertureImage, APERTURE_SPECS};
 pub use camera::{Camera, ThinLens};
 pub(crate) use sampler::SAMPLER_SEED_SALT;
 pub use sampler::{LensSample, SampleSet, SamplerKind};

@@ -96,7 +96,7 @@ impl CustomShape {
             _ => {
                 return Err(Error::invalid(
                     "custom aperture",
-                    format!("'{spec}': expected star[:POINTS[,INNER]], heart or ring[:INNER]"),
+                    format!("'{spec}': expected {}", super::aperture::APERTURE_SPECS),
                 ))
             }
         };

@@ -74,6 +74,8 @@ pub struct SceneFile {
     /// The file's perspective cameras, in the order of the file's camera list. Orthographic
     /// cameras are left out: the thin-lens model is perspective.
     pub cameras: Vec<FileCamera>,
+    /// The cameras left out (orthographic), by index and name, so that a user can be told.
+    pub skipped_cameras: Vec<String>,
 }
 
 impl SceneFile {
@@ -129,6 +131,15 @@ pub fn read_scene_file(path: &Path) -> Result<SceneFile> {
     let mut file = match ext.as_str() {
         "gltf" | "glb" => gltf::load(path)?,
         "obj" => obj::load(path)?,
+        "" => {
+            return Err(Error::format(
+                path,
+                format!(
+                    "the file name has no extension: expected .{}",
+                    EXTENSIONS.join(", .")
+                ),
+            ))
+        }
         _ => {
             return Err(Error::format(
                 path,
@@ -142,6 +153,25 @@ pub fn read_scene_file(path: &Path) -> Result<SceneFile> {
     file.scene
         .validate()
         .map_err(|e| Error::format(path, e.to_string()))?;
+    // Empty and degenerate scenes are refused alike in every format.
+    if file.scene.triangle_count() == 0 {
+        return Err(Error::format(
+            path,
+            "the scene has no triangles: expected at least one mesh face",
+        ));
+    }
+    let has_area = file.scene.meshes.iter().any(|m| {
+        m.indices.iter().any(|t| {
+            let [a, b, c] = t.map(|i| m.positions[i as usize]);
+            (b - a).cross(c - a).length_squared() > 0.0
+        })
+    });
+    if !has_area {
+        return Err(Error::format(
+            path,
+            "every triangle of the scene has zero area: nothing to render",
+        ));
+    }
     let camera = match file.cameras.first() {
         Some(c) => c.camera.clone(),
         None => frame_all(&file.scene, DEFAULT_WIDTH_PX, DEFAULT_HEIGHT_PX),

@@ -182,6 +182,10 @@ impl Mesh {
     }
 }
 
+/// Largest vertex coordinate in metres a scene may have (10,000 km): beyond it the depth and
+/// projection arithmetic of f32 loses the precision a camera needs.
+pub const MAX_COORDINATE_M: f32 = 1e7;
+
 /// Camera and lens settings a scene suggests (built-in scenes, glTF cameras).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneDefaults {
@@ -266,6 +270,18 @@ impl Scene {
                 return Err(Error::invalid(
                     "scene",
                     format!("mesh {mi}: vertex position {p} is not finite"),
+                ));
+            }
+            if let Some(p) = mesh
+                .positions
+                .iter()
+                .find(|p| p.abs().max_element() > MAX_COORDINATE_M)
+            {
+                return Err(Error::invalid(
+                    "scene",
+                    format!(
+                        "mesh {mi}: vertex position {p} m is beyond +-{MAX_COORDINATE_M:e} m: expected scene coordinates in metres within that range"
+                    ),
                 ));
             }
         }

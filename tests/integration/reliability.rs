@@ -242,3 +242,74 @@ fn compare_refuses_non_finite_images_instead_of_claiming_a_match() {
     assert!(defocus::metrics::psnr_srgb(&clean, &img).is_err());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn errors_name_the_real_cause() {
+    let dir = temp_dir("real-cause");
+    let out = dir.join("o.png");
+    let cases: [(&str, &str, &str); 4] = [
+        (
+            "big.obj",
+            "v 1e38 0 0\nv 0 1e38 0\nv 0 0 -1e38\nf 1 2 3\n",
+            "beyond",
+        ),
+        (
+            "degenerate.obj",
+            "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n",
+            "zero area",
+        ),
+        ("empty.obj", "# nothing\n", "no triangles"),
+        ("two.obj", "v 0 0 0\nv 1 0 0\nf 1 2\n", "line 3"),
+    ];
+    for (name, text, needle) in cases {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        let o = defocus(&[
+            "render",
+            "--scene",
+            s(&p),
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--out",
+            s(&out),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{name}");
+        let e = stderr(&o);
+        assert!(e.contains(name) && e.contains(needle), "{name}: {e}");
+        assert!(
+            !e.contains("invalid camera"),
+            "{name} blamed the camera: {e}"
+        );
+    }
+    let o = defocus(&["render", "--look-from", "1e30,0,0", "--out", s(&out)]);
+    assert!(
+        stderr(&o).contains("--look-from") && !stderr(&o).contains("up"),
+        "{}",
+        stderr(&o)
+    );
+    // The kernel's default ranks fit its size.
+    let o = defocus(&["kernel", "--size", "9"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Aperture errors list every shape.
+    let o = defocus(&["render", "--aperture", "hexagon", "--out", s(&out)]);
+    for shape in ["disc", "poly:", "star", "heart", "ring", "image:"] {
+        assert!(stderr(&o).contains(shape), "{shape}: {}", stderr(&o));
+    }
+    // A PNG named .exr is read as the PNG it is; a missing file's OS error is printed once.
+    let png = dir.join("shot.exr");
+    io::write_color(&dir.join("shot.png"), &ColorImage::new(4, 4, [0.5; 4])).unwrap();
+    std::fs::copy(dir.join("shot.png"), &png).unwrap();
+    let o = defocus(&["compare", s(&png), s(&dir.join("shot.png"))]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = defocus(&["compare", s(&dir.join("missing.exr")), s(&png)]);
+    assert_eq!(stderr(&o).matches("os error").count(), 1, "{}", stderr(&o));
+    // A scene path without an extension.
+    let bare = dir.join("scene");
+    std::fs::write(&bare, "v 0 0 0\n").unwrap();
+    let o = defocus(&["render", "--scene", s(&bare), "--out", s(&out)]);
+    assert!(stderr(&o).contains("no extension"), "{}", stderr(&o));
+    assert!(!out.exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -86,6 +86,18 @@ fn load_scene(spec: &str, camera: Option<&str>) -> Result<Scene> {
     let path = Path::new(spec);
     if path.exists() {
         let mut file = load::read_scene_file(path)?;
+        if !file.skipped_cameras.is_empty() {
+            eprintln!(
+                "note: {}: {} skipped: the thin-lens model is perspective{}",
+                path.display(),
+                file.skipped_cameras.join(", "),
+                if file.cameras.is_empty() && camera.is_none() {
+                    " (the default view frames the whole scene; --look-from and --fov place a camera)"
+                } else {
+                    ""
+                }
+            );
+        }
         if let Some(c) = camera {
             file.use_camera(c).context("invalid --camera")?;
         }
@@ -117,6 +129,22 @@ impl TryFrom<RenderArgs> for RenderJob {
         }
         if let Some(h) = a.height {
             camera.height_px = h;
+        }
+        for (flag, v) in [
+            ("--look-from", a.view.look_from),
+            ("--look-at", a.view.look_at),
+        ] {
+            if let Some(p) = v {
+                let limit = defocus::scene::MAX_COORDINATE_M;
+                if p.iter().any(|c| c.abs() > limit) {
+                    bail!(
+                        "invalid {flag} {},{},{}: expected coordinates in metres within +-{limit:e}",
+                        p[0],
+                        p[1],
+                        p[2]
+                    );
+                }
+            }
         }
         let view = load::ViewOverride {
             look_from_m: a.view.look_from.map(Vec3::from),

@@ -23,9 +23,10 @@ pub struct KernelArgs {
     /// Side of the square kernel in pixels (odd; the paper's largest is 65).
     #[arg(long, default_value_t = 65, value_name = "PX")]
     pub size: usize,
-    /// Ranks to report: `R` or `A..B` (inclusive).
-    #[arg(long, default_value = "1..10", value_name = "R|A..B")]
-    pub rank: String,
+    /// Ranks to report: `R` or `A..B` (inclusive) [default: 1..10, or 1..size for kernels
+    /// smaller than 10 pixels].
+    #[arg(long, value_name = "R|A..B")]
+    pub rank: Option<String>,
     /// Spherical aberration, -1 (bright centre) to 1 (bright rim).
     #[arg(
         long,
@@ -105,7 +106,11 @@ pub fn run(a: &KernelArgs) -> Result<()> {
         .filter_map(|(p, f)| p.as_deref().map(|p| (*f, p)))
         .collect();
     io::check_distinct_outputs(&named)?;
-    let (r0, r1) = parse_ranks(&a.rank)?;
+    let rank_spec = a
+        .rank
+        .clone()
+        .unwrap_or_else(|| format!("1..{}", a.size.clamp(1, 10)));
+    let (r0, r1) = parse_ranks(&rank_spec)?;
     let aperture = parse_aperture(&a.aperture)?;
     if let Some(p) = a.aperture.strip_prefix("image:") {
         for out in a.out.iter().chain(&a.approx_out) {
@@ -124,7 +129,7 @@ pub fn run(a: &KernelArgs) -> Result<()> {
     if r1 > lr.len() {
         bail!(
             "invalid --rank '{}': a {}x{} kernel has at most rank {}",
-            a.rank,
+            rank_spec,
             a.size,
             a.size,
             lr.len()

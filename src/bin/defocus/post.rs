@@ -291,6 +291,15 @@ impl PostArgs {
                     max_coc_px: self.max_coc,
                     ..LowRankSettings::default()
                 };
+                if let Some(k) = self.kernel_size {
+                    if self.rank > k {
+                        bail!(
+                            "--rank {} (the default is 3) needs a kernel of at least {} px, but --kernel-size is {k}: raise --kernel-size or lower --rank",
+                            self.rank,
+                            self.rank
+                        );
+                    }
+                }
                 l.validate().context("invalid lowrank option")?;
                 // The kernel's own checks (odd size, in range), before any frame is read.
                 l.kernel_spec(0.0)

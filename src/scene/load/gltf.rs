@@ -451,15 +451,22 @@ impl<'a> Loader<'a> {
         }
         self.decode_textures()?;
         let mut cameras = Vec::new();
+        let mut skipped_cameras = Vec::new();
         for (node, camera, world) in camera_nodes {
-            if let Some(c) = self.camera(&node, &camera, &world)? {
-                cameras.push(c);
+            match self.camera(&node, &camera, &world)? {
+                Some(c) => cameras.push(c),
+                None => skipped_cameras.push(format!(
+                    "camera {} ('{}', orthographic)",
+                    camera.index(),
+                    node.name().or(camera.name()).unwrap_or("unnamed")
+                )),
             }
         }
         cameras.sort_by_key(|c| c.index);
         Ok(SceneFile {
             scene: self.scene,
             cameras,
+            skipped_cameras,
         })
     }
 

@@ -37,9 +37,46 @@ struct TextureJob {
     alpha: Option<PathBuf>,
 }
 
+/// Checks the statements the OBJ reader would drop or reject without a line number: vertices
+/// (`v`, `vt`, `vn`) need numbers, faces (`f`) at least three vertex references.
+fn check_lines(path: &Path, bytes: &[u8]) -> Result<()> {
+    let text = String::from_utf8_lossy(bytes);
+    for (n, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        let mut words = line.split_whitespace();
+        let Some(keyword) = words.next() else {
+            continue;
+        };
+        let rest: Vec<&str> = words.collect();
+        let at = |message: String| Error::format(path, format!("line {}: {message}", n + 1));
+        let numbers = |ws: &[&str]| ws.iter().all(|w| w.parse::<f32>().is_ok());
+        match keyword {
+            "v" | "vn" if rest.len() < 3 || !numbers(&rest[..3]) => {
+                return Err(at(format!("'{line}': '{keyword}' needs three numbers")));
+            }
+            "vt" if rest.is_empty() || !numbers(&rest) => {
+                return Err(at(format!("'{line}': 'vt' needs one to three numbers")));
+            }
+            "f" if rest.len() < 3 => {
+                return Err(at(format!(
+                    "'{line}': a face needs at least 3 vertices, this one has {}",
+                    rest.len()
+                )));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Loads an OBJ file and the MTL libraries it names.
 pub(super) fn load(path: &Path) -> Result<SceneFile> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut bytes = Vec::new();
+    File::open(path)
+        .and_then(|mut f| std::io::Read::read_to_end(&mut f, &mut bytes))
+        .map_err(|e| Error::io(path, e))?;
+    check_lines(path, &bytes)?;
+    let file = std::io::Cursor::new(bytes);
     let dir = path.parent().unwrap_or(Path::new(""));
     let mtl_error: RefCell<Option<String>> = RefCell::new(None);
     let options = tobj::LoadOptions {
@@ -215,6 +252,7 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
     Ok(SceneFile {
         scene,
         cameras: Vec::new(),
+        skipped_cameras: Vec::new(),
     })
 }
 
