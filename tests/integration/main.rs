@@ -2,6 +2,7 @@
 
 mod cli;
 mod cli_post;
+mod fuzz;
 mod hammon;
 mod image_io;
 mod lens;

@@ -55,7 +55,7 @@ fn base64(data: &[u8]) -> String {
 }
 
 /// A glTF document under construction: JSON plus one binary buffer.
-struct Gltf {
+pub(crate) struct Gltf {
     json: Value,
     bin: Vec<u8>,
 }
@@ -181,7 +181,7 @@ impl Gltf {
     }
 
     /// Writes `name.gltf` with the buffer embedded as a base64 data URI.
-    fn write_embedded(&self, dir: &Path, name: &str) -> PathBuf {
+    pub(crate) fn write_embedded(&self, dir: &Path, name: &str) -> PathBuf {
         let mut json = self.json.clone();
         json["buffers"] = json!([{
             "byteLength": self.bin.len(),
@@ -193,7 +193,7 @@ impl Gltf {
     }
 
     /// Writes binary glTF `name.glb`.
-    fn write_glb(&self, dir: &Path, name: &str) -> PathBuf {
+    pub(crate) fn write_glb(&self, dir: &Path, name: &str) -> PathBuf {
         let mut json = self.json.clone();
         json["buffers"] = json!([{"byteLength": self.bin.len()}]);
         let mut j = serde_json::to_vec(&json).unwrap();
@@ -765,7 +765,7 @@ fn triangle_strips_fans_and_non_indexed_primitives_become_triangles() {
 // ---------------------------------------------------------------------------------------------
 
 /// A valid file with one textured quad, the base of the malformed variants.
-fn valid_textured() -> Gltf {
+pub(crate) fn valid_textured() -> Gltf {
     let mut g = Gltf::new();
     let tex = g.texture(&png(1, 1, &[[255; 4]]), json!({}));
     let m = g.push(
