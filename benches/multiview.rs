@@ -25,7 +25,7 @@ fn bench(c: &mut Criterion) {
         let prepared = PreparedScene::new(&scene, &camera.camera_from_world).expect("prepare");
         let s = MultiviewSettings::default();
         g.bench_function(format!("decompose/{name}/{res}"), |b| {
-            b.iter(|| multiview::decompose(&prepared, lens, &s))
+            b.iter(|| multiview::decompose(&prepared, lens, &s).expect("layers"))
         });
         for samples in [16usize, 32] {
             let s = MultiviewSettings {

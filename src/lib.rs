@@ -7,6 +7,7 @@
 //! The library never prints; it returns values and typed errors ([`Error`]).
 
 pub mod autofocus;
+pub mod budget;
 pub mod error;
 pub mod image;
 pub mod lens;

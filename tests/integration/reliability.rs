@@ -313,3 +313,56 @@ fn errors_name_the_real_cause() {
     assert!(!out.exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// The layered methods plan their peak memory before they allocate: at the largest frame with
+/// their largest options they are refused at once, naming what to lower; at 1280x720 with their
+/// defaults they stay far inside the 16 GiB budget.
+#[test]
+fn layered_methods_refuse_frames_beyond_the_memory_budget() {
+    let dir = temp_dir("budget");
+    let out = dir.join("o.png");
+    let big = ["--width", "8192", "--height", "8192", "--out", s(&out)];
+    for (method, extra, needle) in [
+        ("multilayer", vec!["--fragments", "16"], "--fragments"),
+        ("splat", vec!["--layers", "16"], "--layers"),
+        ("multiview", vec!["--layer-spacing", "0.25"], "--layers"),
+    ] {
+        let mut args = vec!["render", "--method", method];
+        args.extend(extra);
+        args.extend(big);
+        let o = defocus(&args);
+        assert_eq!(o.status.code(), Some(1), "{method}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(e.contains("GiB") && e.contains(needle), "{method}: {e}");
+        assert!(!out.exists());
+    }
+    // A smaller budget is honoured too.
+    let o = defocus(&[
+        "--memory-budget",
+        "0.001",
+        "render",
+        "--method",
+        "multilayer",
+        "--width",
+        "320",
+        "--height",
+        "180",
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    // Defaults at 1280x720: well inside the default budget.
+    let lens = defocus::scene::builtin::load("railing")
+        .unwrap()
+        .defaults
+        .unwrap()
+        .camera
+        .thin_lens()
+        .unwrap();
+    let ml = defocus::methods::multilayer::peak_bytes(&lens, &Default::default());
+    let mv = defocus::methods::multiview::peak_bytes(&lens, 16);
+    for b in [ml, mv] {
+        assert!(b < defocus::budget::DEFAULT_BUDGET_BYTES / 16, "{b}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -23,6 +23,10 @@ pub struct Cli {
     /// No progress bar.
     #[arg(long, short, global = true)]
     pub quiet: bool,
+    /// Peak memory the layered methods may plan for, in GiB (default 16): a run that would need
+    /// more is refused before it allocates, naming the option to lower.
+    #[arg(long, global = true, value_name = "GIB", allow_negative_numbers = true)]
+    pub memory_budget: Option<f64>,
 }
 
 /// Subcommands.

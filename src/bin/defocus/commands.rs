@@ -28,6 +28,12 @@ pub const MAX_THREADS: usize = 512;
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
+    if let Some(g) = cli.memory_budget {
+        if !(g.is_finite() && g > 0.0 && g <= 1e6) {
+            bail!("invalid --memory-budget {g}: expected a number of GiB greater than 0");
+        }
+        std::env::set_var("DEFOCUS_MEMORY_BUDGET_GIB", g.to_string());
+    }
     if let Some(n) = cli.threads {
         if !(1..=MAX_THREADS).contains(&n) {
             bail!("invalid --threads {n}: expected 1 to {MAX_THREADS}");

@@ -236,6 +236,29 @@ impl Borders {
     }
 }
 
+/// Estimated peak bytes of `multilayer` on a frame of `lens` with `settings`: the lists at
+/// full occupancy (12 bytes a fragment, N per pixel, times the supersampling), the tiles'
+/// slots while collecting, level 0, and the filtered levels (about as much again as level 0:
+/// merging keeps them short), checked against [`crate::budget`].
+pub fn peak_bytes(lens: &ThinLens, settings: &MultilayerSettings) -> u64 {
+    let k = settings.supersample as u64;
+    let px = (lens.width_px * lens.height_px) as u64;
+    let lists = px * k * k * settings.fragments as u64 * 12;
+    let level0 = px * settings.fragments as u64 * 12;
+    2 * lists + 2 * level0 + px * 16
+}
+
+fn check_memory(lens: &ThinLens, settings: &MultilayerSettings) -> Result<()> {
+    crate::budget::check(
+        peak_bytes(lens, settings),
+        &format!(
+            "multilayer at {}x{} with {} fragments per pixel",
+            lens.width_px, lens.height_px, settings.fragments
+        ),
+        "--fragments, --ml-supersample or the resolution",
+    )
+}
+
 /// Pass `collect`: the fragment lists of the pinhole view (at `supersample` x `supersample`
 /// times the resolution when asked).
 pub fn collect(
@@ -314,6 +337,7 @@ pub fn render(
 ) -> Result<MethodOutput> {
     settings.validate()?;
     let lens = camera.thin_lens()?;
+    check_memory(&lens, settings)?;
     let mut timings = Timings::default();
     let prepared = timings.time(pass::PREPARE, || {
         PreparedScene::new(scene, &camera.camera_from_world)

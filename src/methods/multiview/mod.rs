@@ -211,13 +211,28 @@ pub fn decompose(
     prepared: &PreparedScene,
     lens: ThinLens,
     settings: &MultiviewSettings,
-) -> DepthLayers {
+) -> Result<DepthLayers> {
     let spacing = spacing_for(lens, settings, coc_range(prepared, &lens));
+    crate::budget::check(
+        peak_bytes(&lens, spacing.layers),
+        &format!(
+            "multiview at {}x{} with {} layers",
+            lens.width_px, lens.height_px, spacing.layers
+        ),
+        "--layers, raise --layer-spacing, or lower the resolution",
+    )?;
     let view = View::pinhole(lens);
     let binned = BinnedView::new(prepared, &view);
     let mut layers = DepthLayers::new(spacing, lens.width_px, lens.height_px);
     binned.rasterize(prepared, &mut layers);
-    layers
+    Ok(layers)
+}
+
+/// Estimated peak bytes of `multiview` with `layers` layers on a frame of `lens`: the layers
+/// (12 bytes a pixel each), their N-buffers (up to 9 levels of 4 bytes) and mipmaps.
+pub fn peak_bytes(lens: &ThinLens, layers: usize) -> u64 {
+    let px = (lens.width_px * lens.height_px) as u64;
+    layers as u64 * px * (12 + 9 * 4 + 6) + px * 16
 }
 
 /// The lens sample sets (one, or [`JITTER_SETS`] for jitter) and the noise tile.
@@ -258,7 +273,7 @@ pub fn render(
     let prepared = timings.time(pass::PREPARE, || {
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
-    let layers = timings.time(pass::DECOMPOSE, || decompose(&prepared, lens, settings));
+    let layers = timings.time(pass::DECOMPOSE, || decompose(&prepared, lens, settings))?;
     let (sets, noise) = sample_sets(settings)?;
     let lambda = trace::mean_spacing(&sets[0]);
     let m = layers.spacing.layers;

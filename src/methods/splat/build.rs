@@ -231,7 +231,7 @@ pub fn distribute(
     merge: usize,
     width: usize,
     height: usize,
-) -> TileLists {
+) -> crate::Result<TileLists> {
     let tiles_x = width.div_ceil(TILE_PX).max(1);
     let tiles_y = height.div_ceil(TILE_PX).max(1);
     let tiles = tiles_x * tiles_y;
@@ -253,6 +253,14 @@ pub fn distribute(
             count
         })
         .collect();
+    // The entries are counted: refuse before allocating them if they exceed the budget
+    // (twice: the chunks' runs and the tile lists).
+    let total: u64 = counts.iter().flatten().map(|&c| c as u64).sum();
+    crate::budget::check(
+        total * 16,
+        &format!("splat's tile lists ({total} entries)"),
+        "--max-coc, raise --merge, or lower the resolution",
+    )?;
     // Each chunk lays its entries out by tile (its own prefix sum), in fragment order.
     let local: Vec<ChunkLists> = chunks
         .par_iter()
@@ -302,10 +310,10 @@ pub fn distribute(
             at += run.len();
         }
     });
-    TileLists {
+    Ok(TileLists {
         tiles_x,
         tiles_y,
         offsets,
         entries,
-    }
+    })
 }

@@ -149,7 +149,7 @@ fn splat(
         ));
     }
     let shape = blend::Shape::new(&settings.aperture);
-    let (fragments, norms, mut lists) = timings.time(pass::BUILD, || {
+    let (fragments, norms, lists) = timings.time(pass::BUILD, || {
         let fragments = build::fragments(layers, width, height, settings.merge, settings.group_px);
         let norms: Vec<f32> = fragments
             .par_iter()
@@ -164,6 +164,7 @@ fn splat(
         let lists = build::distribute(&fragments, settings.merge, width, height);
         (fragments, norms, lists)
     });
+    let mut lists = lists?;
     timings.time(pass::SORT, || {
         let tiles = lists.tiles_x * lists.tiles_y;
         let mut slices: Vec<&mut [(u32, u32)]> = Vec::with_capacity(tiles);
@@ -253,6 +254,15 @@ pub fn render_scene(
 ) -> Result<(MethodOutput, SplatStats)> {
     settings.validate()?;
     let lens = camera.thin_lens()?;
+    let px = (lens.width_px * lens.height_px) as u64;
+    crate::budget::check(
+        px * settings.layers as u64 * (12 + 16 + 4) + px * 32,
+        &format!(
+            "splat at {}x{} with {} layers",
+            lens.width_px, lens.height_px, settings.layers
+        ),
+        "--layers or the resolution",
+    )?;
     let mut timings = Timings::default();
     let prepared = timings.time(pass::PREPARE, || {
         PreparedScene::new(scene, &camera.camera_from_world)
