@@ -37,6 +37,21 @@ pub fn from_half(c: &HalfRgba) -> Rgba {
     [c[0].to_f32(), c[1].to_f32(), c[2].to_f32(), c[3].to_f32()]
 }
 
+/// The first (nearest) depth of each of the depth-sorted lists `offsets[i]..offsets[i + 1]`,
+/// +inf for an empty list.
+pub fn nearest_depths(offsets: &[u32], depth: &[f32]) -> Vec<f32> {
+    offsets
+        .windows(2)
+        .map(|w| {
+            if w[0] < w[1] {
+                depth[w[0] as usize]
+            } else {
+                f32::INFINITY
+            }
+        })
+        .collect()
+}
+
 /// Per-pixel fragment lists of one view: pixel `i` (row-major) owns the fragments
 /// `offsets[i]..offsets[i + 1]`, nearest first.
 #[derive(Clone, Debug, PartialEq)]
@@ -153,16 +168,7 @@ impl FragmentLists {
     /// Depth of the nearest fragment of each pixel (+inf where there is none): the pinhole
     /// depth, for outputs that want one.
     pub fn nearest_depth(&self) -> Vec<f32> {
-        (0..self.width * self.height)
-            .map(|i| {
-                let (a, b) = (self.offsets[i] as usize, self.offsets[i + 1] as usize);
-                if a < b {
-                    self.depth[a]
-                } else {
-                    f32::INFINITY
-                }
-            })
-            .collect()
+        nearest_depths(&self.offsets, &self.depth)
     }
 
     /// Moves the finished tiles into the compact arrays: counts per pixel, prefix sum, fill.

@@ -35,7 +35,8 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 pub use fragments::{
-    from_half, to_half, FragmentLists, FragmentTile, HalfRgba, MAX_FRAGMENTS_PER_PIXEL,
+    from_half, nearest_depths, to_half, FragmentLists, FragmentTile, HalfRgba,
+    MAX_FRAGMENTS_PER_PIXEL,
 };
 pub use gbuffer::{GBuffer, GBufferTile};
 pub use layers::{DepthLayers, LayerSpacing, LayersTile};

@@ -73,6 +73,30 @@ pub fn add_screen_rect(
     scene.meshes.push(mesh);
 }
 
+/// A long-lens camera (150 mm, f/1.4, focus 1 m) on a `size`x`size` image and a small very
+/// bright square (2x2 px, emission 1000) at `z_m` on its centre: a point light whose bokeh is
+/// tens of pixels wide. Returns the scene, the camera and the light's signed CoC in pixels.
+pub fn point_light(size: usize, z_m: f32) -> (defocus::scene::Scene, defocus::lens::Camera, f32) {
+    let camera = defocus::lens::Camera {
+        focal_length_mm: 150.0,
+        ..test_camera(size, size, 1.0, 1.4)
+    };
+    let coc = camera.thin_lens().unwrap().coc_px(z_m);
+    let mut scene = defocus::scene::Scene::default();
+    let m = scene.add_material(defocus::scene::Material::emissive(
+        "light", [1.0; 3], 1000.0,
+    ));
+    let c = size as f32 / 2.0;
+    add_screen_rect(
+        &mut scene,
+        &camera,
+        (c - 1.0, c - 1.0, c + 1.0, c + 1.0),
+        z_m,
+        m,
+    );
+    (scene, camera, coc)
+}
+
 /// A built-in scene at 640x360 with its pinhole frame (colour, depth) and its ground truth
 /// (`reference`, 256 lens samples, the scene's aperture), rendered once per test run.
 pub struct GroundTruth {

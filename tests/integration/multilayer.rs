@@ -189,22 +189,8 @@ fn level_borders_are_where_the_coc_diameter_reaches_the_filter_size() {
 #[test]
 fn point_light_behind_focus_spreads_over_the_coc_diameter_with_its_energy() {
     let size = 96;
-    let camera = Camera {
-        focal_length_mm: 150.0,
-        ..test_camera(size, size, 1.0, 1.4)
-    };
-    let z = 50.0;
-    let coc = camera.thin_lens().unwrap().coc_px(z);
-    let mut scene = Scene::default();
-    let m = scene.add_material(Material::emissive("light", [1.0; 3], 1000.0));
+    let (scene, camera, coc) = crate::point_light(size, 50.0);
     let c = size as f32 / 2.0;
-    add_screen_rect(
-        &mut scene,
-        &camera,
-        (c - 1.0, c - 1.0, c + 1.0, c + 1.0),
-        z,
-        m,
-    );
     let ours = multilayer::render(&scene, &camera, &MultilayerSettings::default()).unwrap();
     let truth = reference::render(
         &scene,

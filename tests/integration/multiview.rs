@@ -145,22 +145,7 @@ fn bokeh_moments(img: &ColorImage, size: usize) -> (f64, f64) {
 #[test]
 fn point_light_becomes_the_aperture_shape_of_diameter_two_coc_like_reference() {
     let size = 96;
-    let camera = Camera {
-        focal_length_mm: 150.0,
-        ..test_camera(size, size, 1.0, 1.4)
-    };
-    let z = 50.0;
-    let coc = camera.thin_lens().unwrap().coc_px(z);
-    let mut scene = Scene::default();
-    let m = scene.add_material(Material::emissive("light", [1.0; 3], 1000.0));
-    let c = size as f32 / 2.0;
-    add_screen_rect(
-        &mut scene,
-        &camera,
-        (c - 1.0, c - 1.0, c + 1.0, c + 1.0),
-        z,
-        m,
-    );
+    let (scene, camera, coc) = crate::point_light(size, 50.0);
     for aperture in [
         Aperture::Disc,
         Aperture::Polygon {

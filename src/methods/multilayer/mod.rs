@@ -365,15 +365,6 @@ pub fn render(
 
 /// Depth of the nearest fragment of each cell of level 0 (+inf where none).
 fn pinhole_depth(base: &Level) -> GrayImage {
-    let data = (0..base.width * base.height)
-        .map(|i| {
-            let (a, b) = (base.offsets[i] as usize, base.offsets[i + 1] as usize);
-            if a < b {
-                base.depth[a]
-            } else {
-                f32::INFINITY
-            }
-        })
-        .collect();
+    let data = crate::raster::nearest_depths(&base.offsets, &base.depth);
     GrayImage::from_vec(base.width, base.height, data).expect("sizes agree by construction")
 }
