@@ -283,6 +283,20 @@ fn errors_name_the_real_cause() {
             "{name} blamed the camera: {e}"
         );
     }
+    // MTL errors name the library and the line.
+    std::fs::write(dir.join("m.mtl"), "newmtl a\nKd 1 x 1\n").unwrap();
+    let mtl_obj = dir.join("with-mtl.obj");
+    std::fs::write(
+        &mtl_obj,
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nusemtl a\nf 1 2 3\n",
+    )
+    .unwrap();
+    let o = defocus(&["render", "--scene", s(&mtl_obj), "--out", s(&out)]);
+    let e = stderr(&o);
+    assert!(
+        e.contains("m.mtl") && e.contains("line 2") && e.contains("Kd"),
+        "{e}"
+    );
     let o = defocus(&["render", "--look-from", "1e30,0,0", "--out", s(&out)]);
     assert!(
         stderr(&o).contains("--look-from") && !stderr(&o).contains("up"),

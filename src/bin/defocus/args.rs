@@ -17,8 +17,9 @@ pub struct Cli {
     /// What to do.
     #[command(subcommand)]
     pub command: Command,
-    /// Worker threads, 1 to 512 (default: all cores). Output is bit-identical for any count.
-    #[arg(long, global = true, value_name = "N")]
+    /// Worker threads (default: all cores). Output is bit-identical for any count.
+    #[arg(long, global = true, value_name = "N",
+          help = format!("Worker threads, 1 to {} (default: all cores). Output is bit-identical for any count", crate::commands::MAX_THREADS))]
     pub threads: Option<usize>,
     /// No progress bar.
     #[arg(long, short, global = true)]

@@ -29,13 +29,16 @@ pub enum HammonCoc {
 #[derive(Debug, Args, Clone)]
 #[command(next_help_heading = "Method options (each names the methods it applies to)")]
 pub struct PostArgs {
-    /// Largest CoC radius in pixels the lowrank, gaussian, poisson and splat methods blur;
-    /// larger blurs are clamped to it (greater than 0, at most 512).
+    /// Largest CoC radius in pixels the lowrank, gaussian, poisson and splat methods blur.
     #[arg(
         long,
         default_value_t = 64.0,
         value_name = "PX",
-        allow_negative_numbers = true
+        allow_negative_numbers = true,
+        help = format!(
+            "Largest CoC radius in pixels the lowrank, gaussian, poisson and splat methods blur; larger blurs are clamped to it (greater than 0, at most {})",
+            coc_map::MAX_COC_LIMIT_PX
+        )
     )]
     pub max_coc: f32,
 
@@ -121,8 +124,9 @@ pub struct PostArgs {
         allow_negative_numbers = true
     )]
     pub mask_threshold: f32,
-    /// lowrank: taps of the 2D fallback gather on masked pixels (1 to 1024).
-    #[arg(long, default_value_t = 64, value_name = "N")]
+    /// lowrank: taps of the 2D fallback gather on masked pixels.
+    #[arg(long, default_value_t = 64, value_name = "N",
+          help = format!("lowrank: taps of the 2D fallback gather on masked pixels (1 to {})", poisson::MAX_TAPS))]
     pub fallback_taps: usize,
 
     /// gaussian: standard deviation per pixel of CoC radius (0.5: the variance of the disc).
@@ -134,8 +138,9 @@ pub struct PostArgs {
     )]
     pub sigma_per_coc: f32,
 
-    /// poisson: taps per pixel, centre included (1 to 1024).
-    #[arg(long, default_value_t = 32, value_name = "N")]
+    /// poisson: taps per pixel, centre included.
+    #[arg(long, default_value_t = 32, value_name = "N",
+          help = format!("poisson: taps per pixel, centre included (1 to {})", poisson::MAX_TAPS))]
     pub taps: usize,
 
     /// splat: merge M x M fragments before distribution where the blur hides it (1, 2 or 4).
@@ -178,12 +183,16 @@ pub struct PostArgs {
     #[arg(long, help_heading = "multiview")]
     pub no_culling: bool,
 
-    /// multilayer: fragments kept per pixel, N (1 to 16; the paper keeps 3 or 4).
+    /// multilayer: fragments kept per pixel, N.
     #[arg(
         long,
         default_value_t = 4,
         value_name = "N",
-        help_heading = "multilayer"
+        help_heading = "multilayer",
+        help = format!(
+            "multilayer: fragments kept per pixel, N (1 to {}; the paper keeps 3 or 4)",
+            defocus::raster::MAX_FRAGMENTS_PER_PIXEL
+        )
     )]
     pub fragments: usize,
     /// multilayer: depth threshold for merging fragments while filtering, relative to depth

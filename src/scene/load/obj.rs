@@ -69,6 +69,38 @@ fn check_lines(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// Checks the MTL statements whose values the reader would reject without a line number:
+/// colours (`Ka`, `Kd`, `Ks`, `Ke`) need three numbers, scalars (`d`, `Tr`, `Ns`, `Ni`) one.
+fn check_mtl_lines(bytes: &[u8]) -> std::result::Result<(), String> {
+    let text = String::from_utf8_lossy(bytes);
+    for (n, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        let mut words = line.split_whitespace();
+        let Some(keyword) = words.next() else {
+            continue;
+        };
+        let rest: Vec<&str> = words.collect();
+        let numbers = |ws: &[&str]| ws.iter().all(|w| w.parse::<f32>().is_ok());
+        let bad = match keyword {
+            "Ka" | "Kd" | "Ks" | "Ke" => rest.len() < 3 || !numbers(&rest[..3]),
+            "d" | "Tr" | "Ns" | "Ni" => rest.is_empty() || !numbers(&rest[..1]),
+            _ => false,
+        };
+        if bad {
+            let want = if keyword.starts_with('K') {
+                "three numbers"
+            } else {
+                "a number"
+            };
+            return Err(format!(
+                "line {}: '{line}': '{keyword}' needs {want}",
+                n + 1
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Loads an OBJ file and the MTL libraries it names.
 pub(super) fn load(path: &Path) -> Result<SceneFile> {
     let mut bytes = Vec::new();
@@ -88,9 +120,13 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
     let (models, materials) =
         tobj::load_obj_buf(&mut BufReader::new(file), &options, |mtl: &Path| {
             let full = dir.join(mtl);
-            let result = File::open(&full).map_err(|e| e.to_string()).and_then(|f| {
-                tobj::load_mtl_buf(&mut BufReader::new(f)).map_err(|e| e.to_string())
-            });
+            let result = std::fs::read(&full)
+                .map_err(|e| e.to_string())
+                .and_then(|bytes| {
+                    check_mtl_lines(&bytes)?;
+                    tobj::load_mtl_buf(&mut BufReader::new(std::io::Cursor::new(bytes)))
+                        .map_err(|e| e.to_string())
+                });
             result.map_err(|message| {
                 mtl_error
                     .borrow_mut()
