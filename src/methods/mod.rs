@@ -1,5 +1,7 @@
 //! Depth-of-field methods. Each takes the shared [`crate::lens::ThinLens`] and
-//! [`crate::lens::Aperture`] and returns an image with per-pass timings.
+//! [`crate::lens::Aperture`] and returns an image with per-pass timings. The list of methods,
+//! their inputs and one way to run any of them is [`registry`]; shared passes are in
+//! [`coc_map`] (and `lens/`, `raster/`).
 //!
 //! | id | module | input |
 //! |---|---|---|
@@ -9,6 +11,9 @@
 //! | `lowrank` | [`lowrank`] | colour + depth, or colour + CoC map (aperture kernel as a sum of separable filters, McGraw; depth-edge mask with 2D fallback; tilt-shift) |
 //! | `gaussian` | [`gaussian`] | colour + depth (baseline: separable Gaussian gather sized by the CoC, after Zhou et al. 2007) |
 //! | `poisson` | [`poisson`] | colour + depth (baseline: Poisson-disc gather with depth rejection, after Scheuermann 2004) |
+//! | `splat` | [`splat`] | colour + depth, or the scene's fragment lists with `layers` > 1 (tiled DoF splatting, the poster) |
+//! | `multilayer` | [`multilayer`] | the scene's per-pixel fragment lists (multi-layer filtering, Selgrad et al. 2015) |
+//! | `multiview` | [`multiview`] | the scene's CoC-spaced depth layers (multiview synthesis, Lee et al. 2009) |
 
 pub mod coc_map;
 pub mod gaussian;

@@ -5,15 +5,15 @@
 //! ones over them.
 //!
 //! # Passes, in order (each timed as `multilayer/<pass>`)
-//! 1. `collect` (section 4, [`collect`]): rasterize the pinhole view into
+//! 1. `collect` (section 4, [`collect()`]): rasterize the pinhole view into
 //!    [`crate::raster::FragmentLists`]: every fragment of every pixel (no depth test), sorted by
 //!    depth, capped at the N nearest (`fragments`, 4 by default as the paper), compacted by a
 //!    prefix sum; half-precision colour and opacity, f32 depth.
-//! 2. `filter` (section 5, [`filter`]): the Y-map: `m` mip-mapping steps then `s` stack steps,
+//! 2. `filter` (section 5, [`mod@filter`]): the Y-map: `m` mip-mapping steps then `s` stack steps,
 //!    each merging 2x2 lists (merge-sort style, fragments within the depth threshold merged:
 //!    over within a list, additive across lists); level S is a box filter of width `2^S`
 //!    pixels. With truncation (section 6.2) a level drops the depths it will never be asked for.
-//! 3. `accumulate` (section 6.1, [`accumulate`]): per pixel, each level's fragments weighted by
+//! 3. `accumulate` (section 6.1, [`mod@accumulate`]): per pixel, each level's fragments weighted by
 //!    how well the level's filter size matches their CoC (level borders of the table T, with
 //!    interpolation between neighbouring levels), blended front to back.
 //!
@@ -28,9 +28,9 @@
 //!   around it so that the blend has the disc's variance exactly: a point light then spreads
 //!   with the standard deviation of `reference`'s bokeh (matching the diameter `2|C| = 2^S`
 //!   instead spreads it 30% wider; measured in the point-light test).
-//! - The depth threshold is relative to depth (see [`filter`]); the paper gives no value.
+//! - The depth threshold is relative to depth (see [`mod@filter`]); the paper gives no value.
 //! - The merged fragment's depth is the opacity-weighted mean depth of what was merged.
-//! - Level interpolation: the paper says only "we interpolate accordingly"; see [`accumulate`].
+//! - Level interpolation: the paper says only "we interpolate accordingly"; see [`mod@accumulate`].
 //! - `supersample` (off by default, not in the paper): collect the lists at K x K times the
 //!   resolution and mip-merge them down to the output resolution before filtering, which
 //!   anti-aliases the in-focus surfaces the way every other method's input is anti-aliased.
