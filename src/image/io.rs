@@ -100,6 +100,8 @@ enum FileFormat {
     Exr,
     Png,
     Pfm,
+    /// Read only (a photo or a render preview as colour input); never written: lossy.
+    Jpeg,
 }
 
 /// The format of `path` from its extension, or an error naming the path and the supported ones.
@@ -112,6 +114,7 @@ fn file_format(path: &Path, role: &'static str) -> Result<FileFormat> {
         Some("exr") => Ok(FileFormat::Exr),
         Some("png") => Ok(FileFormat::Png),
         Some("pfm") => Ok(FileFormat::Pfm),
+        Some("jpg" | "jpeg") => Ok(FileFormat::Jpeg),
         other => Err(Error::invalid(
             role,
             format!(
@@ -136,6 +139,7 @@ fn sniff(path: &Path) -> Option<FileFormat> {
         [0x89, b'P', b'N', b'G'] => Some(FileFormat::Png),
         [0x76, 0x2f, 0x31, 0x01] => Some(FileFormat::Exr),
         [b'P', b'F' | b'f', c, _] if c.is_ascii_whitespace() => Some(FileFormat::Pfm),
+        [0xFF, 0xD8, 0xFF, _] => Some(FileFormat::Jpeg),
         _ => None,
     }
 }
@@ -185,6 +189,7 @@ pub fn read_color(path: &Path) -> Result<ColorImage> {
         FileFormat::Exr => color_from_exr(path, &read_exr_channels(path)?),
         FileFormat::Png => color_from_png(read_png(path)?),
         FileFormat::Pfm => color_from_pfm(read_pfm(path)?),
+        FileFormat::Jpeg => color_from_png(read_jpeg(path)?),
     }
 }
 
@@ -418,6 +423,12 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
             let values = pfm.data.iter().step_by(pfm.channels).copied().collect();
             (pfm.width, pfm.height, values, what.to_string())
         }
+        FileFormat::Jpeg => {
+            return Err(Error::format(
+                path,
+                "a JPEG cannot hold depth (lossy, 8 bits): expected EXR, PFM or 16-bit PNG",
+            ))
+        }
         FileFormat::Png => {
             let png = read_png(path)?;
             let values = depth_from_png(path, &png)?;
@@ -585,6 +596,13 @@ pub fn write_color_with(path: &Path, img: &ColorImage, exr: &ExrOptions) -> Resu
             write_png(path, img, &bytes, ExtendedColorType::Rgba8)
         }
         FileFormat::Pfm => write_pfm(path, img),
+        FileFormat::Jpeg => Err(Error::invalid(
+            "output image path",
+            format!(
+                "{}: JPEG output is not supported (lossy); expected one of .exr, .png, .pfm",
+                path.display()
+            ),
+        )),
     }
 }
 
@@ -915,6 +933,42 @@ fn png_error(path: &Path, err: image::ImageError) -> Error {
 }
 
 /// Decodes a PNG to normalised samples, checking the size from the header first.
+/// Reads an 8-bit greyscale or RGB JPEG into the [`Png`] form (samples in [0, 1], sRGB-encoded:
+/// [`color_from_png`] decodes them).
+fn read_jpeg(path: &Path) -> Result<Png> {
+    let err = |e: image::ImageError| Error::format(path, format!("not a readable JPEG file: {e}"));
+    let decoder =
+        image::codecs::jpeg::JpegDecoder::new(BufReader::new(open(path)?)).map_err(err)?;
+    let (w, h) = decoder.dimensions();
+    let (width, height) = (w as usize, h as usize);
+    check_file_size(path, width, height)?;
+    let channels = match decoder.color_type() {
+        ColorType::L8 => 1,
+        ColorType::Rgb8 => 3,
+        other => {
+            return Err(Error::format(
+                path,
+                format!("unsupported JPEG pixel type {other:?}: expected greyscale or RGB"),
+            ))
+        }
+    };
+    let total = usize::try_from(decoder.total_bytes()).map_err(|_| {
+        Error::format(
+            path,
+            "JPEG image data is too large for this machine's memory",
+        )
+    })?;
+    let mut bytes = vec![0u8; total];
+    decoder.read_image(&mut bytes).map_err(err)?;
+    Ok(Png {
+        width,
+        height,
+        channels,
+        bits: 8,
+        samples: bytes.iter().map(|&b| b as f32 / 255.0).collect(),
+    })
+}
+
 fn read_png(path: &Path) -> Result<Png> {
     let decoder = image::codecs::png::PngDecoder::new(BufReader::new(open(path)?))
         .map_err(|e| png_error(path, e))?;

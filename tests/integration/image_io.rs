@@ -686,3 +686,28 @@ fn output_naming_the_input_file_is_refused() {
     write_color(&dir.join("other.exr"), &ldr_image(2, 2)).unwrap();
     assert!(ensure_not_same_file(&input, &dir.join("other.exr")).is_ok());
 }
+
+#[test]
+fn jpeg_colour_is_read_and_srgb_decoded_and_refused_as_depth_or_output() {
+    let dir = std::env::temp_dir().join(format!("defocus-jpeg-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("photo.jpg");
+    // A flat mid-grey JPEG: lossless enough at full quality for a flat image.
+    let img = image::RgbImage::from_pixel(16, 8, image::Rgb([128, 128, 128]));
+    let mut bytes = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 100)
+        .encode_image(&img)
+        .unwrap();
+    std::fs::write(&path, &bytes).unwrap();
+    let c = defocus::image::io::read_color(&path).unwrap();
+    assert_eq!((c.width(), c.height()), (16, 8));
+    // sRGB 128/255 is linear 0.2158.
+    for p in c.pixels() {
+        assert!((p[0] - 0.2158).abs() < 0.01 && p[3] == 1.0, "{p:?}");
+    }
+    let e = defocus::image::io::read_depth(&path, &Default::default()).unwrap_err();
+    assert!(e.to_string().contains("JPEG"), "{e}");
+    let e = defocus::image::io::write_color(&dir.join("out.jpg"), &c).unwrap_err();
+    assert!(e.to_string().contains("JPEG"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
