@@ -7,20 +7,10 @@ Not part of the test suite; run by hand for the README's comparison:
 Prints the median wall-clock milliseconds of 9 runs, with OpenCV's own thread count (all cores).
 """
 
-import time
-
 import cv2
 import numpy as np
 
-
-def disc_kernel(n: int, ss: int = 8) -> np.ndarray:
-    """A disc of diameter n pixels, ss x ss samples per pixel, summing to 1."""
-    r = n / 2.0
-    offs = (np.arange(ss) + 0.5) / ss
-    xs = (np.arange(n)[:, None] + offs[None, :]).ravel() - r
-    inside = (xs[None, :] ** 2 + xs[:, None] ** 2) <= r * r
-    k = inside.reshape(n, ss, n, ss).mean(axis=(1, 3)).astype(np.float32)
-    return k / k.sum()
+from kernels import disc_kernel, median_ms
 
 
 def hexagon_kernel(n: int, ss: int = 8) -> np.ndarray:
@@ -34,15 +24,6 @@ def hexagon_kernel(n: int, ss: int = 8) -> np.ndarray:
     return k / k.sum()
 
 
-def median_ms(f, runs: int = 9) -> float:
-    times = []
-    for _ in range(runs):
-        t = time.perf_counter()
-        f()
-        times.append((time.perf_counter() - t) * 1e3)
-    return float(np.median(times))
-
-
 def main() -> None:
     rng = np.random.default_rng(0)
     img = rng.random((720, 1280, 4), dtype=np.float32)
@@ -52,7 +33,7 @@ def main() -> None:
         ("disc k65", disc_kernel(65)),
         ("hexagon k65", hexagon_kernel(65)),
     ]:
-        ms = median_ms(lambda: cv2.filter2D(img, -1, k, borderType=cv2.BORDER_REPLICATE))
+        ms = median_ms(lambda: cv2.filter2D(img, -1, k, borderType=cv2.BORDER_REPLICATE), runs=9)
         print(f"{name} 1280x720 RGBA f32: cv2.filter2D {ms:.1f} ms ({cv2.getNumThreads()} threads)")
 
 

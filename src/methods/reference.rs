@@ -136,18 +136,28 @@ pub fn render(
     let prepared = timings.time(prepare, || {
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
-    let image = accumulate_views(
-        &prepared,
-        lens,
-        &set.samples,
-        &labels,
-        &mut timings,
-        progress,
-    )?;
-    let depth = if settings.with_depth {
-        Some(pinhole_depth(&prepared, lens, depth_label, &mut timings))
+    // One view at the lens and pixel centres is the pinhole G-buffer itself: its colour and
+    // depth come from one rasterization.
+    let single = set.samples.len() == 1
+        && set.samples[0].lens == glam::Vec2::ZERO
+        && set.samples[0].pixel_offset == glam::Vec2::ZERO;
+    let (image, depth) = if single {
+        let g = render_view(&prepared, &View::pinhole(lens), &labels, &mut timings);
+        progress(1, 1);
+        (g.color, settings.with_depth.then_some(g.depth))
     } else {
-        None
+        let image = accumulate_views(
+            &prepared,
+            lens,
+            &set.samples,
+            &labels,
+            &mut timings,
+            progress,
+        )?;
+        let depth = settings
+            .with_depth
+            .then(|| pinhole_depth(&prepared, lens, depth_label, &mut timings));
+        (image, depth)
     };
     Ok(MethodOutput {
         image,

@@ -105,14 +105,6 @@ pub fn accumulate_views(
 ) -> Result<ColorImage> {
     let (w, h) = (lens.width_px, lens.height_px);
     let total = samples.len();
-    if total == 1
-        && samples[0].lens == glam::Vec2::ZERO
-        && samples[0].pixel_offset == glam::Vec2::ZERO
-    {
-        let g = render_view(prepared, &View::pinhole(lens), labels, timings);
-        progress(1, 1);
-        return Ok(g.color);
-    }
     let mut acc = Accumulator {
         width: w,
         sum: vec![[0.0; 4]; w * h],

@@ -3,7 +3,7 @@
 
 use defocus::image::ColorImage;
 use defocus::lens::{Aperture, Camera};
-use defocus::methods::multilayer::{self, filter, Borders, FilterSteps, MultilayerSettings};
+use defocus::methods::multilayer::{self, Borders, FilterSteps, MultilayerSettings};
 use defocus::methods::reference::{self, ReferenceSettings};
 use defocus::methods::registry::{self, Frame, MethodSettings, PinholeSettings, SceneOptions};
 use defocus::metrics;
@@ -363,5 +363,4 @@ fn multilayer_settings_are_checked() {
     assert!(FilterSteps::parse("1/3").is_ok());
     assert!(FilterSteps::parse("9/9").is_err());
     assert!(FilterSteps::parse("x").is_err());
-    let _ = filter::y_map(1, 3);
 }

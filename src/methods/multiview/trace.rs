@@ -340,7 +340,6 @@ fn refine(
             h_lo = h_mid;
         }
     }
-    let _ = h_hi;
     Some((hi, i_hi, h_lo))
 }
 

@@ -67,42 +67,72 @@ fn fragment(x2: u32, y2: u32, c: Rgba, coc_px: f32) -> SplatFragment {
     }
 }
 
+/// The input fragments of every pixel, `(premultiplied colour, CoC)`, nearest first, in one
+/// flat array: pixel `i` owns `items[offsets[i]..offsets[i + 1]]`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PixelLayers {
+    offsets: Vec<u32>,
+    items: Vec<(Rgba, f32)>,
+}
+
+impl PixelLayers {
+    /// The fragments of pixel `i` (row-major).
+    #[inline]
+    pub fn pixel(&self, i: usize) -> &[(Rgba, f32)] {
+        &self.items[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+    }
+
+    /// Every fragment, pixel after pixel.
+    pub fn items_mut(&mut self) -> &mut [(Rgba, f32)] {
+        &mut self.items
+    }
+
+    /// Appends the fragments of the next pixel.
+    fn push_pixel(&mut self, items: impl IntoIterator<Item = (Rgba, f32)>) {
+        if self.offsets.is_empty() {
+            self.offsets.push(0);
+        }
+        self.items.extend(items);
+        self.offsets.push(self.items.len() as u32);
+    }
+}
+
 /// Fragments of one layer: every pixel of a colour + CoC frame with some opacity.
-pub fn from_frame(color: &ColorImage, coc_px: &GrayImage) -> Vec<Vec<(Rgba, f32)>> {
-    color
-        .pixels()
-        .iter()
-        .zip(coc_px.pixels())
-        .map(|(&c, &k)| if c[3] > 0.0 { vec![(c, k)] } else { Vec::new() })
-        .collect()
+pub fn from_frame(color: &ColorImage, coc_px: &GrayImage) -> PixelLayers {
+    let mut out = PixelLayers::default();
+    for (&c, &k) in color.pixels().iter().zip(coc_px.pixels()) {
+        out.push_pixel((c[3] > 0.0).then_some((c, k)));
+    }
+    out
 }
 
 /// Fragments of fragment lists (multi-layer input), per pixel. Consecutive fragments of a
 /// pixel whose CoCs differ by at most `group_px` are one surface seen twice (the front and back
 /// faces of a thin double-sided object): they are combined with the over operator first, so a
 /// surface is never counted twice.
-pub fn from_lists(lists: &FragmentLists, lens: &ThinLens, group_px: f32) -> Vec<Vec<(Rgba, f32)>> {
+pub fn from_lists(lists: &FragmentLists, lens: &ThinLens, group_px: f32) -> PixelLayers {
     let w = lists.width();
-    (0..w * lists.height())
-        .map(|i| {
-            let (depths, colors) = lists.pixel(i % w, i / w);
-            let mut out: Vec<(Rgba, f32)> = Vec::with_capacity(depths.len());
-            for (&z, c) in depths.iter().zip(colors) {
-                let k = lens.coc_px(z);
-                let c = from_half(c);
-                match out.last_mut() {
-                    Some((acc, k0)) if (k - *k0).abs() <= group_px => {
-                        let t = 1.0 - acc[3];
-                        for (a, v) in acc.iter_mut().zip(c) {
-                            *a += t * v;
-                        }
+    let mut out = PixelLayers::default();
+    let mut merged: Vec<(Rgba, f32)> = Vec::new();
+    for i in 0..w * lists.height() {
+        let (depths, colors) = lists.pixel(i % w, i / w);
+        merged.clear();
+        for (&z, c) in depths.iter().zip(colors) {
+            let k = lens.coc_px(z);
+            let c = from_half(c);
+            match merged.last_mut() {
+                Some((acc, k0)) if (k - *k0).abs() <= group_px => {
+                    let t = 1.0 - acc[3];
+                    for (a, v) in acc.iter_mut().zip(c) {
+                        *a += t * v;
                     }
-                    _ => out.push((c, k)),
                 }
+                _ => merged.push((c, k)),
             }
-            out
-        })
-        .collect()
+        }
+        out.push_pixel(merged.iter().copied());
+    }
+    out
 }
 
 /// Turns per-pixel layers into splat fragments, merging `merge` x `merge` blocks (1, 2 or 4)
@@ -111,7 +141,7 @@ pub fn from_lists(lists: &FragmentLists, lens: &ThinLens, group_px: f32) -> Vec<
 /// in-focus detail is never merged. A merged fragment sits at the block centre with the mean
 /// CoC and the summed colour of the block (it stands for `merge^2` pixels).
 pub fn fragments(
-    layers: &[Vec<(Rgba, f32)>],
+    layers: &PixelLayers,
     width: usize,
     height: usize,
     merge: usize,
@@ -128,13 +158,13 @@ pub fn fragments(
                 let (x0, y0) = (bx * m, by * m);
                 let (x1, y1) = ((x0 + m).min(width), (y0 + m).min(height));
                 let full = x1 - x0 == m && y1 - y0 == m;
-                let first = &layers[y0 * width + x0];
+                let first = layers.pixel(y0 * width + x0);
                 let mergeable = m > 1
                     && full
                     && !first.is_empty()
                     && (y0..y1).all(|y| {
                         (x0..x1).all(|x| {
-                            let l = &layers[y * width + x];
+                            let l = layers.pixel(y * width + x);
                             l.len() == first.len()
                                 && l.iter().zip(first).all(|(a, b)| {
                                     (a.1 - b.1).abs() <= group_px && a.1.abs() >= m as f32
@@ -146,8 +176,8 @@ pub fn fragments(
                         let mut c = [0.0f32; 4];
                         let mut k = 0.0f32;
                         for y in y0..y1 {
-                            for layer in &layers[y * width + x0..y * width + x1] {
-                                let (v, kk) = layer[j];
+                            for x in x0..x1 {
+                                let (v, kk) = layers.pixel(y * width + x)[j];
                                 for (a, b) in c.iter_mut().zip(v) {
                                     *a += b;
                                 }
@@ -161,7 +191,7 @@ pub fn fragments(
                 } else {
                     for y in y0..y1 {
                         for x in x0..x1 {
-                            for &(c, k) in &layers[y * width + x] {
+                            for &(c, k) in layers.pixel(y * width + x) {
                                 out.push(fragment((2 * x + 1) as u32, (2 * y + 1) as u32, c, k));
                             }
                         }

@@ -133,7 +133,7 @@ pub struct SplatStats {
 
 /// Passes `build`, `sort` and `blend` on per-pixel layers `(premultiplied colour, CoC)`.
 fn splat(
-    layers: &[Vec<(crate::image::Rgba, f32)>],
+    layers: &build::PixelLayers,
     width: usize,
     height: usize,
     settings: &SplatSettings,
@@ -272,10 +272,8 @@ pub fn render_scene(
     });
     let max = settings.max_coc_px;
     let mut layers = build::from_lists(&lists, &lens, settings.group_px);
-    for l in &mut layers {
-        for f in l.iter_mut() {
-            f.1 = f.1.clamp(-max, max);
-        }
+    for f in layers.items_mut() {
+        f.1 = f.1.clamp(-max, max);
     }
     let (image, stats, bytes) = splat(
         &layers,
