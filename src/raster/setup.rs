@@ -1,10 +1,11 @@
 //! Passes `setup` (clip, cull, snap, edge functions, attribute planes) and `raster`
 //! (coverage, early depth test, shading) for one triangle.
 
-use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
+use glam::{Vec2, Vec3, Vec4};
 
 use super::{shade, Fragment, TileRect, TileSink};
 use crate::lens::ThinLens;
+use crate::scene::texture::BATCH;
 use crate::scene::Scene;
 
 /// Sub-pixel precision: 1/256 pixel.
@@ -258,14 +259,11 @@ fn eval(plane: &[f32; 3], dx: f32, dy: f32) -> f32 {
     plane[0] + plane[1] * dx + plane[2] * dy
 }
 
-/// Calls `f(x, y, fx, fy)` for every pixel of `rect` whose centre `tri` covers (top-left rule),
-/// with `(fx, fy)` the pixel centre relative to the triangle's plane origin.
+/// Calls `f(y, x0, x1, fy)` for every row of `rect` that `tri` covers, with `x0..x1` the
+/// pixels of the row whose centres it covers (top-left rule; one run, as the triangle is
+/// convex) and `fy` the row's pixel centre relative to the triangle's plane origin.
 #[inline(always)]
-fn for_each_covered(
-    tri: &SetupTriangle,
-    rect: &TileRect,
-    mut f: impl FnMut(usize, usize, f32, f32),
-) {
+fn for_each_run(tri: &SetupTriangle, rect: &TileRect, mut f: impl FnMut(usize, usize, usize, f32)) {
     let x0 = (tri.bbox.0 as usize).max(rect.x0);
     let x1 = (tri.bbox.2 as usize).min(rect.x1 - 1);
     let y0 = (tri.bbox.1 as usize).max(rect.y0);
@@ -301,12 +299,30 @@ fn for_each_covered(
         if lo > hi {
             continue;
         }
-        let fy = y as f32 + 0.5 - origin.y;
-        // Half-open: `..=` costs a test more per pixel.
-        for x in x0 + lo as usize..x0 + hi as usize + 1 {
-            f(x, y, x as f32 + 0.5 - origin.x, fy);
-        }
+        f(
+            y,
+            x0 + lo as usize,
+            x0 + hi as usize + 1,
+            y as f32 + 0.5 - origin.y,
+        );
     }
+}
+
+/// Calls `f(x, y, fx, fy)` for every pixel of `rect` whose centre `tri` covers (top-left rule),
+/// with `(fx, fy)` the pixel centre relative to the triangle's plane origin.
+#[inline(always)]
+fn for_each_covered(
+    tri: &SetupTriangle,
+    rect: &TileRect,
+    mut f: impl FnMut(usize, usize, f32, f32),
+) {
+    let origin_x = tri.origin.x;
+    for_each_run(tri, rect, |y, xa, xb, fy| {
+        // Half-open: `..=` costs a test more per pixel.
+        for x in xa..xb {
+            f(x, y, x as f32 + 0.5 - origin_x, fy);
+        }
+    });
 }
 
 /// Depth-only rasterization of an opaque triangle for the sink's depth pre-pass.
@@ -317,8 +333,25 @@ pub(crate) fn prepass_triangle<T: TileSink>(tri: &SetupTriangle, rect: &TileRect
     });
 }
 
+/// Covered pixels that passed the early depth test, waiting to be shaded together.
+struct PendingPixels {
+    n: usize,
+    x: [u32; BATCH],
+    y: [u32; BATCH],
+    depth_m: [f32; BATCH],
+    /// 1/w, u/w and v/w; lanes past `n` stay finite.
+    q: [f32; BATCH],
+    uq: [f32; BATCH],
+    vq: [f32; BATCH],
+}
+
 /// Rasterizes `tri` within `rect` into `tile` (pass `raster`). `lod_bias` is added to the
 /// texture level of detail (negative when each pixel is supersampled).
+///
+/// Pixels are depth-tested as the rows are walked, and those that pass are shaded [`BATCH`]
+/// at a time: texture coordinates, levels of detail and texture lookups lane by lane
+/// ([`shade::Shader::shade_batch`]), then the fragments in pixel order. A triangle covers a
+/// pixel once, so the sink sees the same calls as pixel by pixel.
 pub(crate) fn raster_triangle<T: TileSink>(
     tri: &SetupTriangle,
     rect: &TileRect,
@@ -329,38 +362,74 @@ pub(crate) fn raster_triangle<T: TileSink>(
     let material = &scene.materials[tri.material as usize];
     let shader = shade::Shader::new(material, &scene.textures, lod_bias);
     let [pq, pu, pv] = &tri.planes;
-    let needs_uv = shader.needs_uv();
+    // Shading without textures is the same for every pixel.
+    let flat = (!shader.needs_uv()).then(|| shader.shade(Vec2::ZERO, Vec2::ZERO, Vec2::ZERO));
+    let mut uv = shade::UvBatch::default();
+    let mut colors = [None; BATCH];
+    let mut shade_and_emit = |p: &mut PendingPixels, tile: &mut T| {
+        let n = std::mem::take(&mut p.n);
+        match flat {
+            Some(color) => colors[..n].fill(color),
+            None => {
+                // uv at the pixel and one pixel right and down.
+                for i in 0..BATCH {
+                    let (u, v) = (p.uq[i] / p.q[i], p.vq[i] / p.q[i]);
+                    let (qx, qy) = (p.q[i] + pq[1], p.q[i] + pq[2]);
+                    uv.u[i] = u;
+                    uv.v[i] = v;
+                    uv.du_dx[i] = (p.uq[i] + pu[1]) / qx - u;
+                    uv.dv_dx[i] = (p.vq[i] + pv[1]) / qx - v;
+                    uv.du_dy[i] = (p.uq[i] + pu[2]) / qy - u;
+                    uv.dv_dy[i] = (p.vq[i] + pv[2]) / qy - v;
+                }
+                shader.shade_batch(n, &uv, &mut colors);
+            }
+        }
+        for (i, color) in colors[..n].iter().enumerate() {
+            if let Some(color) = *color {
+                tile.fragment(&Fragment {
+                    x: p.x[i],
+                    y: p.y[i],
+                    depth_m: p.depth_m[i],
+                    color,
+                    blend: tri.blend,
+                });
+            }
+        }
+    };
     // The three planes side by side, lanes (1/w, u/w, v/w, unused): one evaluation for all,
     // with `eval`'s arithmetic in each lane.
     let [p0, p1, p2] = [0, 1, 2].map(|k| Vec4::new(pq[k], pu[k], pv[k], 0.0));
-    for_each_covered(tri, rect, |x, y, fx, fy| {
-        let e = p0 + p1 * fx + p2 * fy;
-        let q = e.x;
-        let depth_m = 1.0 / q;
-        if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
-            return;
-        }
-        let color = if needs_uv {
-            let (u, v) = (e.y, e.z);
-            // uv at the pixel and one pixel right and down, the six divisions in two vectors.
-            let (qx, qy) = (q + pq[1], q + pq[2]);
-            let a = Vec4::new(u, v, u + pu[1], v + pv[1]) / Vec4::new(q, q, qx, qx);
-            let b = Vec4::new(u + pu[2], v + pv[2], 1.0, 1.0) / Vec4::new(qy, qy, 1.0, 1.0);
-            let (uv, uvx, uvy) = (a.xy(), a.zw(), b.xy());
-            shader.shade(uv, uvx - uv, uvy - uv)
-        } else {
-            shader.shade(Vec2::ZERO, Vec2::ZERO, Vec2::ZERO)
-        };
-        if let Some(color) = color {
-            tile.fragment(&Fragment {
-                x: x as u32,
-                y: y as u32,
-                depth_m,
-                color,
-                blend: tri.blend,
-            });
+    let origin_x = tri.origin.x;
+    let mut pending = PendingPixels {
+        n: 0,
+        x: [0; BATCH],
+        y: [0; BATCH],
+        depth_m: [0.0; BATCH],
+        q: [1.0; BATCH],
+        uq: [0.0; BATCH],
+        vq: [0.0; BATCH],
+    };
+    for_each_run(tri, rect, |y, xa, xb, fy| {
+        for x in xa..xb {
+            let e = p0 + p1 * (x as f32 + 0.5 - origin_x) + p2 * fy;
+            let depth_m = 1.0 / e.x;
+            if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
+                continue;
+            }
+            let p = &mut pending;
+            let i = p.n;
+            (p.x[i], p.y[i], p.depth_m[i]) = (x as u32, y as u32, depth_m);
+            (p.q[i], p.uq[i], p.vq[i]) = (e.x, e.y, e.z);
+            p.n += 1;
+            if p.n == BATCH {
+                shade_and_emit(p, tile);
+            }
         }
     });
+    if pending.n > 0 {
+        shade_and_emit(&mut pending, tile);
+    }
 }
 
 #[cfg(test)]

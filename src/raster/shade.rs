@@ -1,10 +1,10 @@
 //! Unlit shading of a fragment: base colour (factor x texture) plus emission
 //! (factor x texture x strength), and the alpha mode.
 
-use glam::Vec2;
+use glam::{Vec2, Vec4};
 
 use crate::image::Rgba;
-use crate::scene::texture::{fast_log2, BoundTexture};
+use crate::scene::texture::{fast_log2, BoundTexture, BATCH};
 use crate::scene::{AlphaMode, Material, Texture, TextureBinding, UvTransform};
 
 /// A material ready to shade fragments.
@@ -38,17 +38,46 @@ impl<'a> Shader<'a> {
     /// `None` when an alpha-mask material discards the fragment.
     #[inline]
     pub(crate) fn shade(&self, uv: Vec2, duv_dx: Vec2, duv_dy: Vec2) -> Option<Rgba> {
+        let sample = |slot: &Option<Slot>| {
+            slot.as_ref()
+                .map(|slot| slot.sample(uv, duv_dx, duv_dy, self.lod_bias))
+        };
+        self.combine(sample(&self.base), sample(&self.emissive))
+    }
+
+    /// [`Shader::shade`] for the first `n` pixels of a batch, bit for bit: `out[i]` is `None`
+    /// where the fragment is discarded. Texture lookups go through
+    /// [`BoundTexture::sample_batch`].
+    pub(crate) fn shade_batch(&self, n: usize, uv: &UvBatch, out: &mut [Option<Rgba>; BATCH]) {
+        let mut base = [Vec4::ONE; BATCH];
+        let mut emissive = [Vec4::ONE; BATCH];
+        if let Some(slot) = &self.base {
+            slot.sample_batch(n, uv, self.lod_bias, &mut base);
+        }
+        if let Some(slot) = &self.emissive {
+            slot.sample_batch(n, uv, self.lod_bias, &mut emissive);
+        }
+        let (has_base, has_emissive) = (self.base.is_some(), self.emissive.is_some());
+        for i in 0..n {
+            out[i] = self.combine(
+                has_base.then(|| base[i].to_array()),
+                has_emissive.then(|| emissive[i].to_array()),
+            );
+        }
+    }
+
+    /// Colour and alpha from the texture samples of the base colour and emission slots.
+    #[inline(always)]
+    fn combine(&self, base: Option<Rgba>, emissive: Option<Rgba>) -> Option<Rgba> {
         let m = self.material;
         let mut c = m.base_color;
-        if let Some(slot) = &self.base {
-            let s = slot.sample(uv, duv_dx, duv_dy, self.lod_bias);
+        if let Some(s) = base {
             for k in 0..4 {
                 c[k] *= s[k];
             }
         }
         let mut e = self.emission;
-        if let Some(slot) = &self.emissive {
-            let s = slot.sample(uv, duv_dx, duv_dy, self.lod_bias);
+        if let Some(s) = emissive {
             for k in 0..3 {
                 e[k] *= s[k];
             }
@@ -64,6 +93,31 @@ impl<'a> Shader<'a> {
             AlphaMode::Blend => c[3].clamp(0.0, 1.0),
         };
         Some([c[0] + e[0], c[1] + e[1], c[2] + e[2], alpha])
+    }
+}
+
+/// Texture coordinates and their screen derivatives (per pixel, along x and y) of a batch of
+/// pixels, one array per quantity.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct UvBatch {
+    pub(crate) u: [f32; BATCH],
+    pub(crate) v: [f32; BATCH],
+    pub(crate) du_dx: [f32; BATCH],
+    pub(crate) dv_dx: [f32; BATCH],
+    pub(crate) du_dy: [f32; BATCH],
+    pub(crate) dv_dy: [f32; BATCH],
+}
+
+impl Default for UvBatch {
+    fn default() -> Self {
+        Self {
+            u: [0.0; BATCH],
+            v: [0.0; BATCH],
+            du_dx: [0.0; BATCH],
+            dv_dx: [0.0; BATCH],
+            du_dy: [0.0; BATCH],
+            dv_dy: [0.0; BATCH],
+        }
     }
 }
 
@@ -97,6 +151,27 @@ impl<'a> Slot<'a> {
         let fy = (dy * self.size).length_squared();
         let lod = 0.5 * fast_log2(fx.max(fy).max(1e-12)) + lod_bias;
         self.texture.sample(uv, lod)
+    }
+
+    /// [`Slot::sample`] for the first `n` pixels of a batch, bit for bit.
+    #[inline]
+    fn sample_batch(&self, n: usize, b: &UvBatch, lod_bias: f32, out: &mut [Vec4; BATCH]) {
+        let (mut u, mut v, mut lod) = ([0.0; BATCH], [0.0; BATCH], [0.0; BATCH]);
+        for i in 0..BATCH {
+            let uv = Vec2::new(b.u[i], b.v[i]);
+            let dx = Vec2::new(b.du_dx[i], b.dv_dx[i]);
+            let dy = Vec2::new(b.du_dy[i], b.dv_dy[i]);
+            let (uv, dx, dy) = match &self.uv_transform {
+                None => (uv, dx, dy),
+                Some(t) => (t.apply(uv), t.apply(dx) - t.origin, t.apply(dy) - t.origin),
+            };
+            u[i] = uv.x;
+            v[i] = uv.y;
+            let fx = (dx * self.size).length_squared();
+            let fy = (dy * self.size).length_squared();
+            lod[i] = 0.5 * fast_log2(fx.max(fy).max(1e-12)) + lod_bias;
+        }
+        self.texture.sample_batch(n, &u, &v, &lod, out);
     }
 }
 

@@ -281,6 +281,236 @@ impl<'a> BoundTexture<'a> {
     }
 }
 
+/// Lookups per batch of [`BoundTexture::sample_batch`] (and of the rasterizer's shading).
+pub(crate) const BATCH: usize = 16;
+
+/// One bilinear footprint per lane: the four texel indices (top-left, top-right, bottom-left,
+/// bottom-right) and the weights along x and y.
+#[derive(Clone, Copy)]
+struct Footprints {
+    index: [[u32; BATCH]; 4],
+    tx: [f32; BATCH],
+    ty: [f32; BATCH],
+}
+
+impl Footprints {
+    const EMPTY: Self = Self {
+        index: [[0; BATCH]; 4],
+        tx: [0.0; BATCH],
+        ty: [0.0; BATCH],
+    };
+}
+
+impl BoundTexture<'_> {
+    /// [`BoundTexture::sample`] at `uv[i]` with `lod[i]` for the first `n` lanes, bit for bit.
+    /// The common samplers (trilinear, clamped or repeating a power-of-two texture) work out
+    /// levels, footprints and weights for the whole batch lane by lane with no branches, so the
+    /// lookups do not wait on each other; texel fetches follow. Other samplers, and coordinates
+    /// far outside the texture, take the per-lookup path.
+    pub(crate) fn sample_batch(
+        &self,
+        n: usize,
+        u: &[f32; BATCH],
+        v: &[f32; BATCH],
+        lod: &[f32; BATCH],
+        out: &mut [Vec4; BATCH],
+    ) {
+        let (w, h) = self.texture.size();
+        let pow2 = w.is_power_of_two() && h.is_power_of_two();
+        match self.specialised {
+            Specialised::TrilinearClamp => {
+                trilinear_batch::<true>(self, n, u, v, lod, out);
+            }
+            Specialised::TrilinearRepeat if pow2 => {
+                trilinear_batch::<false>(self, n, u, v, lod, out);
+            }
+            _ => {
+                for i in 0..n {
+                    out[i] = Vec4::from_array(self.sample(Vec2::new(u[i], v[i]), lod[i]));
+                }
+            }
+        }
+    }
+}
+
+/// Levels, blend weights and bilinear footprints of a batch of trilinear lookups.
+#[derive(Clone, Copy)]
+struct TrilinearPlan {
+    /// The lookup is within `SMALL_TEXELS` texels of the origin (else it takes the per-lookup
+    /// path).
+    small: [bool; BATCH],
+    /// The two levels blended, and the weight of the second.
+    level: [[u32; BATCH]; 2],
+    t: [f32; BATCH],
+    /// One footprint per level.
+    feet: [Footprints; 2],
+}
+
+impl TrilinearPlan {
+    const EMPTY: Self = Self {
+        small: [false; BATCH],
+        level: [[0; BATCH]; 2],
+        t: [0.0; BATCH],
+        feet: [Footprints::EMPTY; 2],
+    };
+}
+
+/// The batch form of `sample_with` for a trilinear sampler that clamps (`CLAMP`) or repeats a
+/// power-of-two texture, with the same arithmetic in each lane.
+#[inline(always)]
+fn trilinear_batch<const CLAMP: bool>(
+    bound: &BoundTexture,
+    n: usize,
+    u: &[f32; BATCH],
+    v: &[f32; BATCH],
+    lod: &[f32; BATCH],
+    out: &mut [Vec4; BATCH],
+) {
+    let levels = &bound.texture.levels;
+    let mut plan = TrilinearPlan::EMPTY;
+    if CLAMP {
+        plan_clamp(levels, u, v, lod, &mut plan);
+    } else {
+        plan_repeat(levels, u, v, lod, &mut plan);
+    }
+    let sampler = if CLAMP {
+        BoundTexture::CLAMP
+    } else {
+        BoundTexture::REPEAT
+    };
+    for i in 0..n {
+        if !plan.small[i] {
+            out[i] = Vec4::from_array(bound.texture.sample_with(
+                &sampler,
+                Vec2::new(u[i], v[i]),
+                lod[i],
+                false,
+            ));
+            continue;
+        }
+        let a = bilinear(levels, &plan, 0, i);
+        out[i] = if plan.t[i] <= 0.0 {
+            a
+        } else {
+            let b = bilinear(levels, &plan, 1, i);
+            a + (b - a) * plan.t[i]
+        };
+    }
+}
+
+/// Lane `i`'s bilinear lookup in the `k`th level of `plan`.
+#[inline(always)]
+fn bilinear(levels: &[ColorImage], plan: &TrilinearPlan, k: usize, i: usize) -> Vec4 {
+    let texels = levels[plan.level[k][i] as usize].pixels();
+    let f = &plan.feet[k];
+    let texel = |c: usize| Vec4::from_array(texels[f.index[c][i] as usize]);
+    let (p00, p10, p01, p11) = (texel(0), texel(1), texel(2), texel(3));
+    let top = p00 + (p10 - p00) * f.tx[i];
+    let bottom = p01 + (p11 - p01) * f.tx[i];
+    top + (bottom - top) * f.ty[i]
+}
+
+/// [`plan_trilinear`] for a clamping sampler. Compiled for several instruction sets and chosen
+/// at run time ([`multiversion`]); every version does the same arithmetic (no fused
+/// multiply-add), so the plan is identical whichever runs.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2+sse4.1",
+    "aarch64+neon"
+))]
+fn plan_clamp(
+    levels: &[ColorImage],
+    u: &[f32; BATCH],
+    v: &[f32; BATCH],
+    lod: &[f32; BATCH],
+    plan: &mut TrilinearPlan,
+) {
+    plan_trilinear::<true>(levels, u, v, lod, plan);
+}
+
+/// [`plan_trilinear`] for a sampler repeating a power-of-two texture, as [`plan_clamp`].
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2+sse4.1",
+    "aarch64+neon"
+))]
+fn plan_repeat(
+    levels: &[ColorImage],
+    u: &[f32; BATCH],
+    v: &[f32; BATCH],
+    lod: &[f32; BATCH],
+    plan: &mut TrilinearPlan,
+) {
+    plan_trilinear::<false>(levels, u, v, lod, plan);
+}
+
+/// `sample_with`'s branches as selects, lane by lane, in loops the compiler vectorises: the
+/// two levels and their weight, then each level's footprint.
+#[inline(always)]
+fn plan_trilinear<const CLAMP: bool>(
+    levels: &[ColorImage],
+    u: &[f32; BATCH],
+    v: &[f32; BATCH],
+    lod: &[f32; BATCH],
+    plan: &mut TrilinearPlan,
+) {
+    let last = levels.len() - 1;
+    let (w0, h0) = (levels[0].width() as f32, levels[0].height() as f32);
+    for i in 0..BATCH {
+        plan.small[i] = (u[i] * w0).abs() < SMALL_TEXELS && (v[i] * h0).abs() < SMALL_TEXELS;
+        let magnify = lod[i] <= 0.0;
+        let l = lod[i].min(last as f32);
+        // `l` is in (0, last] (or `last` for NaN) when not magnifying: truncation is `floor`.
+        let l0 = if magnify { 0 } else { l as u32 };
+        plan.level[1][i] = (l0 + 1).min(last as u32);
+        plan.level[0][i] = l0.min(last as u32);
+        plan.t[i] = if magnify { 0.0 } else { l - l0 as f32 };
+    }
+    for (foot, level) in plan.feet.iter_mut().zip(&plan.level) {
+        // Each lane's level size, gathered first so the arithmetic below is uniform.
+        let mut w = [1i32; BATCH];
+        let mut h = [1i32; BATCH];
+        for i in 0..BATCH {
+            let img = &levels[(level[i] as usize).min(last)];
+            (w[i], h[i]) = (img.width() as i32, img.height() as i32);
+        }
+        for i in 0..BATCH {
+            // Lanes outside the small range take the per-lookup path; zero keeps
+            // `floor_small` within its domain for them.
+            let x = if plan.small[i] {
+                u[i] * w[i] as f32
+            } else {
+                0.0
+            };
+            let y = if plan.small[i] {
+                v[i] * h[i] as f32
+            } else {
+                0.0
+            };
+            let (fx, fy) = (x - 0.5, y - 0.5);
+            let (x0, y0) = (floor_small(fx), floor_small(fy));
+            foot.tx[i] = fx - x0 as f32;
+            foot.ty[i] = fy - y0 as f32;
+            let (wm, hm) = (w[i] - 1, h[i] - 1);
+            let (xa, xb, ya, yb) = if CLAMP {
+                (
+                    x0.max(0).min(wm),
+                    (x0 + 1).max(0).min(wm),
+                    y0.max(0).min(hm),
+                    (y0 + 1).max(0).min(hm),
+                )
+            } else {
+                (x0 & wm, (x0 + 1) & wm, y0 & hm, (y0 + 1) & hm)
+            };
+            let (ra, rb) = (ya * w[i], yb * w[i]);
+            foot.index[0][i] = (ra + xa) as u32;
+            foot.index[1][i] = (ra + xb) as u32;
+            foot.index[2][i] = (rb + xa) as u32;
+            foot.index[3][i] = (rb + xb) as u32;
+        }
+    }
+}
+
 /// Texel coordinates below this in magnitude are exact for [`floor_small`] and need no wrap in
 /// float ([`reduce`]).
 const SMALL_TEXELS: f32 = 4_000_000.0;
@@ -509,5 +739,68 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn batch_sampling_matches_single_lookups_bit_for_bit() {
+        let mut state = 0x3c6e_f372_fe94_f82bu64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut batches = 0;
+        // Power-of-two and other sizes, so every sampler meets both the batch and the
+        // per-lookup path.
+        for (w, h) in [(1, 1), (8, 8), (16, 4), (7, 3), (12, 9), (64, 32)] {
+            let texels = (0..w * h)
+                .map(|_| [next(), next(), next(), next()])
+                .collect();
+            let texture = Texture::new(ColorImage::from_vec(w, h, texels).expect("size"));
+            for sampler in [
+                trilinear(WrapMode::Repeat),
+                trilinear(WrapMode::ClampToEdge),
+                trilinear(WrapMode::MirroredRepeat),
+                TextureSampler {
+                    mip_filter: None,
+                    ..trilinear(WrapMode::Repeat)
+                },
+            ] {
+                let bound = BoundTexture::new(&texture, sampler);
+                for round in 0..200 {
+                    let n = 1 + round % BATCH;
+                    let scale = [1.0, 4.0, 100.0, 3.0e7][round % 4];
+                    let mut u = [0.0; BATCH];
+                    let mut v = [0.0; BATCH];
+                    let mut lod = [0.0; BATCH];
+                    for i in 0..BATCH {
+                        u[i] = (next() - 0.5) * scale;
+                        v[i] = (next() - 0.5) * scale;
+                        // Whole levels, negative ones and NaN too.
+                        lod[i] = match i % 5 {
+                            0 => (next() * 8.0).floor(),
+                            1 if round % 7 == 0 => f32::NAN,
+                            _ => next() * 10.0 - 2.0,
+                        };
+                    }
+                    let mut out = [Vec4::ZERO; BATCH];
+                    bound.sample_batch(n, &u, &v, &lod, &mut out);
+                    for i in 0..n {
+                        let want = bound.sample(Vec2::new(u[i], v[i]), lod[i]);
+                        assert_eq!(
+                            out[i].to_array().map(f32::to_bits),
+                            want.map(f32::to_bits),
+                            "{w}x{h} {sampler:?} uv ({}, {}) lod {}",
+                            u[i],
+                            v[i],
+                            lod[i]
+                        );
+                    }
+                    batches += 1;
+                }
+            }
+        }
+        assert!(batches > 1000);
     }
 }
