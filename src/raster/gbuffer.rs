@@ -4,6 +4,8 @@
 //! by its own depth, sees through a faint one to what is behind it, and keeps the depth of a
 //! glass standing in front of nothing at all.
 
+use rayon::prelude::*;
+
 use super::{Fragment, Sink, TileRect, TileSink};
 use crate::image::{ColorImage, GrayImage, Rgba};
 
@@ -40,9 +42,13 @@ impl GBuffer {
 
     /// An empty buffer: transparent black at infinite depth.
     pub fn new(width: usize, height: usize) -> Self {
+        // Filled in parallel: a frame is megabytes, and rasterizing overwrites it anyway.
+        let n = width * height;
+        let color = (0..n).into_par_iter().map(|_| [0.0; 4]).collect();
+        let depth = (0..n).into_par_iter().map(|_| f32::INFINITY).collect();
         Self {
-            color: ColorImage::new(width, height, [0.0; 4]),
-            depth: GrayImage::new(width, height, f32::INFINITY),
+            color: ColorImage::from_vec(width, height, color).expect("size matches"),
+            depth: GrayImage::from_vec(width, height, depth).expect("size matches"),
         }
     }
 }
@@ -177,5 +183,32 @@ impl Sink for GBuffer {
             self.depth.pixels_mut()[dst..dst + w]
                 .copy_from_slice(&tile.depth[row * w..(row + 1) * w]);
         }
+    }
+
+    /// Copies the tiles into the image, a band of tile rows per task.
+    fn end_tiles(&mut self, tiles: Vec<(TileRect, GBufferTile)>) {
+        let width = self.color.width();
+        let mut bands: Vec<(&mut [Rgba], &mut [f32])> = self
+            .color
+            .pixels_mut()
+            .chunks_mut(super::TILE * width)
+            .zip(self.depth.pixels_mut().chunks_mut(super::TILE * width))
+            .collect();
+        let tiles_x = width.div_ceil(super::TILE).max(1);
+        bands
+            .par_iter_mut()
+            .zip(tiles.par_chunks(tiles_x))
+            .for_each(|((color, depth), tiles)| {
+                for (rect, tile) in tiles {
+                    let w = rect.width();
+                    for row in 0..rect.height() {
+                        // Rows of the band are relative to its first tile's top.
+                        let dst = (rect.y0 % super::TILE + row) * width + rect.x0;
+                        let src = row * w..(row + 1) * w;
+                        color[dst..dst + w].copy_from_slice(&tile.color[src.clone()]);
+                        depth[dst..dst + w].copy_from_slice(&tile.depth[src]);
+                    }
+                }
+            });
     }
 }

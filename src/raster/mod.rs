@@ -140,6 +140,30 @@ pub trait Sink: Sync {
     fn begin_tile(&self, rect: TileRect) -> Self::Tile;
     /// Takes a finished tile back (sequentially, in row-major tile order).
     fn end_tile(&mut self, rect: TileRect, tile: Self::Tile);
+    /// Takes back every tile of a pass, in row-major tile order. The default hands them to
+    /// [`Sink::end_tile`] one by one; a sink whose tiles write disjoint pixels may take them
+    /// in parallel ([`for_each_tile_band`]).
+    fn end_tiles(&mut self, tiles: Vec<(TileRect, Self::Tile)>) {
+        for (rect, tile) in tiles {
+            self.end_tile(rect, tile);
+        }
+    }
+}
+
+/// Calls `f(band, tiles)` in parallel for each band of [`TILE`] image rows: `band` is those
+/// rows of `dst` (row-major, `width` pixels wide) and `tiles` the tiles that cover them, left
+/// to right, as [`Sink::end_tiles`] receives them. Each pixel is in one band, so the result
+/// does not depend on the order the bands run in.
+pub fn for_each_tile_band<P: Send, T: Sync>(
+    dst: &mut [P],
+    width: usize,
+    tiles: &[(TileRect, T)],
+    f: impl Fn(&mut [P], &[(TileRect, T)]) + Sync,
+) {
+    let tiles_x = width.div_ceil(TILE).max(1);
+    dst.par_chunks_mut(TILE * width)
+        .zip(tiles.par_chunks(tiles_x))
+        .for_each(|(band, tiles)| f(band, tiles));
 }
 
 /// One view: the camera's thin lens seen from a point on the lens, sampled at an offset inside
@@ -354,7 +378,7 @@ impl BinnedView {
             })
             .collect();
         let shared: &S = sink;
-        let tiles: Vec<S::Tile> = rects
+        let tiles: Vec<(TileRect, S::Tile)> = rects
             .par_iter()
             .enumerate()
             .map(|(i, rect)| {
@@ -375,12 +399,10 @@ impl BinnedView {
                     setup::raster_triangle(tri, rect, scene, self.lod_bias, &mut tile);
                 }
                 tile.finish();
-                tile
+                (*rect, tile)
             })
             .collect();
-        for (rect, tile) in rects.into_iter().zip(tiles) {
-            sink.end_tile(rect, tile);
-        }
+        sink.end_tiles(tiles);
     }
 }
 

@@ -66,6 +66,29 @@ impl Sink for Accumulator {
             pool.push(tile);
         }
     }
+
+    /// Adds the tiles to the sum, a band of tile rows per task.
+    fn end_tiles(&mut self, tiles: Vec<(TileRect, Self::Tile)>) {
+        let width = self.width;
+        super::for_each_tile_band(&mut self.sum, width, &tiles, |band, tiles| {
+            for (rect, tile) in tiles {
+                let w = rect.width();
+                let colors = tile.color();
+                for row in 0..rect.height() {
+                    // Rows of the band are relative to its first tile's top.
+                    let dst = &mut band[(rect.y0 % super::TILE + row) * width + rect.x0..][..w];
+                    for (d, s) in dst.iter_mut().zip(&colors[row * w..(row + 1) * w]) {
+                        for k in 0..4 {
+                            d[k] += s[k];
+                        }
+                    }
+                }
+            }
+        });
+        if let Ok(mut pool) = self.pool.lock() {
+            pool.extend(tiles.into_iter().map(|(_, tile)| tile));
+        }
+    }
 }
 
 /// The view of one lens sample: its lens point, its sub-pixel offset snapped onto the raster
