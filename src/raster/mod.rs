@@ -364,10 +364,10 @@ impl BinnedView {
         self.triangles.len()
     }
 
-    /// Rasterizes into `sink` (pass `raster`), tiles in parallel.
-    pub fn rasterize<S: Sink>(&self, prepared: &PreparedScene, sink: &mut S) {
-        let scene = prepared.scene;
-        let rects: Vec<TileRect> = (0..self.tiles_y)
+    /// The tiles of the image, row-major: the `i`th rectangle is the one [`Sink`]s receive
+    /// `i`th and [`BinnedView::rasterize_tile`] takes as `i`.
+    pub fn tile_rects(&self) -> Vec<TileRect> {
+        (0..self.tiles_y)
             .flat_map(|ty| {
                 (0..self.tiles_x).map(move |tx| TileRect {
                     x0: tx * TILE,
@@ -376,30 +376,49 @@ impl BinnedView {
                     y1: ((ty + 1) * TILE).min(self.height),
                 })
             })
-            .collect();
+            .collect()
+    }
+
+    /// Rasterizes the triangles of tile `index` (at `rect`, from [`BinnedView::tile_rects`])
+    /// into `tile`: the depth pre-pass if the tile wants one, then every triangle in scene
+    /// order. Does not call [`TileSink::finish`].
+    pub fn rasterize_tile<T: TileSink>(
+        &self,
+        prepared: &PreparedScene,
+        index: usize,
+        rect: &TileRect,
+        tile: &mut T,
+    ) {
+        let scene = prepared.scene;
+        let bin = &self.bins[index];
+        if tile.wants_prepass() {
+            for &ti in bin {
+                let tri = &self.triangles[ti as usize];
+                if !tri.blend
+                    && scene.materials[tri.material as usize].alpha_mode == AlphaMode::Opaque
+                {
+                    setup::prepass_triangle(tri, rect, tile);
+                }
+            }
+        }
+        for &ti in bin {
+            let tri = &self.triangles[ti as usize];
+            setup::raster_triangle(tri, rect, scene, self.lod_bias, tile);
+        }
+    }
+
+    /// Rasterizes into `sink` (pass `raster`), tiles in parallel.
+    pub fn rasterize<S: Sink>(&self, prepared: &PreparedScene, sink: &mut S) {
         let shared: &S = sink;
-        let tiles: Vec<(TileRect, S::Tile)> = rects
-            .par_iter()
+        let tiles: Vec<(TileRect, S::Tile)> = self
+            .tile_rects()
+            .into_par_iter()
             .enumerate()
             .map(|(i, rect)| {
-                let mut tile = shared.begin_tile(*rect);
-                if tile.wants_prepass() {
-                    for &ti in &self.bins[i] {
-                        let tri = &self.triangles[ti as usize];
-                        if !tri.blend
-                            && scene.materials[tri.material as usize].alpha_mode
-                                == AlphaMode::Opaque
-                        {
-                            setup::prepass_triangle(tri, rect, &mut tile);
-                        }
-                    }
-                }
-                for &ti in &self.bins[i] {
-                    let tri = &self.triangles[ti as usize];
-                    setup::raster_triangle(tri, rect, scene, self.lod_bias, &mut tile);
-                }
+                let mut tile = shared.begin_tile(rect);
+                self.rasterize_tile(prepared, i, &rect, &mut tile);
                 tile.finish();
-                (*rect, tile)
+                (rect, tile)
             })
             .collect();
         sink.end_tiles(tiles);

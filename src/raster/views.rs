@@ -3,12 +3,12 @@
 //! over the lens), supersampled `pinhole` (views through the lens centre) and the tests of the
 //! layered methods use this one implementation.
 //!
-//! Views are accumulated one after another in sample order and each view's tiles are added in
-//! tile order, so the sum is bit-identical whatever the number of threads.
+//! Each pixel adds the views in sample order, so the sum is bit-identical whatever the number of
+//! threads.
 
-use std::sync::Mutex;
+use rayon::prelude::*;
 
-use super::{BinnedView, GBuffer, GBufferTile, PreparedScene, Sink, TileRect, View};
+use super::{BinnedView, GBuffer, PreparedScene, SetupTriangle, TileRect, TileSink, View};
 use crate::image::{ColorImage, Rgba};
 use crate::lens::{LensSample, ThinLens};
 use crate::timing::Timings;
@@ -26,69 +26,6 @@ pub struct ViewPassLabels {
     pub raster: &'static str,
     /// Once: divide the sum by the number of views (pass `resolve`).
     pub resolve: &'static str,
-}
-
-/// Sums the premultiplied colour of many views.
-struct Accumulator {
-    width: usize,
-    sum: Vec<Rgba>,
-    /// Finished tiles kept for reuse, so views do not reallocate (and page-fault) tile memory.
-    pool: Mutex<Vec<GBufferTile>>,
-}
-
-impl Sink for Accumulator {
-    type Tile = <GBuffer as Sink>::Tile;
-
-    fn begin_tile(&self, rect: TileRect) -> Self::Tile {
-        // The accumulator uses the G-buffer's tiles: same depth test and blending.
-        let recycled = self.pool.lock().ok().and_then(|mut p| p.pop());
-        match recycled {
-            Some(mut tile) => {
-                tile.reset(rect);
-                tile
-            }
-            None => GBuffer::tile(rect),
-        }
-    }
-
-    fn end_tile(&mut self, rect: TileRect, tile: Self::Tile) {
-        let w = rect.width();
-        let colors = tile.color();
-        for (row, y) in (rect.y0..rect.y1).enumerate() {
-            let dst = &mut self.sum[y * self.width + rect.x0..][..w];
-            for (d, s) in dst.iter_mut().zip(&colors[row * w..(row + 1) * w]) {
-                for k in 0..4 {
-                    d[k] += s[k];
-                }
-            }
-        }
-        if let Ok(mut pool) = self.pool.lock() {
-            pool.push(tile);
-        }
-    }
-
-    /// Adds the tiles to the sum, a band of tile rows per task.
-    fn end_tiles(&mut self, tiles: Vec<(TileRect, Self::Tile)>) {
-        let width = self.width;
-        super::for_each_tile_band(&mut self.sum, width, &tiles, |band, tiles| {
-            for (rect, tile) in tiles {
-                let w = rect.width();
-                let colors = tile.color();
-                for row in 0..rect.height() {
-                    // Rows of the band are relative to its first tile's top.
-                    let dst = &mut band[(rect.y0 % super::TILE + row) * width + rect.x0..][..w];
-                    for (d, s) in dst.iter_mut().zip(&colors[row * w..(row + 1) * w]) {
-                        for k in 0..4 {
-                            d[k] += s[k];
-                        }
-                    }
-                }
-            }
-        });
-        if let Ok(mut pool) = self.pool.lock() {
-            pool.extend(tiles.into_iter().map(|(_, tile)| tile));
-        }
-    }
 }
 
 /// The view of one lens sample: its lens point, its sub-pixel offset snapped onto the raster
@@ -115,9 +52,23 @@ pub fn render_view(
     g
 }
 
+/// Views set up and binned at a time by [`accumulate_views`]: each tile then rasterizes them
+/// one after another while its sum and buffers stay in cache.
+const VIEWS_PER_CHUNK: usize = 16;
+
+/// Memory the binned views of one chunk may take; scenes with many triangles take fewer views
+/// per chunk.
+const CHUNK_BYTES: usize = 512 << 20;
+
 /// The mean of the views of `samples` (premultiplied linear RGBA). `progress(done, total)` is
-/// called after each view. One sample at the lens centre and the pixel centre gives the plain
+/// called as views complete. One sample at the lens centre and the pixel centre gives the plain
 /// pinhole image exactly.
+///
+/// Views are taken in chunks: a chunk's views are set up and binned, then each tile (in
+/// parallel) rasterizes every view of the chunk into one G-buffer tile and adds it to the
+/// tile's sum, so the sums and tile buffers stay in cache instead of streaming a frame per
+/// view. Each pixel still adds the views in sample order, so the mean is bit-identical for any
+/// chunk size and thread count.
 pub fn accumulate_views(
     prepared: &PreparedScene,
     lens: ThinLens,
@@ -128,20 +79,59 @@ pub fn accumulate_views(
 ) -> Result<ColorImage> {
     let (w, h) = (lens.width_px, lens.height_px);
     let total = samples.len();
-    let mut acc = Accumulator {
-        width: w,
-        sum: vec![[0.0; 4]; w * h],
-        pool: Mutex::new(Vec::new()),
-    };
-    for (i, s) in samples.iter().enumerate() {
-        let view = sample_view(lens, s, total);
-        let binned = BinnedView::new_timed(prepared, &view, labels, timings);
-        timings.time(labels.raster, || binned.rasterize(prepared, &mut acc));
-        progress(i + 1, total);
+    // Setup triangles and bin entries of one view, at most.
+    let view_bytes = prepared.triangle_count().max(1) * (std::mem::size_of::<SetupTriangle>() + 16);
+    let chunk = (CHUNK_BYTES / view_bytes).clamp(1, VIEWS_PER_CHUNK);
+    // Per tile: its rectangle and the sum of its pixels, row-major within the tile.
+    let mut sums: Vec<(TileRect, Vec<Rgba>)> = Vec::new();
+    let mut done = 0;
+    for views in samples.chunks(chunk) {
+        let binned: Vec<BinnedView> = views
+            .iter()
+            .map(|s| BinnedView::new_timed(prepared, &sample_view(lens, s, total), labels, timings))
+            .collect();
+        let Some(first) = binned.first() else {
+            continue;
+        };
+        if sums.is_empty() {
+            sums = first
+                .tile_rects()
+                .into_iter()
+                .map(|r| (r, vec![[0.0; 4]; r.width() * r.height()]))
+                .collect();
+        }
+        timings.time(labels.raster, || {
+            sums.par_iter_mut()
+                .enumerate()
+                .for_each(|(i, (rect, sum))| {
+                    let mut tile = GBuffer::tile(*rect);
+                    for view in &binned {
+                        tile.reset(*rect);
+                        view.rasterize_tile(prepared, i, rect, &mut tile);
+                        tile.finish();
+                        for (d, s) in sum.iter_mut().zip(tile.color()) {
+                            for k in 0..4 {
+                                d[k] += s[k];
+                            }
+                        }
+                    }
+                });
+        });
+        done += views.len();
+        progress(done, total);
     }
     timings.time(labels.resolve, || {
         let inv_n = 1.0 / total.max(1) as f32;
-        let data = acc.sum.iter().map(|s| s.map(|v| v * inv_n)).collect();
+        let mut data = vec![[0.0; 4]; w * h];
+        for (rect, sum) in &sums {
+            for (row, y) in (rect.y0..rect.y1).enumerate() {
+                let dst = &mut data[y * w + rect.x0..][..rect.width()];
+                let src = &sum[row * rect.width()..][..rect.width()];
+                for (d, s) in dst.iter_mut().zip(src) {
+                    *d = s.map(|v| v * inv_n);
+                }
+            }
+        }
         ColorImage::from_vec(w, h, data)
     })
 }

@@ -455,7 +455,8 @@ fn plan_trilinear<const CLAMP: bool>(
     plan: &mut TrilinearPlan,
 ) {
     let last = levels.len() - 1;
-    let (w0, h0) = (levels[0].width() as f32, levels[0].height() as f32);
+    let (w0_px, h0_px) = (levels[0].width() as i32, levels[0].height() as i32);
+    let (w0, h0) = (w0_px as f32, h0_px as f32);
     for i in 0..BATCH {
         plan.small[i] = (u[i] * w0).abs() < SMALL_TEXELS && (v[i] * h0).abs() < SMALL_TEXELS;
         let magnify = lod[i] <= 0.0;
@@ -467,12 +468,14 @@ fn plan_trilinear<const CLAMP: bool>(
         plan.t[i] = if magnify { 0.0 } else { l - l0 as f32 };
     }
     for (foot, level) in plan.feet.iter_mut().zip(&plan.level) {
-        // Each lane's level size, gathered first so the arithmetic below is uniform.
+        // Each lane's level size: the chain halves (rounding down, at least 1), so level `l`
+        // is `max(size >> l, 1)`, a shift in every lane rather than a lookup.
         let mut w = [1i32; BATCH];
         let mut h = [1i32; BATCH];
         for i in 0..BATCH {
-            let img = &levels[(level[i] as usize).min(last)];
-            (w[i], h[i]) = (img.width() as i32, img.height() as i32);
+            let l = level[i].min(31);
+            w[i] = (w0_px >> l).max(1);
+            h[i] = (h0_px >> l).max(1);
         }
         for i in 0..BATCH {
             // Lanes outside the small range take the per-lookup path; zero keeps
@@ -753,7 +756,16 @@ mod tests {
         let mut batches = 0;
         // Power-of-two and other sizes, so every sampler meets both the batch and the
         // per-lookup path.
-        for (w, h) in [(1, 1), (8, 8), (16, 4), (7, 3), (12, 9), (64, 32)] {
+        for (w, h) in [
+            (1, 1),
+            (8, 8),
+            (16, 4),
+            (7, 3),
+            (12, 9),
+            (64, 32),
+            (5, 1),
+            (3, 13),
+        ] {
             let texels = (0..w * h)
                 .map(|_| [next(), next(), next(), next()])
                 .collect();
