@@ -288,7 +288,7 @@ pub struct BinnedView {
 impl BinnedView {
     /// Sets up and bins every triangle of `prepared` for `view` (passes `setup` and `bin`).
     pub fn new(prepared: &PreparedScene, view: &View) -> Self {
-        Self::bin(Self::setup(prepared, view), view)
+        Self::bin(prepared, Self::setup(prepared, view), view)
     }
 
     /// [`BinnedView::new`], timing `setup` and `bin` under the labels given.
@@ -299,7 +299,7 @@ impl BinnedView {
         timings: &mut crate::timing::Timings,
     ) -> Self {
         let triangles = timings.time(labels.setup, || Self::setup(prepared, view));
-        timings.time(labels.bin, || Self::bin(triangles, view))
+        timings.time(labels.bin, || Self::bin(prepared, triangles, view))
     }
 
     /// Pass `setup`: project, clip and cull every triangle for `view`.
@@ -332,21 +332,47 @@ impl BinnedView {
             .collect()
     }
 
-    /// Pass `bin`: each triangle into the list of every tile its bounding box touches.
-    fn bin(triangles: Vec<SetupTriangle>, view: &View) -> Self {
+    /// Pass `bin`: each triangle into the list of every tile its bounding box touches, in scene
+    /// order, except that alpha-mask triangles go last, nearest first. An alpha-tested surface
+    /// has no depth pre-pass (its coverage needs its texture), so this order lets the early
+    /// depth test skip shading mask fragments behind nearer ones. Only which of two surfaces at
+    /// exactly the same depth wins can differ from scene order.
+    fn bin(prepared: &PreparedScene, triangles: Vec<SetupTriangle>, view: &View) -> Self {
         let width = view.lens.width_px;
         let height = view.lens.height_px;
         let tiles_x = width.div_ceil(TILE);
         let tiles_y = height.div_ceil(TILE);
         let mut bins: Vec<Vec<u32>> = vec![Vec::new(); tiles_x * tiles_y];
+        let materials = &prepared.scene.materials;
+        let is_mask = |t: &SetupTriangle| {
+            !t.blend
+                && matches!(
+                    materials[t.material as usize].alpha_mode,
+                    AlphaMode::Mask { .. }
+                )
+        };
+        let mut masks = false;
         for (i, t) in triangles.iter().enumerate() {
             let (x0, y0, x1, y1) = t.bbox;
+            masks |= is_mask(t);
             // bbox is inclusive pixel range clamped to the image.
             for ty in y0 as usize / TILE..=y1 as usize / TILE {
                 for tx in x0 as usize / TILE..=x1 as usize / TILE {
                     bins[ty * tiles_x + tx].push(i as u32);
                 }
             }
+        }
+        if masks {
+            bins.par_iter_mut().for_each(|bin| {
+                // Stable: the other triangles keep scene order, and so do equally near masks.
+                bin.sort_by(|&a, &b| {
+                    let (a, b) = (&triangles[a as usize], &triangles[b as usize]);
+                    match (is_mask(a), is_mask(b)) {
+                        (true, true) => a.nearest_m.total_cmp(&b.nearest_m),
+                        (ma, mb) => ma.cmp(&mb),
+                    }
+                });
+            });
         }
         Self {
             triangles,

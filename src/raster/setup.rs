@@ -34,6 +34,8 @@ pub struct SetupTriangle {
     pub material: u32,
     /// Alpha-blended material.
     pub blend: bool,
+    /// View depth of the nearest vertex, in metres.
+    pub nearest_m: f32,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -251,6 +253,7 @@ fn setup_clipped(
         planes,
         material,
         blend,
+        nearest_m: 1.0 / inv_w[0].max(inv_w[1]).max(inv_w[2]),
     });
 }
 
