@@ -158,51 +158,98 @@ pub fn render(
 
 /// Pass `horizontal`: the row-blurred colour (see the module documentation).
 pub fn horizontal(color: &ColorImage, coc_px: &GrayImage, table: &GaussTable) -> ColorImage {
-    let (w, h) = (color.width(), color.height());
+    horizontal_with(color, coc_px, table, horizontal_row)
+}
+
+/// [`horizontal`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn horizontal_baseline(
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    table: &GaussTable,
+) -> ColorImage {
+    horizontal_with(color, coc_px, table, horizontal_row_inner)
+}
+
+fn horizontal_with(
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    table: &GaussTable,
+    row_fn: impl Fn(usize, &mut [Rgba], &ColorImage, &GrayImage, &GaussTable) + Sync,
+) -> ColorImage {
+    let w = color.width();
     let mut out = color.clone();
-    if w == 0 || h == 0 {
+    if w == 0 || color.height() == 0 {
         return out;
     }
     out.pixels_mut()
         .par_chunks_mut(w)
         .enumerate()
-        .for_each(|(y, row)| {
-            let src = color.row(y);
-            let cr = coc_px.row(y);
-            for (x, o) in row.iter_mut().enumerate() {
-                let c = cr[x];
-                let level = level_of(c, table.levels);
-                let n = table.half[level];
-                if n == 0 {
-                    continue;
-                }
-                let g = &table.weights[level * table.stride..];
-                let lo = x.saturating_sub(n);
-                let hi = (x + n).min(w - 1);
-                let mut acc = [0.0f32; 4];
-                let mut total = 0.0f32;
-                // Taps beyond the borders repeat the edge pixel.
-                let mut add = |q: usize, d: usize, times: f32| {
-                    let wt = times * g[d] * rejection_weight(c, cr[q]);
-                    let p = src[q];
-                    for k in 0..4 {
-                        acc[k] += wt * p[k];
-                    }
-                    total += wt;
-                };
-                for q in lo..=hi {
-                    add(q, q.abs_diff(x), 1.0);
-                }
-                for d in x + 1..=n {
-                    add(0, d, 1.0);
-                }
-                for d in (w - 1 - x) + 1..=n {
-                    add(w - 1, d, 1.0);
-                }
-                *o = acc.map(|a| a / total);
-            }
-        });
+        .for_each(|(y, row)| row_fn(y, row, color, coc_px, table));
     out
+}
+
+/// One row of [`horizontal`]. Compiled for several instruction sets and chosen at run time
+/// ([`multiversion`]); the same arithmetic in every version (no fused multiply-add), so the
+/// same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn horizontal_row(
+    y: usize,
+    row: &mut [Rgba],
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    table: &GaussTable,
+) {
+    horizontal_row_inner(y, row, color, coc_px, table);
+}
+
+#[inline(always)]
+fn horizontal_row_inner(
+    y: usize,
+    row: &mut [Rgba],
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    table: &GaussTable,
+) {
+    let w = color.width();
+    let src = color.row(y);
+    let cr = coc_px.row(y);
+    for (x, o) in row.iter_mut().enumerate() {
+        let c = cr[x];
+        let level = level_of(c, table.levels);
+        let n = table.half[level];
+        if n == 0 {
+            continue;
+        }
+        let g = &table.weights[level * table.stride..];
+        let lo = x.saturating_sub(n);
+        let hi = (x + n).min(w - 1);
+        let mut acc = [0.0f32; 4];
+        let mut total = 0.0f32;
+        // Taps beyond the borders repeat the edge pixel.
+        let mut add = |q: usize, d: usize, times: f32| {
+            let wt = times * g[d] * rejection_weight(c, cr[q]);
+            let p = src[q];
+            for k in 0..4 {
+                acc[k] += wt * p[k];
+            }
+            total += wt;
+        };
+        for q in lo..=hi {
+            add(q, q.abs_diff(x), 1.0);
+        }
+        for d in x + 1..=n {
+            add(0, d, 1.0);
+        }
+        for d in (w - 1 - x) + 1..=n {
+            add(w - 1, d, 1.0);
+        }
+        *o = acc.map(|a| a / total);
+    }
 }
 
 /// Pass `vertical`: the column blur of `rows` (the output of [`horizontal`]), copying `color`
@@ -213,58 +260,105 @@ pub fn vertical(
     coc_px: &GrayImage,
     table: &GaussTable,
 ) -> ColorImage {
-    let (w, h) = (color.width(), color.height());
+    vertical_with(color, rows, coc_px, table, vertical_row)
+}
+
+/// [`vertical`] built for the portable baseline only: the twin the dispatched versions are
+/// tested against, bit for bit.
+pub fn vertical_baseline(
+    color: &ColorImage,
+    rows: &ColorImage,
+    coc_px: &GrayImage,
+    table: &GaussTable,
+) -> ColorImage {
+    vertical_with(color, rows, coc_px, table, vertical_row_inner)
+}
+
+fn vertical_with(
+    color: &ColorImage,
+    rows: &ColorImage,
+    coc_px: &GrayImage,
+    table: &GaussTable,
+    row_fn: impl Fn(usize, &mut [Rgba], &ColorImage, &GrayImage, &GaussTable) + Sync,
+) -> ColorImage {
+    let w = color.width();
     let mut out = color.clone();
-    if w == 0 || h == 0 {
+    if w == 0 || color.height() == 0 {
         return out;
     }
-    let nmax = table.nmax as isize;
     out.pixels_mut()
         .par_chunks_mut(w)
         .enumerate()
-        .for_each(|(y, row)| {
-            let cr = coc_px.row(y);
-            let mut acc = [[0.0f32; 4]; CHUNK_PX];
-            let mut total = [0.0f32; CHUNK_PX];
-            let mut bases = [0usize; CHUNK_PX];
-            let mut halves = [0usize; CHUNK_PX];
-            for x0 in (0..w).step_by(CHUNK_PX) {
-                let len = CHUNK_PX.min(w - x0);
-                for t in 0..len {
-                    let level = level_of(cr[x0 + t], table.levels);
-                    bases[t] = level * table.stride;
-                    halves[t] = table.half[level];
-                }
-                let n = halves[..len].iter().copied().max().unwrap_or(0) as isize;
-                if n == 0 {
+        .for_each(|(y, row)| row_fn(y, row, rows, coc_px, table));
+    out
+}
+
+/// One row of [`vertical`], multiversioned as [`horizontal_row`].
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn vertical_row(
+    y: usize,
+    row: &mut [Rgba],
+    rows: &ColorImage,
+    coc_px: &GrayImage,
+    table: &GaussTable,
+) {
+    vertical_row_inner(y, row, rows, coc_px, table);
+}
+
+#[inline(always)]
+fn vertical_row_inner(
+    y: usize,
+    row: &mut [Rgba],
+    rows: &ColorImage,
+    coc_px: &GrayImage,
+    table: &GaussTable,
+) {
+    let (w, h) = (rows.width(), rows.height());
+    let nmax = table.nmax as isize;
+    let cr = coc_px.row(y);
+    let mut acc = [[0.0f32; 4]; CHUNK_PX];
+    let mut total = [0.0f32; CHUNK_PX];
+    let mut bases = [0usize; CHUNK_PX];
+    let mut halves = [0usize; CHUNK_PX];
+    for x0 in (0..w).step_by(CHUNK_PX) {
+        let len = CHUNK_PX.min(w - x0);
+        for t in 0..len {
+            let level = level_of(cr[x0 + t], table.levels);
+            bases[t] = level * table.stride;
+            halves[t] = table.half[level];
+        }
+        let n = halves[..len].iter().copied().max().unwrap_or(0) as isize;
+        if n == 0 {
+            continue;
+        }
+        acc[..len].fill([0.0; 4]);
+        total[..len].fill(0.0);
+        for d in -n.min(nmax)..=n.min(nmax) {
+            let yy = (y as isize - d).clamp(0, h as isize - 1) as usize;
+            let src = &rows.row(yy)[x0..x0 + len];
+            let cq = &coc_px.row(yy)[x0..x0 + len];
+            let ad = d.unsigned_abs();
+            for t in 0..len {
+                if ad > halves[t] {
                     continue;
                 }
-                acc[..len].fill([0.0; 4]);
-                total[..len].fill(0.0);
-                for d in -n.min(nmax)..=n.min(nmax) {
-                    let yy = (y as isize - d).clamp(0, h as isize - 1) as usize;
-                    let src = &rows.row(yy)[x0..x0 + len];
-                    let cq = &coc_px.row(yy)[x0..x0 + len];
-                    let ad = d.unsigned_abs();
-                    for t in 0..len {
-                        if ad > halves[t] {
-                            continue;
-                        }
-                        let wt = table.weights[bases[t] + ad] * rejection_weight(cr[x0 + t], cq[t]);
-                        for k in 0..4 {
-                            acc[t][k] += wt * src[t][k];
-                        }
-                        total[t] += wt;
-                    }
+                let wt = table.weights[bases[t] + ad] * rejection_weight(cr[x0 + t], cq[t]);
+                for k in 0..4 {
+                    acc[t][k] += wt * src[t][k];
                 }
-                for t in 0..len {
-                    if halves[t] > 0 {
-                        row[x0 + t] = acc[t].map(|a| a / total[t]);
-                    }
-                }
+                total[t] += wt;
             }
-        });
-    out
+        }
+        for t in 0..len {
+            if halves[t] > 0 {
+                row[x0 + t] = acc[t].map(|a| a / total[t]);
+            }
+        }
+    }
 }
 
 /// Per-pixel twin of [`horizontal`] then [`vertical`], with the Gaussian evaluated directly

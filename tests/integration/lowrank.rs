@@ -696,6 +696,12 @@ fn gaussian_passes_match_their_naive_twin() {
         let naive = gaussian::naive(&img, &coc, &s);
         let d = max_abs_diff(&fast, &naive);
         assert!(d < F32_TOLERANCE * 4.0, "{w}x{h}: {d}");
+        // The run-time dispatched build (AVX-512, AVX2 or NEON where present) does the same
+        // arithmetic in the same order as the portable build.
+        let base_rows = gaussian::horizontal_baseline(&img, &coc, &table);
+        assert_eq!(base_rows, rows, "{w}x{h} horizontal");
+        let base = gaussian::vertical_baseline(&img, &base_rows, &coc, &table);
+        assert_eq!(base, fast, "{w}x{h} vertical");
     }
 }
 

@@ -86,12 +86,49 @@ fn check_kernel(kernel: &[f32]) -> Result<()> {
 /// Blurs colour and near CoC of `shrunk` with the separable kernel `kernel` (odd length,
 /// offsets `-r..=r`) along both axes, clamping to the edge.
 pub fn blur(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterImage> {
+    blur_with(shrunk, kernel, blur_row)
+}
+
+/// [`blur`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn blur_baseline(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterImage> {
+    blur_with(shrunk, kernel, blur_row_inner)
+}
+
+/// The quarter-res image and kernel of a blur, shared by its rows.
+struct BlurRows<'a> {
+    color: &'a [f32],
+    coc: &'a [f32],
+    width: usize,
+    height: usize,
+    kernel: &'a [f32],
+}
+
+/// One output row of [`blur`] and its scratch rows.
+struct BlurRow<'a> {
+    y: usize,
+    pad_color: &'a mut [f32],
+    pad_coc: &'a mut [f32],
+    out_color: &'a mut [f32],
+    out_coc: &'a mut [f32],
+}
+
+fn blur_with(
+    shrunk: &QuarterImage,
+    kernel: &[f32],
+    row_fn: impl Fn(&BlurRows, BlurRow) + Sync,
+) -> Result<QuarterImage> {
     check_kernel(kernel)?;
     shrunk.check()?;
     let (w, h) = (shrunk.width(), shrunk.height());
     let r = kernel.len() / 2;
-    let src_color = shrunk.color.pixels().as_flattened();
-    let src_coc = shrunk.coc.pixels();
+    let rows = BlurRows {
+        color: shrunk.color.pixels().as_flattened(),
+        coc: shrunk.coc.pixels(),
+        width: w,
+        height: h,
+        kernel,
+    };
     let mut out_color = vec![[0.0f32; 4]; w * h];
     let mut out_coc = vec![0.0f32; w * h];
     out_color
@@ -101,29 +138,68 @@ pub fn blur(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterImage> {
         .for_each_init(
             || (vec![0.0f32; 4 * (w + 2 * r)], vec![0.0f32; w + 2 * r]),
             |(pad_color, pad_coc), (y, (out_c, out_k))| {
-                // Vertical: the middle of the padded rows gets sum_i k[i] row(y + i - r).
-                let row = |i: usize| (y + i).saturating_sub(r).min(h - 1);
-                weighted_sum(&mut pad_color[4 * r..4 * (r + w)], kernel, |i| {
-                    &src_color[4 * w * row(i)..]
-                });
-                weighted_sum(&mut pad_coc[r..r + w], kernel, |i| &src_coc[w * row(i)..]);
-                // Clamp to edge: repeat the first and last texel r times.
-                for j in 0..r {
-                    pad_color.copy_within(4 * r..4 * r + 4, 4 * j);
-                    pad_color.copy_within(4 * (r + w - 1)..4 * (r + w), 4 * (r + w + j));
-                    pad_coc[j] = pad_coc[r];
-                    pad_coc[r + w + j] = pad_coc[r + w - 1];
-                }
-                // Horizontal: out[x] = sum_i k[i] pad[x + i].
-                let (pad_color, pad_coc): (&[f32], &[f32]) = (pad_color, pad_coc);
-                weighted_sum(out_c.as_flattened_mut(), kernel, |i| &pad_color[4 * i..]);
-                weighted_sum(out_k, kernel, |i| &pad_coc[i..]);
+                row_fn(
+                    &rows,
+                    BlurRow {
+                        y,
+                        pad_color,
+                        pad_coc,
+                        out_color: out_c.as_flattened_mut(),
+                        out_coc: out_k,
+                    },
+                );
             },
         );
     Ok(QuarterImage {
         color: ColorImage::from_vec(w, h, out_color)?,
         coc: GrayImage::from_vec(w, h, out_coc)?,
     })
+}
+
+/// One row of [`blur`]: the vertical pass into the padded scratch rows, then the horizontal
+/// pass into the output. Compiled for several instruction sets and chosen at run time
+/// ([`multiversion`]): AVX-512 and AVX2 on x86-64, NEON on aarch64. Every version does the same
+/// multiplies and adds in the same order (no fused multiply-add), so all give the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn blur_row(rows: &BlurRows, row: BlurRow) {
+    blur_row_inner(rows, row);
+}
+
+#[inline(always)]
+fn blur_row_inner(rows: &BlurRows, row: BlurRow) {
+    let BlurRows {
+        color,
+        coc,
+        width: w,
+        height: h,
+        kernel,
+    } = *rows;
+    let BlurRow {
+        y,
+        pad_color,
+        pad_coc,
+        out_color,
+        out_coc,
+    } = row;
+    let r = kernel.len() / 2;
+    let src_row = |i: usize| (y + i).saturating_sub(r).min(h - 1);
+    weighted_sum(&mut pad_color[4 * r..4 * (r + w)], kernel, |i| {
+        &color[4 * w * src_row(i)..]
+    });
+    weighted_sum(&mut pad_coc[r..r + w], kernel, |i| &coc[w * src_row(i)..]);
+    for j in 0..r {
+        pad_color.copy_within(4 * r..4 * r + 4, 4 * j);
+        pad_color.copy_within(4 * (r + w - 1)..4 * (r + w), 4 * (r + w + j));
+        pad_coc[j] = pad_coc[r];
+        pad_coc[r + w + j] = pad_coc[r + w - 1];
+    }
+    let (pad_color, pad_coc): (&[f32], &[f32]) = (pad_color, pad_coc);
+    weighted_sum(out_color, kernel, |i| &pad_color[4 * i..]);
+    weighted_sum(out_coc, kernel, |i| &pad_coc[i..]);
 }
 
 /// The straightforward twin of [`blur`]: the 2D sum `sum_i sum_j k[i] k[j] in(x + j - r,

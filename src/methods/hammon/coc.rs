@@ -38,7 +38,13 @@ fn fill_row(
     bad
 }
 
-/// Fills one row for the frame's curve.
+/// Fills one row for the frame's curve. Compiled for several instruction sets and chosen at
+/// run time ([`multiversion`]); the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
 fn row(out: &mut [f32], depth: &[f32], k: &Constants) -> bool {
     match k.curve {
         Curve::Physical {
