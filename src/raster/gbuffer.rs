@@ -35,7 +35,6 @@ impl GBuffer {
             rect,
             color: vec![[0.0; 4]; n],
             depth: vec![f32::INFINITY; n],
-            prepass: vec![f32::INFINITY; n],
             blended: Vec::new(),
         }
     }
@@ -58,8 +57,6 @@ pub struct GBufferTile {
     rect: TileRect,
     color: Vec<Rgba>,
     depth: Vec<f32>,
-    /// Nearest opaque depth from the pre-pass.
-    prepass: Vec<f32>,
     /// Transparent fragments: (pixel index in tile, depth, colour).
     blended: Vec<(u32, f32, Rgba)>,
 }
@@ -73,8 +70,6 @@ impl GBufferTile {
         self.color.resize(n, [0.0; 4]);
         self.depth.clear();
         self.depth.resize(n, f32::INFINITY);
-        self.prepass.clear();
-        self.prepass.resize(n, f32::INFINITY);
         self.blended.clear();
     }
 
@@ -97,23 +92,7 @@ impl GBufferTile {
 impl TileSink for GBufferTile {
     #[inline]
     fn occluded(&self, x: u32, y: u32, depth_m: f32) -> bool {
-        let i = self.index(x, y);
-        // The pre-pass computed the same depth with the same arithmetic, so the visible
-        // surface passes with equality.
-        depth_m >= self.depth[i] || depth_m > self.prepass[i]
-    }
-
-    #[inline]
-    fn wants_prepass(&self) -> bool {
-        true
-    }
-
-    #[inline]
-    fn prepass(&mut self, x: u32, y: u32, depth_m: f32) {
-        let i = self.index(x, y);
-        if depth_m < self.prepass[i] {
-            self.prepass[i] = depth_m;
-        }
+        depth_m >= self.depth[self.index(x, y)]
     }
 
     #[inline]

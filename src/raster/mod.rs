@@ -6,8 +6,9 @@
 //!    the near and far planes (and a guard band), snap to 1/256-pixel fixed point, and build
 //!    edge functions and perspective-correct attribute planes.
 //! 2. `bin`: put each triangle in the list of every 64x64 tile its bounding box touches.
-//! 3. `raster`: tiles in parallel (rayon); within a tile triangles in scene order, so the output
-//!    does not depend on the thread count. Coverage uses the top-left fill rule at pixel
+//! 3. `raster`: tiles in parallel (rayon); within a tile opaque and alpha-mask triangles nearest
+//!    first, then blended ones in scene order (see `bin`), so the output does not depend on the
+//!    thread count. Coverage uses the top-left fill rule at pixel
 //!    centres; the sink may reject a fragment by depth before it is shaded (early depth test);
 //!    shading is unlit (base colour + emission, textures filtered with mipmaps) and alpha-mask
 //!    materials are tested against their cutoff.
@@ -118,15 +119,6 @@ pub trait TileSink: Send {
     }
     /// Takes one fragment.
     fn fragment(&mut self, fragment: &Fragment);
-    /// True if the sink wants a depth-only pre-pass of opaque triangles before the shaded
-    /// pass, so that only visible fragments are shaded. The default is false.
-    #[inline]
-    fn wants_prepass(&self) -> bool {
-        false
-    }
-    /// Depth of an opaque surface at a pixel, from the pre-pass. The default ignores it.
-    #[inline]
-    fn prepass(&mut self, _x: u32, _y: u32, _depth_m: f32) {}
     /// Called once after the last fragment, still in parallel with other tiles.
     fn finish(&mut self) {}
 }
@@ -288,7 +280,7 @@ pub struct BinnedView {
 impl BinnedView {
     /// Sets up and bins every triangle of `prepared` for `view` (passes `setup` and `bin`).
     pub fn new(prepared: &PreparedScene, view: &View) -> Self {
-        Self::bin(prepared, Self::setup(prepared, view), view)
+        Self::bin(Self::setup(prepared, view), view)
     }
 
     /// [`BinnedView::new`], timing `setup` and `bin` under the labels given.
@@ -299,7 +291,7 @@ impl BinnedView {
         timings: &mut crate::timing::Timings,
     ) -> Self {
         let triangles = timings.time(labels.setup, || Self::setup(prepared, view));
-        timings.time(labels.bin, || Self::bin(prepared, triangles, view))
+        timings.time(labels.bin, || Self::bin(triangles, view))
     }
 
     /// Pass `setup`: project, clip and cull every triangle for `view`.
@@ -332,29 +324,26 @@ impl BinnedView {
             .collect()
     }
 
-    /// Pass `bin`: each triangle into the list of every tile its bounding box touches, in scene
-    /// order, except that alpha-mask triangles go last, nearest first. An alpha-tested surface
-    /// has no depth pre-pass (its coverage needs its texture), so this order lets the early
-    /// depth test skip shading mask fragments behind nearer ones. Only which of two surfaces at
-    /// exactly the same depth wins can differ from scene order.
-    fn bin(prepared: &PreparedScene, triangles: Vec<SetupTriangle>, view: &View) -> Self {
+    /// Pass `bin`: each triangle into the list of every tile its bounding box touches, the
+    /// opaque and alpha-mask ones nearest first (by their nearest vertex), then the blended
+    /// ones in scene order. Drawn front to back, most hidden fragments fail the early depth
+    /// test before they are shaded, which is cheaper than a depth pre-pass (measured: railing
+    /// at 256 views 3.7 -> 3.1 s) and also covers alpha-tested surfaces, whose coverage a
+    /// pre-pass cannot know without their texture. The nearest surface of each pixel is the
+    /// same in any order; only which of two surfaces at exactly the same depth wins can differ
+    /// from scene order.
+    fn bin(triangles: Vec<SetupTriangle>, view: &View) -> Self {
         let width = view.lens.width_px;
         let height = view.lens.height_px;
         let tiles_x = width.div_ceil(TILE);
         let tiles_y = height.div_ceil(TILE);
         let mut bins: Vec<Vec<u32>> = vec![Vec::new(); tiles_x * tiles_y];
-        let materials = &prepared.scene.materials;
-        let is_mask = |t: &SetupTriangle| {
-            !t.blend
-                && matches!(
-                    materials[t.material as usize].alpha_mode,
-                    AlphaMode::Mask { .. }
-                )
-        };
-        let mut masks = false;
+        // Blended triangles only collect fragments (the sink composites them once the tile is
+        // done), so their place in the order does not matter.
+        let mut opaque = false;
         for (i, t) in triangles.iter().enumerate() {
             let (x0, y0, x1, y1) = t.bbox;
-            masks |= is_mask(t);
+            opaque |= !t.blend;
             // bbox is inclusive pixel range clamped to the image.
             for ty in y0 as usize / TILE..=y1 as usize / TILE {
                 for tx in x0 as usize / TILE..=x1 as usize / TILE {
@@ -362,14 +351,14 @@ impl BinnedView {
                 }
             }
         }
-        if masks {
+        if opaque {
             bins.par_iter_mut().for_each(|bin| {
-                // Stable: the other triangles keep scene order, and so do equally near masks.
+                // Stable: equally near triangles, and the blended ones, keep scene order.
                 bin.sort_by(|&a, &b| {
                     let (a, b) = (&triangles[a as usize], &triangles[b as usize]);
-                    match (is_mask(a), is_mask(b)) {
-                        (true, true) => a.nearest_m.total_cmp(&b.nearest_m),
-                        (ma, mb) => ma.cmp(&mb),
+                    match (a.blend, b.blend) {
+                        (false, false) => a.nearest_m.total_cmp(&b.nearest_m),
+                        (ba, bb) => ba.cmp(&bb),
                     }
                 });
             });
@@ -416,18 +405,7 @@ impl BinnedView {
         tile: &mut T,
     ) {
         let scene = prepared.scene;
-        let bin = &self.bins[index];
-        if tile.wants_prepass() {
-            for &ti in bin {
-                let tri = &self.triangles[ti as usize];
-                if !tri.blend
-                    && scene.materials[tri.material as usize].alpha_mode == AlphaMode::Opaque
-                {
-                    setup::prepass_triangle(tri, rect, tile);
-                }
-            }
-        }
-        for &ti in bin {
+        for &ti in &self.bins[index] {
             let tri = &self.triangles[ti as usize];
             setup::raster_triangle(tri, rect, scene, self.lod_bias, tile);
         }

@@ -257,11 +257,6 @@ fn setup_clipped(
     });
 }
 
-#[inline]
-fn eval(plane: &[f32; 3], dx: f32, dy: f32) -> f32 {
-    plane[0] + plane[1] * dx + plane[2] * dy
-}
-
 /// Calls `f(y, x0, x1, fy)` for every row of `rect` that `tri` covers, with `x0..x1` the
 /// pixels of the row whose centres it covers (top-left rule; one run, as the triangle is
 /// convex) and `fy` the row's pixel centre relative to the triangle's plane origin.
@@ -313,7 +308,7 @@ fn for_each_run(tri: &SetupTriangle, rect: &TileRect, mut f: impl FnMut(usize, u
 
 /// Calls `f(x, y, fx, fy)` for every pixel of `rect` whose centre `tri` covers (top-left rule),
 /// with `(fx, fy)` the pixel centre relative to the triangle's plane origin.
-#[inline(always)]
+#[cfg(test)]
 fn for_each_covered(
     tri: &SetupTriangle,
     rect: &TileRect,
@@ -325,14 +320,6 @@ fn for_each_covered(
         for x in xa..xb {
             f(x, y, x as f32 + 0.5 - origin_x, fy);
         }
-    });
-}
-
-/// Depth-only rasterization of an opaque triangle for the sink's depth pre-pass.
-pub(crate) fn prepass_triangle<T: TileSink>(tri: &SetupTriangle, rect: &TileRect, tile: &mut T) {
-    let pq = tri.planes[0];
-    for_each_covered(tri, rect, |x, y, fx, fy| {
-        tile.prepass(x as u32, y as u32, 1.0 / eval(&pq, fx, fy));
     });
 }
 
@@ -401,7 +388,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
         }
     };
     // The three planes side by side, lanes (1/w, u/w, v/w, unused): one evaluation for all,
-    // with `eval`'s arithmetic in each lane.
+    // each lane `p[0] + p[1] dx + p[2] dy`.
     let [p0, p1, p2] = [0, 1, 2].map(|k| Vec4::new(pq[k], pu[k], pv[k], 0.0));
     let origin_x = tri.origin.x;
     let mut pending = PendingPixels {
