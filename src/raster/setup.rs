@@ -149,6 +149,23 @@ pub(crate) fn setup_triangle(
     }
 }
 
+/// `floor(a / b)` for `a >= 0` and `b > 0`, exact: a double-precision division (far cheaper
+/// than a 64-bit integer one) corrected by one where rounding crossed an integer. The double
+/// quotient is within a few ulps of the true one, so within one of it while the quotient is
+/// below 2^50; here it is at most an edge value over a step of at least one pixel (256).
+#[inline(always)]
+fn div_floor(a: i64, b: i64) -> i64 {
+    debug_assert!(a >= 0 && b > 0);
+    let q = (a as f64 / b as f64) as i64;
+    if q * b > a {
+        q - 1
+    } else if (q + 1) * b <= a {
+        q + 1
+    } else {
+        q
+    }
+}
+
 #[inline]
 fn edge(a: (i64, i64), b: (i64, i64), p: (i64, i64)) -> i64 {
     (b.0 - a.0) * (p.1 - a.1) - (b.1 - a.1) * (p.0 - a.0)
@@ -271,28 +288,34 @@ fn for_each_run(tri: &SetupTriangle, rect: &TileRect, mut f: impl FnMut(usize, u
     }
     let v = &tri.v;
     let edges = [(1usize, 2usize), (2, 0), (0, 1)];
-    // Per-pixel steps of each edge function.
+    // Per-pixel and per-row steps of each edge function.
     let step_x = edges.map(|(a, b)| -(v[b].1 - v[a].1) * ONE);
+    let step_y = edges.map(|(a, b)| (v[b].0 - v[a].0) * ONE);
     let last = (x1 - x0) as i64;
     // Locals, which the sink's stores cannot alias, so they stay in registers.
     let origin = tri.origin;
+    // The edge functions at the first pixel of row `y0`, stepped exactly (integers) per row.
+    let p = (x0 as i64 * ONE + HALF, y0 as i64 * ONE + HALF);
+    let mut w = [0, 1, 2].map(|k| edge(v[edges[k].0], v[edges[k].1], p) + tri.bias[k]);
     for y in y0..=y1 {
-        let p = (x0 as i64 * ONE + HALF, y as i64 * ONE + HALF);
         // The covered pixels of a row are one run `x0 + lo ..= x0 + hi`: solve
         // `w[k] + step_x[k] * i >= 0` for `i` exactly, edge by edge, in integers.
         let (mut lo, mut hi) = (0i64, last);
         for k in 0..3 {
-            let w = edge(v[edges[k].0], v[edges[k].1], p) + tri.bias[k];
-            let s = step_x[k];
+            let (w, s) = (w[k], step_x[k]);
             if s > 0 {
                 if w < 0 {
-                    lo = lo.max((-w + s - 1) / s);
+                    // ceil(-w / s)
+                    lo = lo.max(div_floor(-w + s - 1, s));
                 }
             } else if w < 0 {
                 hi = -1;
             } else if s < 0 {
-                hi = hi.min(w / -s);
+                hi = hi.min(div_floor(w, -s));
             }
+        }
+        for k in 0..3 {
+            w[k] += step_y[k];
         }
         if lo > hi {
             continue;
@@ -447,6 +470,33 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn double_division_is_integer_floor_division() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for i in 0..200_000 {
+            // Magnitudes up to 2^50, exact multiples and their neighbours.
+            let b = (next() >> (14 + i % 50)).max(1) as i64;
+            let q = (next() >> (14 + (i / 7) % 50)) as i64 % (1 << 50) / b;
+            for a in [
+                q * b,
+                q * b + 1,
+                q * b - 1,
+                q * b + b - 1,
+                (next() >> 14) as i64,
+            ] {
+                if a >= 0 {
+                    assert_eq!(div_floor(a, b), a / b, "{a} / {b}");
+                }
+            }
+        }
     }
 
     #[test]
