@@ -11,7 +11,8 @@
 //!
 //! Each tile keeps the N nearest fragments of each pixel in N slots as they arrive (a full
 //! pixel rejects an opaque fragment behind all N before it is shaded); within a tile fragments
-//! arrive in scene order, so the lists do not depend on the thread count.
+//! arrive in the rasterizer's fixed order (nearest triangles first), so the lists do not depend
+//! on the thread count.
 
 use half::f16;
 
@@ -246,7 +247,7 @@ impl TileSink for FragmentTile {
                 self.farthest[i] = slots.iter().map(|s| s.0).fold(f32::MIN, f32::max);
             }
         } else {
-            // Replace the farthest (the last of equals, so earlier scene order wins ties).
+            // Replace the farthest (the last of equals, so the earlier fragment wins ties).
             let mut far = 0;
             for (k, s) in slots.iter().enumerate() {
                 if s.0 >= slots[far].0 {

@@ -395,8 +395,7 @@ impl BinnedView {
     }
 
     /// Rasterizes the triangles of tile `index` (at `rect`, from [`BinnedView::tile_rects`])
-    /// into `tile`: the depth pre-pass if the tile wants one, then every triangle in scene
-    /// order. Does not call [`TileSink::finish`].
+    /// into `tile`, in the order of its bin (see `bin`). Does not call [`TileSink::finish`].
     pub fn rasterize_tile<T: TileSink>(
         &self,
         prepared: &PreparedScene,
