@@ -54,6 +54,10 @@ use crate::Result;
 /// buffers (96 KiB) still fit in L2.
 pub const TILE: usize = 64;
 
+/// Low bits of a depth's `f32` dropped to make the bands [`BinnedView`] sorts triangles by:
+/// 21 leaves the exponent and two mantissa bits, four bands per doubling of depth.
+const DEPTH_BAND_SHIFT: u32 = 21;
+
 /// Steps per pixel of the fixed-point grid that vertices snap to (1/256 pixel).
 pub const SUBPIXEL_STEPS: f32 = (1u32 << setup::SUBPIXEL_BITS) as f32;
 
@@ -352,16 +356,36 @@ impl BinnedView {
             }
         }
         if opaque {
-            bins.par_iter_mut().for_each(|bin| {
-                // Stable: equally near triangles, and the blended ones, keep scene order.
-                bin.sort_by(|&a, &b| {
-                    let (a, b) = (&triangles[a as usize], &triangles[b as usize]);
-                    match (a.blend, b.blend) {
-                        (false, false) => a.nearest_m.total_cmp(&b.nearest_m),
-                        (ba, bb) => ba.cmp(&bb),
+            // Sort keys: the nearest depth in quarter octaves (the float's exponent and top two
+            // mantissa bits, ordered as the numbers for positive floats; blended triangles get
+            // the largest key) above the triangle index, so one integer sort gives the depth
+            // bands nearest first, each in scene order, then the blended triangles in scene
+            // order. Bands rather than exact depths keep neighbouring triangles together (their
+            // vertices and texels stay in cache: sorting by exact depth made a frame of 300k
+            // small triangles 12% slower than no sorting at all) and still put near surfaces
+            // first.
+            let depth_key: Vec<u32> = triangles
+                .iter()
+                .map(|t| {
+                    if t.blend {
+                        u32::MAX
+                    } else {
+                        t.nearest_m.max(0.0).to_bits() >> DEPTH_BAND_SHIFT
+                    }
+                })
+                .collect();
+            bins.par_iter_mut()
+                .for_each_init(Vec::new, |keys: &mut Vec<u64>, bin| {
+                    keys.clear();
+                    keys.extend(
+                        bin.iter()
+                            .map(|&i| (u64::from(depth_key[i as usize]) << 32) | u64::from(i)),
+                    );
+                    keys.sort_unstable();
+                    for (b, k) in bin.iter_mut().zip(keys.iter()) {
+                        *b = *k as u32;
                     }
                 });
-            });
         }
         Self {
             triangles,
@@ -404,9 +428,10 @@ impl BinnedView {
         tile: &mut T,
     ) {
         let scene = prepared.scene;
+        let mut scratch = setup::RasterScratch::new();
         for &ti in &self.bins[index] {
             let tri = &self.triangles[ti as usize];
-            setup::raster_triangle(tri, rect, scene, self.lod_bias, tile);
+            setup::raster_triangle(tri, rect, scene, self.lod_bias, tile, &mut scratch);
         }
     }
 

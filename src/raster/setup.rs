@@ -346,7 +346,38 @@ fn for_each_covered(
     });
 }
 
-/// Covered pixels that passed the early depth test, waiting to be shaded together.
+/// Below this many pixels a batch is shaded pixel by pixel ([`shade::Shader::shade`], the same
+/// result bit for bit): the batch's lane-by-lane passes cost the same for 1 pixel as for 16.
+const FEW_PIXELS: usize = 4;
+
+/// Batch buffers of [`raster_triangle`], made once per tile rather than per triangle (a
+/// kilobyte to initialise, which scenes of many small triangles would pay per triangle).
+pub(crate) struct RasterScratch {
+    pending: PendingPixels,
+    uv: shade::UvBatch,
+    colors: [Option<crate::image::Rgba>; BATCH],
+}
+
+impl RasterScratch {
+    pub(crate) fn new() -> Self {
+        Self {
+            pending: PendingPixels {
+                n: 0,
+                x: [0; BATCH],
+                y: [0; BATCH],
+                depth_m: [0.0; BATCH],
+                q: [1.0; BATCH],
+                uq: [0.0; BATCH],
+                vq: [0.0; BATCH],
+            },
+            uv: shade::UvBatch::default(),
+            colors: [None; BATCH],
+        }
+    }
+}
+
+/// Covered pixels that passed the early depth test, waiting to be shaded together. Lanes past
+/// `n` hold values of earlier batches: finite or not, they are computed on and never used.
 struct PendingPixels {
     n: usize,
     x: [u32; BATCH],
@@ -371,18 +402,40 @@ pub(crate) fn raster_triangle<T: TileSink>(
     scene: &Scene,
     lod_bias: f32,
     tile: &mut T,
+    scratch: &mut RasterScratch,
 ) {
+    let RasterScratch {
+        pending,
+        uv,
+        colors,
+    } = scratch;
+    pending.n = 0;
     let material = &scene.materials[tri.material as usize];
     let shader = shade::Shader::new(material, &scene.textures, lod_bias);
     let [pq, pu, pv] = &tri.planes;
     // Shading without textures is the same for every pixel.
     let flat = (!shader.needs_uv()).then(|| shader.shade(Vec2::ZERO, Vec2::ZERO, Vec2::ZERO));
-    let mut uv = shade::UvBatch::default();
-    let mut colors = [None; BATCH];
     let mut shade_and_emit = |p: &mut PendingPixels, tile: &mut T| {
         let n = std::mem::take(&mut p.n);
         match flat {
             Some(color) => colors[..n].fill(color),
+            None if n < FEW_PIXELS => {
+                // Too few for the batch's fixed cost (small triangles): pixel by pixel, with
+                // the same arithmetic.
+                for (i, color) in colors[..n].iter_mut().enumerate() {
+                    let (u, v) = (p.uq[i] / p.q[i], p.vq[i] / p.q[i]);
+                    let (qx, qy) = (p.q[i] + pq[1], p.q[i] + pq[2]);
+                    let du_dx = (p.uq[i] + pu[1]) / qx - u;
+                    let dv_dx = (p.vq[i] + pv[1]) / qx - v;
+                    let du_dy = (p.uq[i] + pu[2]) / qy - u;
+                    let dv_dy = (p.vq[i] + pv[2]) / qy - v;
+                    *color = shader.shade(
+                        Vec2::new(u, v),
+                        Vec2::new(du_dx, dv_dx),
+                        Vec2::new(du_dy, dv_dy),
+                    );
+                }
+            }
             None => {
                 // uv at the pixel and one pixel right and down.
                 for i in 0..BATCH {
@@ -395,7 +448,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
                     uv.du_dy[i] = (p.uq[i] + pu[2]) / qy - u;
                     uv.dv_dy[i] = (p.vq[i] + pv[2]) / qy - v;
                 }
-                shader.shade_batch(n, &uv, &mut colors);
+                shader.shade_batch(n, uv, colors);
             }
         }
         for (i, color) in colors[..n].iter().enumerate() {
@@ -414,15 +467,6 @@ pub(crate) fn raster_triangle<T: TileSink>(
     // each lane `p[0] + p[1] dx + p[2] dy`.
     let [p0, p1, p2] = [0, 1, 2].map(|k| Vec4::new(pq[k], pu[k], pv[k], 0.0));
     let origin_x = tri.origin.x;
-    let mut pending = PendingPixels {
-        n: 0,
-        x: [0; BATCH],
-        y: [0; BATCH],
-        depth_m: [0.0; BATCH],
-        q: [1.0; BATCH],
-        uq: [0.0; BATCH],
-        vq: [0.0; BATCH],
-    };
     for_each_run(tri, rect, |y, xa, xb, fy| {
         for x in xa..xb {
             let e = p0 + p1 * (x as f32 + 0.5 - origin_x) + p2 * fy;
@@ -430,7 +474,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
             if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
                 continue;
             }
-            let p = &mut pending;
+            let p = &mut *pending;
             let i = p.n;
             (p.x[i], p.y[i], p.depth_m[i]) = (x as u32, y as u32, depth_m);
             (p.q[i], p.uq[i], p.vq[i]) = (e.x, e.y, e.z);
@@ -441,7 +485,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
         }
     });
     if pending.n > 0 {
-        shade_and_emit(&mut pending, tile);
+        shade_and_emit(pending, tile);
     }
 }
 

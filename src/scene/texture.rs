@@ -266,7 +266,7 @@ impl<'a> BoundTexture<'a> {
     }
 
     /// Same as [`Texture::sample`] with this sampler, bit for bit.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn sample(&self, uv: Vec2, lod: f32) -> Rgba {
         // Each arm inlines `sample_with` with constant modes.
         match self.specialised {
