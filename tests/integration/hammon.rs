@@ -561,6 +561,13 @@ fn composite_agrees_with_its_naive_twin() {
             let slow = composite::naive(&color, &s, &medium, &large, &k).unwrap();
             let d = max_rel_diff(fast.pixels(), slow.pixels());
             assert!(d <= TWIN_TOLERANCE, "{w}x{h} {lerp:?}: differs by {d}");
+            // The run-time dispatched build (AVX-512, AVX2 or NEON where present) does the
+            // same arithmetic in the same order as the portable build.
+            let baseline = composite::composite_baseline(&color, &s, &medium, &large, &k).unwrap();
+            assert_eq!(
+                fast, baseline,
+                "{w}x{h} {lerp:?}: dispatched and baseline builds"
+            );
         }
     }
 }

@@ -182,10 +182,52 @@ pub fn composite(
     large: &QuarterImage,
     k: &Constants,
 ) -> Result<ColorImage> {
+    composite_with(color, coc, medium, large, k, composite_row)
+}
+
+/// [`composite`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn composite_baseline(
+    color: &ColorImage,
+    coc: &GrayImage,
+    medium: &QuarterImage,
+    large: &QuarterImage,
+    k: &Constants,
+) -> Result<ColorImage> {
+    composite_with(color, coc, medium, large, k, composite_row_inner)
+}
+
+/// The inputs every row of [`composite`] reads.
+struct RowInputs<'a> {
+    color: &'a ColorImage,
+    coc: &'a GrayImage,
+    medium: &'a QuarterImage,
+    large: &'a QuarterImage,
+    seg: Segments,
+}
+
+/// Per-thread scratch rows: the quarter-res rows interpolated vertically at the output row,
+/// padded (medium colour, medium near CoC, large colour).
+type RowScratch = (Vec<Rgba>, Vec<f32>, Vec<Rgba>);
+
+fn composite_with(
+    color: &ColorImage,
+    coc: &GrayImage,
+    medium: &QuarterImage,
+    large: &QuarterImage,
+    k: &Constants,
+    row_fn: impl Fn(&RowInputs, &mut RowScratch, usize, &mut [Rgba]) + Sync,
+) -> Result<ColorImage> {
     check_sizes(color, coc, medium, large, k)?;
     let (w, h) = (color.width(), color.height());
-    let (qw, qh) = (medium.width(), medium.height());
-    let seg = Segments::new(k.lerp_distances());
+    let qw = medium.width();
+    let inputs = RowInputs {
+        color,
+        coc,
+        medium,
+        large,
+        seg: Segments::new(k.lerp_distances()),
+    };
     let mut out = vec![[0.0f32; 4]; w * h];
     out.par_chunks_mut(w).enumerate().for_each_init(
         || {
@@ -195,56 +237,84 @@ pub fn composite(
                 vec![[0.0f32; 4]; qw + 2],
             )
         },
-        |(med_c, med_k, large_c), (y, out_row)| {
-            // The quarter-res rows interpolated vertically at this row, padded.
-            let (y0, y1, fy) = quarter_tap(y, qh);
-            let lerp1 = |a: f32, b: f32| a + fy * (b - a);
-            let lerp = |a: Rgba, b: Rgba| lerp4(a, b, fy);
-            pad_lerp(med_c, medium.color.row(y0), medium.color.row(y1), lerp);
-            pad_lerp(med_k, medium.coc.row(y0), medium.coc.row(y1), lerp1);
-            pad_lerp(large_c, large.color.row(y0), large.color.row(y1), lerp);
-            let rows = [-2isize, -1, 0, 1, 2]
-                .map(|dy| color.row((y as isize + dy).clamp(0, h as isize - 1) as usize));
-            let groups = out_row
-                .chunks_mut(4)
-                .zip(coc.row(y).chunks(4))
-                .zip(rows[2].chunks(4))
-                .zip(
-                    med_c
-                        .windows(3)
-                        .zip(med_k.windows(3))
-                        .zip(large_c.windows(3)),
-                );
-            for (q, (((out4, s4), unblurred4), ((mc, mk), lc))) in groups.enumerate() {
-                for (j, (o, (&s, &unblurred))) in
-                    out4.iter_mut().zip(s4.iter().zip(unblurred4)).enumerate()
-                {
-                    let (l, f) = (UPSAMPLE_LEFT[j], UPSAMPLE_FRACTION[j]);
-                    let near = mk[l] + f * (mk[l + 1] - mk[l]);
-                    let t = max(near, s);
-                    if t.is_nan() || t <= 0.0 {
-                        *o = unblurred;
-                        continue;
-                    }
-                    let small = || small_blur(&rows, 4 * q + j);
-                    let med = || lerp4(mc[l], mc[l + 1], f);
-                    let big = || lerp4(lc[l], lc[l + 1], f);
-                    // The segment of t gives the two levels with non-zero weight.
-                    let acc = if t < seg.d0 {
-                        lerp4(unblurred, small(), t * seg.inv_d0)
-                    } else if t < seg.d01 {
-                        lerp4(small(), med(), (t - seg.d0) * seg.inv_d1)
-                    } else if t < 1.0 {
-                        lerp4(med(), big(), (t - seg.d01) * seg.inv_d2)
-                    } else {
-                        big()
-                    };
-                    *o = acc;
-                }
-            }
-        },
+        |scratch, (y, out_row)| row_fn(&inputs, scratch, y, out_row),
     );
     ColorImage::from_vec(w, h, out)
+}
+
+/// One output row of [`composite`]. Compiled for several instruction sets and chosen at run
+/// time ([`multiversion`]); the same arithmetic in every version (no fused multiply-add), so
+/// the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn composite_row(inputs: &RowInputs, scratch: &mut RowScratch, y: usize, out_row: &mut [Rgba]) {
+    composite_row_inner(inputs, scratch, y, out_row);
+}
+
+#[inline(always)]
+fn composite_row_inner(
+    inputs: &RowInputs,
+    scratch: &mut RowScratch,
+    y: usize,
+    out_row: &mut [Rgba],
+) {
+    let RowInputs {
+        color,
+        coc,
+        medium,
+        large,
+        seg,
+    } = *inputs;
+    let (med_c, med_k, large_c) = scratch;
+    let (h, qh) = (color.height(), medium.height());
+    // The quarter-res rows interpolated vertically at this row, padded.
+    let (y0, y1, fy) = quarter_tap(y, qh);
+    let lerp1 = |a: f32, b: f32| a + fy * (b - a);
+    let lerp = |a: Rgba, b: Rgba| lerp4(a, b, fy);
+    pad_lerp(med_c, medium.color.row(y0), medium.color.row(y1), lerp);
+    pad_lerp(med_k, medium.coc.row(y0), medium.coc.row(y1), lerp1);
+    pad_lerp(large_c, large.color.row(y0), large.color.row(y1), lerp);
+    let rows = [-2isize, -1, 0, 1, 2]
+        .map(|dy| color.row((y as isize + dy).clamp(0, h as isize - 1) as usize));
+    let groups = out_row
+        .chunks_mut(4)
+        .zip(coc.row(y).chunks(4))
+        .zip(rows[2].chunks(4))
+        .zip(
+            med_c
+                .windows(3)
+                .zip(med_k.windows(3))
+                .zip(large_c.windows(3)),
+        );
+    for (q, (((out4, s4), unblurred4), ((mc, mk), lc))) in groups.enumerate() {
+        for (j, (o, (&s, &unblurred))) in out4.iter_mut().zip(s4.iter().zip(unblurred4)).enumerate()
+        {
+            let (l, f) = (UPSAMPLE_LEFT[j], UPSAMPLE_FRACTION[j]);
+            let near = mk[l] + f * (mk[l + 1] - mk[l]);
+            let t = max(near, s);
+            if t.is_nan() || t <= 0.0 {
+                *o = unblurred;
+                continue;
+            }
+            let small = || small_blur(&rows, 4 * q + j);
+            let med = || lerp4(mc[l], mc[l + 1], f);
+            let big = || lerp4(lc[l], lc[l + 1], f);
+            // The segment of t gives the two levels with non-zero weight.
+            let acc = if t < seg.d0 {
+                lerp4(unblurred, small(), t * seg.inv_d0)
+            } else if t < seg.d01 {
+                lerp4(small(), med(), (t - seg.d0) * seg.inv_d1)
+            } else if t < 1.0 {
+                lerp4(med(), big(), (t - seg.d01) * seg.inv_d2)
+            } else {
+                big()
+            };
+            *o = acc;
+        }
+    }
 }
 
 /// Bilinear sample of `img` at (`u`, `v`) in texel units (texel i covers [i, i + 1)), clamped
