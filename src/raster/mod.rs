@@ -138,28 +138,12 @@ pub trait Sink: Sync {
     fn end_tile(&mut self, rect: TileRect, tile: Self::Tile);
     /// Takes back every tile of a pass, in row-major tile order. The default hands them to
     /// [`Sink::end_tile`] one by one; a sink whose tiles write disjoint pixels may take them
-    /// in parallel ([`for_each_tile_band`]).
+    /// in parallel (as [`GBuffer`] does, a band of tile rows per task).
     fn end_tiles(&mut self, tiles: Vec<(TileRect, Self::Tile)>) {
         for (rect, tile) in tiles {
             self.end_tile(rect, tile);
         }
     }
-}
-
-/// Calls `f(band, tiles)` in parallel for each band of [`TILE`] image rows: `band` is those
-/// rows of `dst` (row-major, `width` pixels wide) and `tiles` the tiles that cover them, left
-/// to right, as [`Sink::end_tiles`] receives them. Each pixel is in one band, so the result
-/// does not depend on the order the bands run in.
-pub fn for_each_tile_band<P: Send, T: Sync>(
-    dst: &mut [P],
-    width: usize,
-    tiles: &[(TileRect, T)],
-    f: impl Fn(&mut [P], &[(TileRect, T)]) + Sync,
-) {
-    let tiles_x = width.div_ceil(TILE).max(1);
-    dst.par_chunks_mut(TILE * width)
-        .zip(tiles.par_chunks(tiles_x))
-        .for_each(|(band, tiles)| f(band, tiles));
 }
 
 /// One view: the camera's thin lens seen from a point on the lens, sampled at an offset inside
