@@ -14,6 +14,9 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use defocus::image::ColorImage;
 use defocus::lens::Aperture;
+use defocus::methods::lowrank::filter::{
+    filter_full_2d_channels, filter_separable_channels, Channels,
+};
 use defocus::methods::lowrank::{
     self, decompose, filter_full_2d, filter_separable, kernel_image, KernelSpec, LowRankSettings,
 };
@@ -65,6 +68,19 @@ fn filters(c: &mut Criterion) {
                     b.iter(|| filter_separable(&img, &lr, rank))
                 });
             }
+        }
+        // The same filters with all four channels forced on this opaque image: what the
+        // colour-only path saves.
+        if w == 1280 {
+            let kernel = kernel_image(&KernelSpec::new(Aperture::Disc, 65)).expect("kernel");
+            let lr = decompose(&kernel).expect("svd");
+            group.bench_function(format!("rgba/rank3/k65/{w}x{h}"), |b| {
+                b.iter(|| filter_separable_channels(&img, &lr, 3, Channels::Rgba))
+            });
+            let kernel = kernel_image(&KernelSpec::new(Aperture::Disc, 17)).expect("kernel");
+            group.bench_function(format!("rgba/full2d/k17/{w}x{h}"), |b| {
+                b.iter(|| filter_full_2d_channels(&img, &kernel, Channels::Rgba))
+            });
         }
         // The kernel pass alone: rasterize and decompose a 65 px kernel.
         if w == 1280 {

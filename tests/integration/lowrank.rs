@@ -253,6 +253,38 @@ fn separable_filter_matches_its_naive_twin_on_odd_and_one_pixel_images() {
     }
 }
 
+/// An opaque image is filtered in its colour channels only (issue #15's RGB path): the result,
+/// alpha included, is bit-identical to filtering all four channels, since every colour float
+/// goes through the same products and sums and the alpha is the taps' sum in the same order.
+#[test]
+fn opaque_images_take_the_colour_only_path_bit_for_bit() {
+    let mut rng = Rng(21);
+    let odd_kernel = GrayImage::from_vec(7, 5, (0..35).map(|_| rng.next_f32()).collect()).unwrap();
+    let kernels = [kernel("poly:6", 17), odd_kernel, kernel("disc", 1)];
+    for (w, h) in [(1, 1), (13, 1), (31, 17), (133, 37)] {
+        let mut img = random_image(w, h, (w * 31 + h) as u64);
+        for p in img.pixels_mut() {
+            p[3] = 1.0;
+        }
+        assert!(filter::is_opaque(&img));
+        for k in &kernels {
+            let lr = decompose(k).unwrap();
+            for rank in [1, 2, lr.len()] {
+                let rgb = filter_separable(&img, &lr, rank);
+                let rgba =
+                    filter::filter_separable_channels(&img, &lr, rank, filter::Channels::Rgba);
+                assert_eq!(rgb.pixels(), rgba.pixels(), "{w}x{h}, rank {rank}");
+            }
+            let rgb = filter_full_2d(&img, k);
+            let rgba = filter::filter_full_2d_channels(&img, k, filter::Channels::Rgba);
+            assert_eq!(rgb.pixels(), rgba.pixels(), "{w}x{h} full 2D");
+        }
+        // One pixel not quite opaque sends the whole image down the RGBA path.
+        img.pixels_mut()[w * h / 2][3] = 0.5;
+        assert!(!filter::is_opaque(&img));
+    }
+}
+
 #[test]
 fn bad_kernel_specs_and_kernels_are_errors_not_panics() {
     let bad = [
@@ -679,6 +711,43 @@ fn dof_passes_match_their_naive_twin_on_odd_and_one_pixel_images() {
             let (plain, none) = dof::filter(&img, None, &coc, &bank, &mut timings);
             assert!(none.is_none());
             assert_eq!(plain, fast);
+        }
+    }
+}
+
+/// The spatially varying filter on an opaque image carries only the colour channels: their
+/// values are bit-identical to the RGBA path's, and alpha is 1 (every pixel's kernel sums to
+/// 1; the RGBA path gets 1 up to rounding). The edge channel is unchanged.
+#[test]
+fn dof_filter_on_an_opaque_image_is_the_rgba_filter_with_alpha_one() {
+    for (w, h) in [(1, 1), (9, 1), (37, 21), (150, 40)] {
+        let mut img = random_image(w, h, (w * 7 + h) as u64);
+        for p in img.pixels_mut() {
+            p[3] = 1.0;
+        }
+        let coc = test_coc(w, h, 3);
+        let max_r = coc.pixels().iter().fold(0.0f32, |m, c| m.max(c.abs()));
+        let edges = dof::edges(&coc, 1.0);
+        for (aperture, rank) in [("poly:5", 3), ("disc", 1)] {
+            let spec = KernelSpec::new(Aperture::parse(aperture).unwrap(), 25);
+            let lr = decompose(&kernel_image(&spec).unwrap()).unwrap();
+            let bank = dof::KernelBank::new(&lr, rank, max_r).unwrap();
+            let mut timings = defocus::timing::Timings::default();
+            let (rgb, rgb_edges) = dof::filter(&img, Some(&edges), &coc, &bank, &mut timings);
+            let (rgba, rgba_edges) = dof::filter_channels(
+                &img,
+                Some(&edges),
+                &coc,
+                &bank,
+                filter::Channels::Rgba,
+                &mut timings,
+            );
+            assert_eq!(rgb_edges, rgba_edges);
+            for (p, q) in rgb.pixels().iter().zip(rgba.pixels()) {
+                assert_eq!(p[..3], q[..3], "{w}x{h} {aperture} r{rank}");
+                assert_eq!(p[3], 1.0);
+                assert!((q[3] - 1.0).abs() < 1e-5, "RGBA alpha {}", q[3]);
+            }
         }
     }
 }

@@ -47,7 +47,9 @@
 
 use rayon::prelude::*;
 
-use super::filter::{filter_span, filter_span_add, ROW_BLOCK, STRIP_PX};
+use super::filter::{
+    filter_span, filter_span_add, is_opaque, pad_row, Channels, ROW_BLOCK, STRIP_PX,
+};
 use super::svd::LowRank;
 use crate::image::{ColorImage, GrayImage, Rgba};
 use crate::timing::Timings;
@@ -255,19 +257,25 @@ pub struct Intermediate {
     width: usize,
     height: usize,
     keys: Vec<u32>,
-    colour: Vec<Rgba>,
+    /// Channels per pixel of `colour`: 4 (RGBA) or 3 (colour only, for an opaque image).
+    channels: usize,
+    /// Flattened, `channels` floats per pixel.
+    colour: Vec<f32>,
     edges: Vec<f32>,
 }
 
 impl Intermediate {
-    /// Buffers for `color`'s size and the table keys of `coc_px` in `bank`.
-    pub fn new(coc_px: &GrayImage, bank: &KernelBank, with_edges: bool) -> Self {
+    /// Buffers for `color`'s size with `channels` (3 or 4) colour channels, and the table keys
+    /// of `coc_px` in `bank`.
+    pub fn new(coc_px: &GrayImage, bank: &KernelBank, with_edges: bool, channels: usize) -> Self {
         let (w, h) = (coc_px.width(), coc_px.height());
+        let channels = if channels == 3 { 3 } else { 4 };
         Self {
             width: w,
             height: h,
             keys: coc_px.pixels().iter().map(|&c| bank.key(c)).collect(),
-            colour: vec![[0.0; 4]; w * h],
+            channels,
+            colour: vec![0.0; w * h * channels],
             edges: vec![0.0; if with_edges { w * h } else { 0 }],
         }
     }
@@ -278,6 +286,11 @@ impl Intermediate {
 /// touch: pixels with no taps beyond their own get `color` back exactly, and negative results
 /// of the low-rank kernel's ringing are clamped to 0. Returns the image and, with an edge
 /// image, the filtered edge image. `edge_image` and `coc_px` must have the size of `color`.
+///
+/// An opaque image ([`super::filter::is_opaque`]) is filtered in its three colour channels
+/// only, a quarter less work: its colour is bit-identical to [`Channels::Rgba`]'s, and its
+/// alpha is 1, the sum of every pixel's kernel (the RGBA path gets 1 up to rounding where the
+/// CoC varies).
 pub fn filter(
     color: &ColorImage,
     edge_image: Option<&GrayImage>,
@@ -285,9 +298,35 @@ pub fn filter(
     bank: &KernelBank,
     timings: &mut Timings,
 ) -> (ColorImage, Option<GrayImage>) {
+    filter_channels(color, edge_image, coc_px, bank, Channels::Auto, timings)
+}
+
+/// [`filter`] with the choice of channels made by the caller.
+pub fn filter_channels(
+    color: &ColorImage,
+    edge_image: Option<&GrayImage>,
+    coc_px: &GrayImage,
+    bank: &KernelBank,
+    channels: Channels,
+    timings: &mut Timings,
+) -> (ColorImage, Option<GrayImage>) {
+    if channels == Channels::Auto && is_opaque(color) {
+        filter_with::<3>(color, edge_image, coc_px, bank, timings)
+    } else {
+        filter_with::<4>(color, edge_image, coc_px, bank, timings)
+    }
+}
+
+fn filter_with<const CH: usize>(
+    color: &ColorImage,
+    edge_image: Option<&GrayImage>,
+    coc_px: &GrayImage,
+    bank: &KernelBank,
+    timings: &mut Timings,
+) -> (ColorImage, Option<GrayImage>) {
     let (w, h) = (color.width(), color.height());
-    let mut inter = Intermediate::new(coc_px, bank, edge_image.is_some());
-    let mut out = ColorImage::new(w, h, [0.0; 4]);
+    let mut inter = Intermediate::new(coc_px, bank, edge_image.is_some(), CH);
+    let mut out = vec![[0.0f32; CH]; w * h];
     let mut edge_out = edge_image.map(|_| GrayImage::new(w, h, 0.0));
     for i in 0..bank.rank {
         timings.time("lowrank/horizontal", || {
@@ -297,8 +336,8 @@ pub fn filter(
             vertical(&inter, bank, i, &mut out, edge_out.as_mut())
         });
     }
-    timings.time("lowrank/vertical", || finish(color, &inter, bank, &mut out));
-    (out, edge_out)
+    let image = timings.time("lowrank/vertical", || finish(color, &inter, bank, &out));
+    (image, edge_out)
 }
 
 /// Pass `horizontal` for rank `i`: `U_i(x, y) = sum_d h_i(d; C(x, y)) img(x - d, y)`, and the
@@ -314,9 +353,9 @@ pub fn horizontal(
     if w == 0 || inter.height == 0 || i >= bank.rank {
         return;
     }
-    let keys = &inter.keys;
+    let (keys, ch) = (&inter.keys, inter.channels);
     let row =
-        |y: usize, out_c: &mut [Rgba], out_e: Option<&mut [f32]>, bufs: &mut HorizontalScratch| {
+        |y: usize, out_c: &mut [f32], out_e: Option<&mut [f32]>, bufs: &mut HorizontalScratch| {
             let keys = &keys[y * w..(y + 1) * w];
             let edge_row = edge_image.map(|e| e.row(y));
             horizontal_row(bank, i, keys, color.row(y), edge_row, out_c, out_e, bufs);
@@ -324,7 +363,7 @@ pub fn horizontal(
     if edge_image.is_some() && !inter.edges.is_empty() {
         inter
             .colour
-            .par_chunks_mut(w)
+            .par_chunks_mut(w * ch)
             .zip(inter.edges.par_chunks_mut(w))
             .enumerate()
             .for_each_init(
@@ -332,10 +371,14 @@ pub fn horizontal(
                 |bufs, (y, (c, e))| row(y, c, Some(e), bufs),
             );
     } else {
-        inter.colour.par_chunks_mut(w).enumerate().for_each_init(
-            || (Vec::new(), Vec::new(), Vec::new()),
-            |bufs, (y, c)| row(y, c, None, bufs),
-        );
+        inter
+            .colour
+            .par_chunks_mut(w * ch)
+            .enumerate()
+            .for_each_init(
+                || (Vec::new(), Vec::new(), Vec::new()),
+                |bufs, (y, c)| row(y, c, None, bufs),
+            );
     }
 }
 
@@ -359,13 +402,13 @@ fn runs(keys: &[u32]) -> impl Iterator<Item = (usize, usize, u32)> + '_ {
     })
 }
 
-/// Scratch buffers of one thread of the horizontal pass: padded colour and edge rows, and a
-/// tap list.
-type HorizontalScratch = (Vec<Rgba>, Vec<f32>, Vec<(f32, usize)>);
+/// Scratch buffers of one thread of the horizontal pass: padded colour (flattened) and edge
+/// rows, and a tap list.
+type HorizontalScratch = (Vec<f32>, Vec<f32>, Vec<(f32, usize)>);
 
 /// One row of the horizontal pass for rank `i`, with the edge row when there is an edge
-/// image. Each run of pixels `[a, b)` sharing a kernel is one [`filter_span`]: tap `j` reads
-/// `padded[a + j..]`.
+/// image; `out_c` holds `out_c.len() / keys.len()` channels per pixel (3 or 4). Each run of
+/// pixels `[a, b)` sharing a kernel is one [`filter_span`]: tap `j` reads `padded[a + j..]`.
 #[expect(
     clippy::too_many_arguments,
     reason = "one row of one rank: inputs, outputs and scratch, all used once"
@@ -376,12 +419,17 @@ fn horizontal_row(
     keys: &[u32],
     colour_row: &[Rgba],
     edge_row: Option<&[f32]>,
-    out_c: &mut [Rgba],
+    out_c: &mut [f32],
     out_e: Option<&mut [f32]>,
     (padded_c, padded_e, list): &mut HorizontalScratch,
 ) {
     let (nmax, stride, r) = (bank.nmax, bank.stride, bank.rank);
-    pad(colour_row, nmax, padded_c);
+    let ch = out_c.len() / keys.len().max(1);
+    if ch == 3 {
+        pad_row::<3>(colour_row, nmax, nmax, padded_c);
+    } else {
+        pad_row::<4>(colour_row, nmax, nmax, padded_c);
+    }
     if let Some(e) = edge_row {
         pad(e, nmax, padded_e);
     }
@@ -400,13 +448,9 @@ fn horizontal_row(
             filter_span(&mut e[a..b], list, padded_e);
         }
         for t in list.iter_mut() {
-            t.1 *= 4;
+            t.1 *= ch;
         }
-        filter_span(
-            out_c[a..b].as_flattened_mut(),
-            list,
-            padded_c.as_flattened(),
-        );
+        filter_span(&mut out_c[a * ch..b * ch], list, padded_c);
     }
 }
 
@@ -414,22 +458,23 @@ fn horizontal_row(
 /// overwriting `out` for rank 0 and accumulating for the others, and the same for the edge
 /// channel into `edge_out`. Rows are walked in blocks and column strips as in the separable
 /// filter, and each run of pixels sharing a kernel within a strip is one [`filter_span`].
-pub fn vertical(
+pub fn vertical<const CH: usize>(
     inter: &Intermediate,
     bank: &KernelBank,
     i: usize,
-    out: &mut ColorImage,
+    out: &mut [[f32; CH]],
     edge_out: Option<&mut GrayImage>,
 ) {
     let (w, h, r) = (inter.width, inter.height, bank.rank);
-    if w == 0 || h == 0 || i >= r || (out.width(), out.height()) != (w, h) {
+    if w == 0 || h == 0 || i >= r || out.len() != w * h || inter.channels != CH {
         return;
     }
-    let edge_out = edge_out.filter(|e| e.same_size(out) && !inter.edges.is_empty());
+    let edge_out =
+        edge_out.filter(|e| (e.width(), e.height()) == (w, h) && !inter.edges.is_empty());
     let first = i == 0;
     let row = |y: usize,
                x0: usize,
-               out_c: &mut [Rgba],
+               out_c: &mut [[f32; CH]],
                mut out_e: Option<&mut [f32]>,
                list: &mut Vec<(f32, usize)>| {
         let x1 = x0 + out_c.len();
@@ -453,19 +498,19 @@ pub fn vertical(
                 }
             }
             for t in list.iter_mut() {
-                t.1 *= 4;
+                t.1 *= CH;
             }
             let acc = out_c[a..b].as_flattened_mut();
             if first {
-                filter_span(acc, list, inter.colour.as_flattened());
+                filter_span(acc, list, &inter.colour);
             } else {
-                filter_span_add(acc, list, inter.colour.as_flattened());
+                filter_span_add(acc, list, &inter.colour);
             }
         }
     };
     let block = |list: &mut Vec<(f32, usize)>,
                  index: usize,
-                 colour_rows: &mut [Rgba],
+                 colour_rows: &mut [[f32; CH]],
                  mut edge_rows: Option<&mut [f32]>| {
         let y0 = index * ROW_BLOCK;
         for x0 in (0..w).step_by(STRIP_PX) {
@@ -480,13 +525,11 @@ pub fn vertical(
     };
     match edge_out {
         Some(e) => out
-            .pixels_mut()
             .par_chunks_mut(ROW_BLOCK * w)
             .zip(e.pixels_mut().par_chunks_mut(ROW_BLOCK * w))
             .enumerate()
             .for_each_init(Vec::new, |list, (i, (c, e))| block(list, i, c, Some(e))),
         None => out
-            .pixels_mut()
             .par_chunks_mut(ROW_BLOCK * w)
             .enumerate()
             .for_each_init(Vec::new, |list, (i, c)| block(list, i, c, None)),
@@ -494,25 +537,36 @@ pub fn vertical(
 }
 
 /// After the last rank: pixels whose kernel lies inside the pixel (no taps beyond their own)
-/// get `color` back exactly; the others are clamped to 0 from below.
-fn finish(color: &ColorImage, inter: &Intermediate, bank: &KernelBank, out: &mut ColorImage) {
-    let w = inter.width;
-    if w == 0 || !out.same_size(color) {
-        return;
+/// get `color` back exactly; the others are clamped to 0 from below, with alpha 1 when only
+/// the colour was filtered (`CH` = 3).
+fn finish<const CH: usize>(
+    color: &ColorImage,
+    inter: &Intermediate,
+    bank: &KernelBank,
+    out: &[[f32; CH]],
+) -> ColorImage {
+    let (w, h) = (color.width(), color.height());
+    let mut image = ColorImage::new(w, h, [0.0; 4]);
+    if w == 0 || out.len() != w * h || inter.keys.len() != w * h {
+        return image;
     }
-    out.pixels_mut()
+    image
+        .pixels_mut()
         .par_chunks_mut(w)
+        .zip(out.par_chunks(w))
         .enumerate()
-        .for_each(|(y, row)| {
+        .for_each(|(y, (row, filtered))| {
             let keys = &inter.keys[y * w..(y + 1) * w];
-            for (x, (o, &key)) in row.iter_mut().zip(keys).enumerate() {
-                if bank.half_of(key) == 0 {
-                    *o = color.get(x, y);
+            for (x, ((o, f), &key)) in row.iter_mut().zip(filtered).zip(keys).enumerate() {
+                *o = if bank.half_of(key) == 0 {
+                    color.get(x, y)
                 } else {
-                    *o = o.map(|v| v.max(0.0));
-                }
+                    let c = |k: usize| if k < CH { f[k].max(0.0) } else { 1.0 };
+                    [c(0), c(1), c(2), c(3)]
+                };
             }
         });
+    image
 }
 
 /// Taps of `base` scaled to `radius_px`, by summing the overlap of each base cell with each

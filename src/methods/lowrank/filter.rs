@@ -32,9 +32,15 @@ use crate::image::{ColorImage, GrayImage, Rgba};
 /// Floats per register block of [`filter_span`] (8 RGBA pixels).
 pub const LANES: usize = 32;
 
-/// Floats per block where the vector registers are 8 or 16 floats wide (AVX2, AVX-512): 16
-/// RGBA pixels, still within the register file.
+/// Floats per block where the vector registers are 8 floats wide (AVX2): 16 RGBA pixels in 8
+/// of its 16 registers.
 pub const WIDE_LANES: usize = 64;
+
+/// Floats per block with AVX-512: 8 of its 32 registers of 16 floats. Each tap costs the same
+/// loop overhead (its weight and offset, a range check, a broadcast) whatever the block, so
+/// the wider block spends more of the loop on products (the 64-float block ran at a speed
+/// that moved by a third with the loop's alignment in the binary: bound by the front end).
+pub const WIDEST_LANES: usize = 128;
 
 /// `out[p] = sum_k w_k * src[base_k + p]` for every `p` of `out`, with `taps` the list of
 /// `(w_k, base_k)`. The sum for a block of [`LANES`] floats (then of 4, then single floats at
@@ -52,7 +58,12 @@ pub const WIDE_LANES: usize = 64;
     "aarch64+neon"
 ))]
 pub fn filter_span(out: &mut [f32], taps: &[(f32, usize)], src: &[f32]) {
-    if multiversion::target::selected_target!().supports_feature_str("avx2") {
+    // Evaluated at compile time for each version.
+    const AVX512: bool = multiversion::target::selected_target!().supports_feature_str("avx512f");
+    const AVX2: bool = multiversion::target::selected_target!().supports_feature_str("avx2");
+    if AVX512 {
+        span::<false, WIDEST_LANES>(out, taps, src);
+    } else if AVX2 {
         span::<false, WIDE_LANES>(out, taps, src);
     } else {
         span::<false, LANES>(out, taps, src);
@@ -66,7 +77,12 @@ pub fn filter_span(out: &mut [f32], taps: &[(f32, usize)], src: &[f32]) {
     "aarch64+neon"
 ))]
 pub fn filter_span_add(out: &mut [f32], taps: &[(f32, usize)], src: &[f32]) {
-    if multiversion::target::selected_target!().supports_feature_str("avx2") {
+    // Evaluated at compile time for each version.
+    const AVX512: bool = multiversion::target::selected_target!().supports_feature_str("avx512f");
+    const AVX2: bool = multiversion::target::selected_target!().supports_feature_str("avx2");
+    if AVX512 {
+        span::<true, WIDEST_LANES>(out, taps, src);
+    } else if AVX2 {
         span::<true, WIDE_LANES>(out, taps, src);
     } else {
         span::<true, LANES>(out, taps, src);
@@ -85,6 +101,10 @@ fn span<const ADD: bool, const W: usize>(out: &mut [f32], taps: &[(f32, usize)],
     while p + W <= out.len() {
         block::<W, ADD>(out, p, taps, src);
         p += W;
+    }
+    while p + WIDE_LANES <= out.len() && W > WIDE_LANES {
+        block::<WIDE_LANES, ADD>(out, p, taps, src);
+        p += WIDE_LANES;
     }
     while p + LANES <= out.len() {
         block::<LANES, ADD>(out, p, taps, src);
@@ -122,38 +142,68 @@ fn block<const L: usize, const ADD: bool>(
     *o = acc;
 }
 
-/// Writes `row` into `out` (flattened RGBA) with `left` copies of its first pixel before it and
-/// `right` copies of its last pixel after it (clamp to edge).
-pub(crate) fn pad_row(row: &[Rgba], left: usize, right: usize, out: &mut Vec<f32>) {
+/// Writes the first `CH` channels of `row`'s pixels into `out` (flattened: RGBA for 4, colour
+/// only for 3) with `left` copies of its first pixel before it and `right` copies of its last
+/// pixel after it (clamp to edge).
+#[inline]
+pub(crate) fn pad_row<const CH: usize>(
+    row: &[Rgba],
+    left: usize,
+    right: usize,
+    out: &mut Vec<f32>,
+) {
     out.clear();
     let first = row[0];
     let last = row[row.len() - 1];
     for _ in 0..left {
-        out.extend_from_slice(&first);
+        out.extend_from_slice(&first[..CH]);
     }
-    out.extend_from_slice(row.as_flattened());
+    if CH == 4 {
+        out.extend_from_slice(row.as_flattened());
+    } else {
+        for p in row {
+            out.extend_from_slice(&p[..CH]);
+        }
+    }
     for _ in 0..right {
-        out.extend_from_slice(&last);
+        out.extend_from_slice(&last[..CH]);
     }
 }
 
-/// Horizontal pass of one rank: `inter(x) = sum_k taps[k] img(x + c - k)` (flattened RGBA),
-/// written into `inter`, which is reused from rank to rank.
-fn horizontal_pass(img: &ColorImage, taps: &[f32], c: usize, inter: &mut [f32]) {
+/// True if every pixel's alpha is exactly 1: the image is opaque, and the filters carry only
+/// its three colour channels (a quarter fewer products and bytes than RGBA).
+pub fn is_opaque(img: &ColorImage) -> bool {
+    img.pixels()
+        .par_chunks(4096)
+        .all(|c| c.iter().all(|p| p[3] == 1.0))
+}
+
+/// Which channels a filter carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Channels {
+    /// Colour only when the image is opaque ([`is_opaque`]), else all four. The default.
+    Auto,
+    /// All four channels whatever the alpha: the twin the colour-only path is tested against.
+    Rgba,
+}
+
+/// Horizontal pass of one rank: `inter(x) = sum_k taps[k] img(x + c - k)` (the first `CH`
+/// channels, flattened), written into `inter`, which is reused from rank to rank.
+fn horizontal_pass<const CH: usize>(img: &ColorImage, taps: &[f32], c: usize, inter: &mut [f32]) {
     let w = img.width();
     let n = taps.len();
-    // inter(x) = sum_k t[k] padded[x + n - 1 - k]: tap k reads from float 4 (n - 1 - k).
+    // inter(x) = sum_k t[k] padded[x + n - 1 - k]: tap k reads from float CH (n - 1 - k).
     let list: Vec<(f32, usize)> = taps
         .iter()
         .enumerate()
         .filter(|(_, &wk)| wk != 0.0)
-        .map(|(k, &wk)| (wk, (n - 1 - k) * 4))
+        .map(|(k, &wk)| (wk, (n - 1 - k) * CH))
         .collect();
     inter
-        .par_chunks_mut(w * 4)
+        .par_chunks_mut(w * CH)
         .enumerate()
         .for_each_init(Vec::new, |padded, (y, row)| {
-            pad_row(img.row(y), n - 1 - c, c, padded);
+            pad_row::<CH>(img.row(y), n - 1 - c, c, padded);
             filter_span(row, &list, padded);
         });
 }
@@ -195,14 +245,20 @@ pub(crate) fn for_each_strip<P: Send>(
 /// Vertical pass of one rank: `out(y) (+)= sum_k taps[k] inter(clamp(y + c - k))`, overwriting
 /// `out` for the first rank and accumulating for the others (fig. 2: the `V_i` are never
 /// stored).
-fn vertical_pass(inter: &[f32], out: &mut ColorImage, taps: &[f32], c: usize, first: bool) {
-    let (w, h) = (out.width(), out.height());
-    for_each_strip(out.pixels_mut(), w, |y, x0, strip, list| {
+fn vertical_pass<const CH: usize>(
+    inter: &[f32],
+    out: &mut [[f32; CH]],
+    (w, h): (usize, usize),
+    taps: &[f32],
+    c: usize,
+    first: bool,
+) {
+    for_each_strip(out, w, |y, x0, strip, list| {
         list.clear();
         for (k, &wk) in taps.iter().enumerate() {
             if wk != 0.0 {
                 let yy = (y + c).saturating_sub(k).min(h - 1);
-                list.push((wk, (yy * w + x0) * 4));
+                list.push((wk, (yy * w + x0) * CH));
             }
         }
         if first {
@@ -215,10 +271,25 @@ fn vertical_pass(inter: &[f32], out: &mut ColorImage, taps: &[f32], c: usize, fi
 
 /// Filters `img` with the rank-`rank` approximation of the kernel decomposed in `lr` (eq. 1,
 /// fig. 2). `rank` is capped at [`LowRank::len`]; rank 0 gives a black, transparent image.
+///
+/// An opaque image ([`is_opaque`]) is filtered in its three colour channels only; its alpha,
+/// the same at every pixel (the approximation's sum), is worked out with the same products and
+/// sums, so the result is bit-identical to [`Channels::Rgba`].
 pub fn filter_separable(img: &ColorImage, lr: &LowRank, rank: usize) -> ColorImage {
+    filter_separable_channels(img, lr, rank, Channels::Auto)
+}
+
+/// [`filter_separable`] with the choice of channels made by the caller.
+pub fn filter_separable_channels(
+    img: &ColorImage,
+    lr: &LowRank,
+    rank: usize,
+    channels: Channels,
+) -> ColorImage {
     let rank = rank.min(lr.len());
-    if rank == 0 || img.width() == 0 || img.height() == 0 {
-        return ColorImage::new(img.width(), img.height(), [0.0; 4]);
+    let (w, h) = (img.width(), img.height());
+    if rank == 0 || w == 0 || h == 0 {
+        return ColorImage::new(w, h, [0.0; 4]);
     }
     let to_f32 = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
     let horizontal: Vec<Vec<f32>> = (0..rank)
@@ -227,51 +298,110 @@ pub fn filter_separable(img: &ColorImage, lr: &LowRank, rank: usize) -> ColorIma
     let vertical: Vec<Vec<f32>> = (0..rank)
         .filter_map(|i| lr.vertical(i).map(to_f32))
         .collect();
+    let (cx, cy) = (lr.width() / 2, lr.height() / 2);
     // Fig. 2, one rank after the other: one intermediate image, reused. (Keeping all `U_i`
     // cost more in first-touch page faults than in taps: rank 3 at 17 px took 43 ms, against
     // 18 ms at rank 2.)
-    let mut inter = vec![0.0f32; img.width() * img.height() * 4];
-    let mut out = ColorImage::new(img.width(), img.height(), [0.0; 4]);
-    for (i, (hv, vv)) in horizontal.iter().zip(&vertical).enumerate() {
-        horizontal_pass(img, hv, lr.width() / 2, &mut inter);
-        vertical_pass(&inter, &mut out, vv, lr.height() / 2, i == 0);
+    if channels == Channels::Auto && is_opaque(img) {
+        let mut inter = vec![0.0f32; w * h * 3];
+        let mut out = vec![[0.0f32; 3]; w * h];
+        // The alpha every pixel would get: the taps applied to a constant 1 in list order.
+        let mut alpha = 0.0f32;
+        for (i, (hv, vv)) in horizontal.iter().zip(&vertical).enumerate() {
+            horizontal_pass::<3>(img, hv, cx, &mut inter);
+            vertical_pass::<3>(&inter, &mut out, (w, h), vv, cy, i == 0);
+            let across = hv.iter().filter(|&&t| t != 0.0).fold(0.0f32, |a, &t| a + t);
+            let start = if i == 0 { 0.0 } else { alpha };
+            alpha = vv
+                .iter()
+                .filter(|&&t| t != 0.0)
+                .fold(start, |a, &t| a + t * across);
+        }
+        return with_alpha(w, h, &out, alpha);
     }
+    let mut inter = vec![0.0f32; w * h * 4];
+    let mut out = ColorImage::new(w, h, [0.0; 4]);
+    for (i, (hv, vv)) in horizontal.iter().zip(&vertical).enumerate() {
+        horizontal_pass::<4>(img, hv, cx, &mut inter);
+        vertical_pass::<4>(&inter, out.pixels_mut(), (w, h), vv, cy, i == 0);
+    }
+    out
+}
+
+/// The RGBA image of colours `rgb` with alpha `alpha` everywhere.
+pub(crate) fn with_alpha(w: usize, h: usize, rgb: &[[f32; 3]], alpha: f32) -> ColorImage {
+    let mut out = ColorImage::new(w, h, [0.0; 4]);
+    out.pixels_mut()
+        .par_chunks_mut(4096)
+        .zip(rgb.par_chunks(4096))
+        .for_each(|(o, c)| {
+            for (o, c) in o.iter_mut().zip(c) {
+                *o = [c[0], c[1], c[2], alpha];
+            }
+        });
     out
 }
 
 /// Convolves `img` with `kernel` (any size), the 2D filter that [`filter_separable`]
 /// approximates, with the same register blocks and strips as [`filter_separable`]; zero kernel
-/// entries are skipped.
+/// entries are skipped. An opaque image is filtered in its colour channels only, with the same
+/// bit-identical alpha as [`filter_separable`].
 pub fn filter_full_2d(img: &ColorImage, kernel: &GrayImage) -> ColorImage {
+    filter_full_2d_channels(img, kernel, Channels::Auto)
+}
+
+/// [`filter_full_2d`] with the choice of channels made by the caller.
+pub fn filter_full_2d_channels(
+    img: &ColorImage,
+    kernel: &GrayImage,
+    channels: Channels,
+) -> ColorImage {
     let (w, h) = (img.width(), img.height());
     let (kw, kh) = (kernel.width(), kernel.height());
     if w == 0 || h == 0 || kw == 0 || kh == 0 {
         return ColorImage::new(w, h, [0.0; 4]);
     }
+    if channels == Channels::Auto && is_opaque(img) {
+        let mut out = vec![[0.0f32; 3]; w * h];
+        full_2d(img, kernel, &mut out);
+        // The alpha every pixel would get: the kernel applied to a constant 1 in list order.
+        let alpha = (0..kh)
+            .flat_map(|ky| kernel.row(ky).iter())
+            .filter(|&&t| t != 0.0)
+            .fold(0.0f32, |a, &t| a + t);
+        return with_alpha(w, h, &out, alpha);
+    }
+    let mut out = ColorImage::new(w, h, [0.0; 4]);
+    full_2d(img, kernel, out.pixels_mut());
+    out
+}
+
+/// The 2D convolution of the first `CH` channels of `img` into `out` (`kernel` not empty).
+fn full_2d<const CH: usize>(img: &ColorImage, kernel: &GrayImage, out: &mut [[f32; CH]]) {
+    let (w, h) = (img.width(), img.height());
+    let (kw, kh) = (kernel.width(), kernel.height());
     let (cx, cy) = (kw / 2, kh / 2);
-    let padded_w = (w + kw - 1) * 4;
+    let padded_w = (w + kw - 1) * CH;
     let mut padded = vec![0.0f32; padded_w * h];
     padded
         .par_chunks_mut(padded_w)
         .enumerate()
         .for_each_init(Vec::new, |buf, (y, out)| {
-            pad_row(img.row(y), kw - 1 - cx, cx, buf);
+            pad_row::<CH>(img.row(y), kw - 1 - cx, cx, buf);
             out.copy_from_slice(buf);
         });
-    let mut out = ColorImage::new(w, h, [0.0; 4]);
-    for_each_strip(out.pixels_mut(), w, |y, x0, strip, list| {
+    for_each_strip(out, w, |y, x0, strip, list| {
         list.clear();
         for ky in 0..kh {
             let yy = (y + cy).saturating_sub(ky).min(h - 1);
             for (kx, &wk) in kernel.row(ky).iter().enumerate() {
                 if wk != 0.0 {
-                    list.push((wk, yy * padded_w + (x0 + kw - 1 - kx) * 4));
+                    list.push((wk, yy * padded_w + (x0 + kw - 1 - kx) * CH));
                 }
             }
         }
         filter_span(strip.as_flattened_mut(), list, &padded);
     });
-    out
 }
 
 /// Per-pixel twin of [`filter_full_2d`]: `out(x, y) = sum_{j,i} k[j][i] img(x + cx - i,
