@@ -231,6 +231,12 @@ impl TileSink for FragmentTile {
     }
 
     #[inline]
+    fn occlusion_row(&self, y: u32, xa: u32, xb: u32) -> Option<&[f32]> {
+        let start = (y as usize - self.rect.y0) * self.rect.width() + (xa as usize - self.rect.x0);
+        self.farthest.get(start..start + (xb - xa) as usize)
+    }
+
+    #[inline]
     fn fragment(&mut self, f: &Fragment) {
         let i = (f.y as usize - self.rect.y0) * self.rect.width() + (f.x as usize - self.rect.x0);
         if f.depth_m >= self.farthest[i] {

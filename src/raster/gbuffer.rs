@@ -96,6 +96,11 @@ impl TileSink for GBufferTile {
     }
 
     #[inline]
+    fn occlusion_row(&self, y: u32, xa: u32, xb: u32) -> Option<&[f32]> {
+        self.depth.get(self.index(xa, y)..self.index(xb, y))
+    }
+
+    #[inline]
     fn fragment(&mut self, f: &Fragment) {
         let i = self.index(f.x, f.y);
         if f.blend {

@@ -121,6 +121,14 @@ pub trait TileSink: Send {
     fn occluded(&self, _x: u32, _y: u32, _depth_m: f32) -> bool {
         false
     }
+    /// The same test for a run of pixels `xa..xb` of row `y` at once, when the sink keeps one
+    /// depth per pixel: `row[x - xa]` such that `occluded(x, y, d)` is `d >= row[x - xa]`. The
+    /// rasterizer then tests a run without working out each pixel's place in the tile. The
+    /// default is `None`: pixel by pixel with [`Self::occluded`].
+    #[inline]
+    fn occlusion_row(&self, _y: u32, _xa: u32, _xb: u32) -> Option<&[f32]> {
+        None
+    }
     /// Takes one fragment.
     fn fragment(&mut self, fragment: &Fragment);
     /// Called once after the last fragment, still in parallel with other tiles.

@@ -389,6 +389,14 @@ struct PendingPixels {
     vq: [f32; BATCH],
 }
 
+/// A bound on `q * farthest` (rounded) at or below which `1 / q` rounds to at least
+/// `farthest`, so the fragment at `1 / q` metres is hidden without dividing. With unit roundoff
+/// u = 2^-24, rounded products and quotients are within a factor (1 ± u) of the exact ones: a
+/// rounded product at most 1 - 8u means an exact one below 1 - 7u, so the rounded quotient is
+/// at least `farthest (1 - u) / (1 - 7u)`, more than `farthest`. Holds for `farthest` = +inf
+/// (the product is +inf, never below the bound) and for products that underflow.
+const SURELY_BEHIND: f32 = 1.0 - 1.0 / (1u32 << 21) as f32;
+
 /// Rasterizes `tri` within `rect` into `tile` (pass `raster`). `lod_bias` is added to the
 /// texture level of detail (negative when each pixel is supersampled).
 ///
@@ -468,9 +476,45 @@ pub(crate) fn raster_triangle<T: TileSink>(
     // each lane `p[0] + p[1] dx + p[2] dy`.
     let [p0, p1, p2] = [0, 1, 2].map(|k| Vec4::new(pq[k], pu[k], pv[k], 0.0));
     let origin_x = tri.origin.x;
+    let plane = |x: usize, fy: f32| p0 + p1 * (x as f32 + 0.5 - origin_x) + p2 * fy;
     for_each_run(tri, rect, |y, xa, xb, fy| {
-        for x in xa..xb {
-            let e = p0 + p1 * (x as f32 + 0.5 - origin_x) + p2 * fy;
+        let mut x = xa;
+        // Opaque fragments against the sink's row of depths while it has one: a batch that
+        // fills ends the borrow of the row, is shaded and emitted, and the run goes on.
+        while !tri.blend && x < xb {
+            let Some(row) = tile.occlusion_row(y as u32, x as u32, xb as u32) else {
+                break;
+            };
+            let p = &mut *pending;
+            let mut full = false;
+            for (&farthest, xx) in row.iter().zip(x..) {
+                let e = plane(xx, fy);
+                // Most fragments tested here are hidden (nearest first): a product settles
+                // them before the division does.
+                if e.x * farthest <= SURELY_BEHIND {
+                    continue;
+                }
+                let depth_m = 1.0 / e.x;
+                if depth_m >= farthest {
+                    continue;
+                }
+                let i = p.n;
+                (p.x[i], p.y[i], p.depth_m[i]) = (xx as u32, y as u32, depth_m);
+                (p.q[i], p.uq[i], p.vq[i]) = (e.x, e.y, e.z);
+                p.n += 1;
+                if p.n == BATCH {
+                    x = xx + 1;
+                    full = true;
+                    break;
+                }
+            }
+            if !full {
+                return;
+            }
+            shade_and_emit(p, tile);
+        }
+        for x in x..xb {
+            let e = plane(x, fy);
             let depth_m = 1.0 / e.x;
             if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
                 continue;
@@ -493,6 +537,25 @@ pub(crate) fn raster_triangle<T: TileSink>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The multiply-only early rejection never rejects a fragment the division would keep:
+    /// over random depths, and pairs at and around equality where rounding decides.
+    #[test]
+    fn surely_behind_agrees_with_the_division() {
+        let mut rng = crate::random::SplitMix64::new(5);
+        for _ in 0..2_000_000 {
+            let q = 10f32.powf(rng.range(-4.0, 2.0));
+            let farthest = match rng.below(4) {
+                // Near 1 / q, where the decision is close.
+                0 | 1 => (1.0 / q) * (1.0 + rng.range(-1e-6, 1e-6)),
+                2 => 10f32.powf(rng.range(-2.0, 4.0)),
+                _ => f32::INFINITY,
+            };
+            if q * farthest <= SURELY_BEHIND {
+                assert!(1.0 / q >= farthest, "q {q}, farthest {farthest}");
+            }
+        }
+    }
 
     /// The plain version of [`for_each_covered`]: every pixel of the box, all three edge
     /// functions stepped along the row and tested.
