@@ -459,6 +459,28 @@ fn gaussian_blur_agrees_with_its_naive_twin() {
 }
 
 #[test]
+fn downsample_and_near_coc_are_bit_identical_to_their_baseline_builds() {
+    // The run-time dispatched builds (AVX-512, AVX2 or NEON where present) do the same
+    // arithmetic in the same order as the portable builds.
+    for (i, &(w, h)) in TWIN_SIZES.iter().enumerate() {
+        let color = seeded_color(w, h, 70 + i as u64);
+        let s = seeded_amounts(w, h, 80 + i as u64);
+        let dispatched = downsample::downsample(&color, &s).unwrap();
+        assert_eq!(
+            dispatched,
+            downsample::downsample_baseline(&color, &s).unwrap(),
+            "{w}x{h} downsample"
+        );
+        let blurred = seeded_quarter(dispatched.width(), dispatched.height(), 90 + i as u64);
+        assert_eq!(
+            near_coc::near_coc(&dispatched, &blurred).unwrap(),
+            near_coc::near_coc_baseline(&dispatched, &blurred).unwrap(),
+            "{w}x{h} near CoC"
+        );
+    }
+}
+
+#[test]
 fn gaussian_blur_is_bit_identical_to_its_baseline_build() {
     // The run-time dispatched build (AVX-512, AVX2 or NEON where present) does the same
     // multiplies and adds in the same order as the portable build.

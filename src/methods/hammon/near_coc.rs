@@ -41,6 +41,24 @@ fn near(shrunk: f32, blurred: f32) -> f32 {
 
 /// Computes the near CoC of Listing 28-2 and blurs it, with the shrunk colour, by Listing 28-3.
 pub fn near_coc(shrunk: &QuarterImage, blurred: &QuarterImage) -> Result<QuarterImage> {
+    near_coc_with(shrunk, blurred, near_row)
+}
+
+/// [`near_coc`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn near_coc_baseline(shrunk: &QuarterImage, blurred: &QuarterImage) -> Result<QuarterImage> {
+    near_coc_with(shrunk, blurred, near_row_inner)
+}
+
+/// Per-thread scratch rows of [`near_coc`]: the vertical blurs of colour and near CoC.
+type RowScratch = (Vec<Rgba>, Vec<f32>);
+
+fn near_coc_with(
+    shrunk: &QuarterImage,
+    blurred: &QuarterImage,
+    row_fn: impl Fn(&QuarterImage, &QuarterImage, usize, &mut RowScratch, &mut [Rgba], &mut [f32])
+        + Sync,
+) -> Result<QuarterImage> {
     check_sizes(shrunk, blurred)?;
     let (w, h) = (shrunk.width(), shrunk.height());
     let mut out_color = vec![[0.0f32; 4]; w * h];
@@ -51,46 +69,75 @@ pub fn near_coc(shrunk: &QuarterImage, blurred: &QuarterImage) -> Result<Quarter
         .enumerate()
         .for_each_init(
             || (vec![[0.0f32; 4]; w], vec![0.0f32; w]),
-            |(vert_c, vert_k), (y, (out_c, out_k))| {
-                // Vertical [1 2 1] / 4 of rows y - 1, y, y + 1 (clamped).
-                let ys = [y.saturating_sub(1), y, (y + 1).min(h - 1)];
-                let [c0, c1, c2] = ys.map(|yy| shrunk.color.row(yy));
-                let columns = c0.iter().zip(c1).zip(c2);
-                for (v, ((a, b), c)) in vert_c.iter_mut().zip(columns) {
-                    *v = std::array::from_fn(|ch| 0.25 * (a[ch] + 2.0 * b[ch] + c[ch]));
-                }
-                let [s0, s1, s2] = ys.map(|yy| shrunk.coc.row(yy));
-                let [b0, b1, b2] = ys.map(|yy| blurred.coc.row(yy));
-                let columns = (s0.iter().zip(b0))
-                    .zip(s1.iter().zip(b1))
-                    .zip(s2.iter().zip(b2));
-                for (v, (((&sa, &ba), (&sb, &bb)), (&sc, &bc))) in vert_k.iter_mut().zip(columns) {
-                    *v = 0.25 * (near(sa, ba) + 2.0 * near(sb, bb) + near(sc, bc));
-                }
-                // Horizontal [1 2 1] / 4 (clamped): the ends, then the interior by windows.
-                let blur3 = |a: f32, b: f32, c: f32| 0.25 * (a + 2.0 * b + c);
-                let blur3c = |a: &Rgba, b: &Rgba, c: &Rgba| -> Rgba {
-                    std::array::from_fn(|ch| blur3(a[ch], b[ch], c[ch]))
-                };
-                let last = w - 1;
-                out_c[0] = blur3c(&vert_c[0], &vert_c[0], &vert_c[last.min(1)]);
-                out_k[0] = blur3(vert_k[0], vert_k[0], vert_k[last.min(1)]);
-                if w > 1 {
-                    out_c[last] = blur3c(&vert_c[last - 1], &vert_c[last], &vert_c[last]);
-                    out_k[last] = blur3(vert_k[last - 1], vert_k[last], vert_k[last]);
-                }
-                for (o, v) in out_c[1..].iter_mut().zip(vert_c.windows(3)) {
-                    *o = blur3c(&v[0], &v[1], &v[2]);
-                }
-                for (o, v) in out_k[1..].iter_mut().zip(vert_k.windows(3)) {
-                    *o = blur3(v[0], v[1], v[2]);
-                }
-            },
+            |scratch, (y, (out_c, out_k))| row_fn(shrunk, blurred, y, scratch, out_c, out_k),
         );
     Ok(QuarterImage {
         color: ColorImage::from_vec(w, h, out_color)?,
         coc: GrayImage::from_vec(w, h, out_coc)?,
     })
+}
+
+/// One output row `y` of [`near_coc`]. Compiled for several instruction sets and chosen at
+/// run time ([`multiversion`]); the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn near_row(
+    shrunk: &QuarterImage,
+    blurred: &QuarterImage,
+    y: usize,
+    scratch: &mut RowScratch,
+    out_c: &mut [Rgba],
+    out_k: &mut [f32],
+) {
+    near_row_inner(shrunk, blurred, y, scratch, out_c, out_k);
+}
+
+#[inline(always)]
+fn near_row_inner(
+    shrunk: &QuarterImage,
+    blurred: &QuarterImage,
+    y: usize,
+    (vert_c, vert_k): &mut RowScratch,
+    out_c: &mut [Rgba],
+    out_k: &mut [f32],
+) {
+    let (w, h) = (shrunk.width(), shrunk.height());
+    // Vertical [1 2 1] / 4 of rows y - 1, y, y + 1 (clamped).
+    let ys = [y.saturating_sub(1), y, (y + 1).min(h - 1)];
+    let [c0, c1, c2] = ys.map(|yy| shrunk.color.row(yy));
+    let columns = c0.iter().zip(c1).zip(c2);
+    for (v, ((a, b), c)) in vert_c.iter_mut().zip(columns) {
+        *v = std::array::from_fn(|ch| 0.25 * (a[ch] + 2.0 * b[ch] + c[ch]));
+    }
+    let [s0, s1, s2] = ys.map(|yy| shrunk.coc.row(yy));
+    let [b0, b1, b2] = ys.map(|yy| blurred.coc.row(yy));
+    let columns = (s0.iter().zip(b0))
+        .zip(s1.iter().zip(b1))
+        .zip(s2.iter().zip(b2));
+    for (v, (((&sa, &ba), (&sb, &bb)), (&sc, &bc))) in vert_k.iter_mut().zip(columns) {
+        *v = 0.25 * (near(sa, ba) + 2.0 * near(sb, bb) + near(sc, bc));
+    }
+    // Horizontal [1 2 1] / 4 (clamped): the ends, then the interior by windows.
+    let blur3 = |a: f32, b: f32, c: f32| 0.25 * (a + 2.0 * b + c);
+    let blur3c = |a: &Rgba, b: &Rgba, c: &Rgba| -> Rgba {
+        std::array::from_fn(|ch| blur3(a[ch], b[ch], c[ch]))
+    };
+    let last = w - 1;
+    out_c[0] = blur3c(&vert_c[0], &vert_c[0], &vert_c[last.min(1)]);
+    out_k[0] = blur3(vert_k[0], vert_k[0], vert_k[last.min(1)]);
+    if w > 1 {
+        out_c[last] = blur3c(&vert_c[last - 1], &vert_c[last], &vert_c[last]);
+        out_k[last] = blur3(vert_k[last - 1], vert_k[last], vert_k[last]);
+    }
+    for (o, v) in out_c[1..].iter_mut().zip(vert_c.windows(3)) {
+        *o = blur3c(&v[0], &v[1], &v[2]);
+    }
+    for (o, v) in out_k[1..].iter_mut().zip(vert_k.windows(3)) {
+        *o = blur3(v[0], v[1], v[2]);
+    }
 }
 
 /// The straightforward twin of [`near_coc`]: Listing 28-2 on every texel into an image, then
