@@ -274,8 +274,15 @@ fn composite_row_inner(
     let (y0, y1, fy) = quarter_tap(y, qh);
     let lerp1 = |a: f32, b: f32| a + fy * (b - a);
     let lerp = |a: Rgba, b: Rgba| lerp4(a, b, fy);
-    pad_lerp(med_c, medium.color.row(y0), medium.color.row(y1), lerp);
     pad_lerp(med_k, medium.coc.row(y0), medium.coc.row(y1), lerp1);
+    // A row with no near blur (every interpolated near CoC, hence every bilinear one, at most
+    // 0) and no far blur is in focus throughout: every pixel would be copied.
+    let no_blur = |v: &f32| v.is_nan() || *v <= 0.0;
+    if med_k.iter().all(no_blur) && coc.row(y).iter().all(no_blur) {
+        out_row.copy_from_slice(color.row(y));
+        return;
+    }
+    pad_lerp(med_c, medium.color.row(y0), medium.color.row(y1), lerp);
     pad_lerp(large_c, large.color.row(y0), large.color.row(y1), lerp);
     let rows = [-2isize, -1, 0, 1, 2]
         .map(|dy| color.row((y as isize + dy).clamp(0, h as isize - 1) as usize));
