@@ -238,6 +238,20 @@ impl<'a> PreparedScene<'a> {
                 material: mesh.material as u32,
             }));
         }
+        // The bounds of the early alpha test for cut-out textures, made here, texture by
+        // texture in parallel, rather than by the first tile that meets each.
+        let mut cut_out: Vec<usize> = scene
+            .materials
+            .iter()
+            .filter(|m| matches!(m.alpha_mode, crate::scene::AlphaMode::Mask { .. }))
+            .filter_map(|m| m.base_color_texture.as_ref().map(|b| b.texture))
+            .filter(|&t| t < scene.textures.len())
+            .collect();
+        cut_out.sort_unstable();
+        cut_out.dedup();
+        cut_out
+            .par_iter()
+            .for_each(|&t| scene.textures[t].prepare_alpha_bounds());
         Ok(Self {
             scene,
             positions,

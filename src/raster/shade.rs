@@ -7,6 +7,11 @@ use crate::image::Rgba;
 use crate::scene::texture::{fast_log2, BoundTexture, BATCH};
 use crate::scene::{AlphaMode, Material, Texture, TextureBinding, UvTransform};
 
+/// Slack on [`BoundTexture::alpha_bound`] for rounding: a lookup's alpha is a convex blend
+/// (three nested lerps) of texel alphas, which can exceed their maximum by a few units in the
+/// last place, far less than this.
+const ALPHA_BOUND_MARGIN: f32 = 1.0 + 1e-5;
+
 /// A material ready to shade fragments.
 pub(crate) struct Shader<'a> {
     material: &'a Material,
@@ -49,13 +54,80 @@ impl<'a> Shader<'a> {
     /// where the fragment is discarded. Texture lookups go through
     /// [`BoundTexture::sample_batch`].
     pub(crate) fn shade_batch(&self, n: usize, uv: &UvBatch, out: &mut [Option<Rgba>; BATCH]) {
+        let base_coords = self
+            .base
+            .as_ref()
+            .map(|b| b.coords_batch(uv, self.lod_bias));
+        // Alpha-tested: fragments whose alpha is bounded below the cutoff are discarded before
+        // the lookups, and the rest shaded as a smaller batch.
+        let factor = self.material.base_color[3];
+        if let (AlphaMode::Mask { cutoff }, Some(base), Some(c), true) = (
+            self.material.alpha_mode,
+            &self.base,
+            &base_coords,
+            factor >= 0.0,
+        ) {
+            let mut bound = [0.0f32; BATCH];
+            base.texture
+                .alpha_bound_batch(&c.u, &c.v, &c.lod, &mut bound);
+            let mut kept = [0usize; BATCH];
+            let mut m = 0;
+            for (i, &b) in bound.iter().enumerate().take(n) {
+                kept[m] = i;
+                // Kept unless bounded below the cutoff (a NaN bound keeps it).
+                let bound = factor * b * ALPHA_BOUND_MARGIN;
+                m += usize::from(bound >= cutoff || bound.is_nan());
+            }
+            if m == 0 {
+                out[..n].fill(None);
+                return;
+            }
+            if m < n {
+                let (mut sub_uv, mut sub_c) = (UvBatch::default(), Coords::default());
+                for (k, &i) in kept[..m].iter().enumerate() {
+                    sub_c.u[k] = c.u[i];
+                    sub_c.v[k] = c.v[i];
+                    sub_c.lod[k] = c.lod[i];
+                    if self.emissive.is_some() {
+                        sub_uv.u[k] = uv.u[i];
+                        sub_uv.v[k] = uv.v[i];
+                        sub_uv.du_dx[k] = uv.du_dx[i];
+                        sub_uv.dv_dx[k] = uv.dv_dx[i];
+                        sub_uv.du_dy[k] = uv.du_dy[i];
+                        sub_uv.dv_dy[k] = uv.dv_dy[i];
+                    }
+                }
+                let mut shaded = [None; BATCH];
+                self.shade_lanes(m, &sub_uv, Some(&sub_c), &mut shaded);
+                out[..n].fill(None);
+                for (&i, c) in kept[..m].iter().zip(shaded) {
+                    out[i] = c;
+                }
+                return;
+            }
+        }
+        self.shade_lanes(n, uv, base_coords.as_ref(), out);
+    }
+
+    /// [`Shader::shade_batch`] without the early alpha test, with the base slot's coordinates
+    /// worked out.
+    #[inline(always)]
+    fn shade_lanes(
+        &self,
+        n: usize,
+        uv: &UvBatch,
+        base_coords: Option<&Coords>,
+        out: &mut [Option<Rgba>; BATCH],
+    ) {
         let mut base = [Vec4::ONE; BATCH];
         let mut emissive = [Vec4::ONE; BATCH];
-        if let Some(slot) = &self.base {
-            slot.sample_batch(n, uv, self.lod_bias, &mut base);
+        if let (Some(slot), Some(c)) = (&self.base, base_coords) {
+            slot.texture.sample_batch(n, &c.u, &c.v, &c.lod, &mut base);
         }
         if let Some(slot) = &self.emissive {
-            slot.sample_batch(n, uv, self.lod_bias, &mut emissive);
+            let c = slot.coords_batch(uv, self.lod_bias);
+            slot.texture
+                .sample_batch(n, &c.u, &c.v, &c.lod, &mut emissive);
         }
         let (has_base, has_emissive) = (self.base.is_some(), self.emissive.is_some());
         for i in 0..n {
@@ -153,10 +225,11 @@ impl<'a> Slot<'a> {
         self.texture.sample(uv, lod)
     }
 
-    /// [`Slot::sample`] for the first `n` pixels of a batch, bit for bit.
+    /// The texture coordinates and levels of detail that [`Slot::sample`] looks up, for every
+    /// lane of a batch, bit for bit.
     #[inline]
-    fn sample_batch(&self, n: usize, b: &UvBatch, lod_bias: f32, out: &mut [Vec4; BATCH]) {
-        let (mut u, mut v, mut lod) = ([0.0; BATCH], [0.0; BATCH], [0.0; BATCH]);
+    fn coords_batch(&self, b: &UvBatch, lod_bias: f32) -> Coords {
+        let mut c = Coords::default();
         for i in 0..BATCH {
             let uv = Vec2::new(b.u[i], b.v[i]);
             let dx = Vec2::new(b.du_dx[i], b.dv_dx[i]);
@@ -165,14 +238,22 @@ impl<'a> Slot<'a> {
                 None => (uv, dx, dy),
                 Some(t) => (t.apply(uv), t.apply(dx) - t.origin, t.apply(dy) - t.origin),
             };
-            u[i] = uv.x;
-            v[i] = uv.y;
+            c.u[i] = uv.x;
+            c.v[i] = uv.y;
             let fx = (dx * self.size).length_squared();
             let fy = (dy * self.size).length_squared();
-            lod[i] = 0.5 * fast_log2(fx.max(fy).max(1e-12)) + lod_bias;
+            c.lod[i] = 0.5 * fast_log2(fx.max(fy).max(1e-12)) + lod_bias;
         }
-        self.texture.sample_batch(n, &u, &v, &lod, out);
+        c
     }
+}
+
+/// Texture coordinates and levels of detail of a batch of lookups.
+#[derive(Clone, Copy, Debug, Default)]
+struct Coords {
+    u: [f32; BATCH],
+    v: [f32; BATCH],
+    lod: [f32; BATCH],
 }
 
 /// [`UvTransform::apply`] with the rotation's sine and cosine and the image of the origin
