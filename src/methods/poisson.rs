@@ -86,7 +86,7 @@ pub fn render(
 
 /// The depth-rejection weight of a tap with CoC `c_tap` for a centre pixel with CoC `c_centre`
 /// (see the module documentation).
-#[inline]
+#[inline(always)]
 pub fn rejection_weight(c_centre: f32, c_tap: f32) -> f32 {
     if c_tap >= c_centre {
         1.0
@@ -97,6 +97,7 @@ pub fn rejection_weight(c_centre: f32, c_tap: f32) -> f32 {
 
 /// The gathered colour of pixel (`x`, `y`); pixels with `|C| < 0.5` and pixels whose taps all
 /// have weight 0 keep their colour.
+#[inline(always)]
 pub fn gather_pixel(
     color: &ColorImage,
     coc_px: &GrayImage,
@@ -148,15 +149,74 @@ pub fn gather_into(
     taps: &Taps,
     mask: Option<&[bool]>,
 ) {
+    gather_into_with(out, color, coc_px, taps, mask, gather_row);
+}
+
+/// [`gather_into`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn gather_into_baseline(
+    out: &mut ColorImage,
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    taps: &Taps,
+    mask: Option<&[bool]>,
+) {
+    gather_into_with(out, color, coc_px, taps, mask, gather_row_inner);
+}
+
+/// What every row of [`gather_into`] reads.
+struct GatherInputs<'a> {
+    color: &'a ColorImage,
+    coc_px: &'a GrayImage,
+    taps: &'a Taps,
+    mask: Option<&'a [bool]>,
+}
+
+fn gather_into_with(
+    out: &mut ColorImage,
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    taps: &Taps,
+    mask: Option<&[bool]>,
+    row_fn: impl Fn(&GatherInputs, usize, &mut [Rgba]) + Sync,
+) {
     let w = color.width().max(1);
+    let inputs = GatherInputs {
+        color,
+        coc_px,
+        taps,
+        mask,
+    };
     out.pixels_mut()
         .par_chunks_mut(w)
         .enumerate()
-        .for_each(|(y, row)| {
-            for (x, o) in row.iter_mut().enumerate() {
-                if mask.map_or(true, |m| m.get(y * w + x).copied().unwrap_or(false)) {
-                    *o = gather_pixel(color, coc_px, taps, x, y);
-                }
-            }
-        });
+        .for_each(|(y, row)| row_fn(&inputs, y, row));
+}
+
+/// One row of [`gather_into`]. Compiled for several instruction sets and chosen at run time
+/// ([`multiversion`]): with SSE4.1 and later the tap's `floor` is one instruction instead of a
+/// library call; the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn gather_row(inputs: &GatherInputs, y: usize, row: &mut [Rgba]) {
+    gather_row_inner(inputs, y, row);
+}
+
+#[inline(always)]
+fn gather_row_inner(inputs: &GatherInputs, y: usize, row: &mut [Rgba]) {
+    let GatherInputs {
+        color,
+        coc_px,
+        taps,
+        mask,
+    } = *inputs;
+    let w = color.width().max(1);
+    for (x, o) in row.iter_mut().enumerate() {
+        if mask.map_or(true, |m| m.get(y * w + x).copied().unwrap_or(false)) {
+            *o = gather_pixel(color, coc_px, taps, x, y);
+        }
+    }
 }

@@ -243,9 +243,8 @@ impl<'a> PreparedScene<'a> {
         let mut cut_out: Vec<usize> = scene
             .materials
             .iter()
-            .filter(|m| matches!(m.alpha_mode, crate::scene::AlphaMode::Mask { .. }))
+            .filter(|m| shade::early_alpha_cutoff(m, &scene.textures).is_some())
             .filter_map(|m| m.base_color_texture.as_ref().map(|b| b.texture))
-            .filter(|&t| t < scene.textures.len())
             .collect();
         cut_out.sort_unstable();
         cut_out.dedup();

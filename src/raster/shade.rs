@@ -15,6 +15,9 @@ const ALPHA_BOUND_MARGIN: f32 = 1.0 + 1e-5;
 /// A material ready to shade fragments.
 pub(crate) struct Shader<'a> {
     material: &'a Material,
+    /// Alpha cutoff of the early alpha test, when the material takes it (see
+    /// [`Texture::wants_early_alpha_test`]).
+    early_alpha_cutoff: Option<f32>,
     base: Option<Slot<'a>>,
     emissive: Option<Slot<'a>>,
     emission: [f32; 3],
@@ -26,6 +29,7 @@ impl<'a> Shader<'a> {
         let bind = |b: &'a Option<TextureBinding>| b.as_ref().map(|b| Slot::new(b, textures));
         Self {
             material,
+            early_alpha_cutoff: early_alpha_cutoff(material, textures),
             base: bind(&material.base_color_texture),
             emissive: bind(&material.emissive_texture),
             emission: material.emissive.map(|e| e * material.emissive_strength),
@@ -61,12 +65,9 @@ impl<'a> Shader<'a> {
         // Alpha-tested: fragments whose alpha is bounded below the cutoff are discarded before
         // the lookups, and the rest shaded as a smaller batch.
         let factor = self.material.base_color[3];
-        if let (AlphaMode::Mask { cutoff }, Some(base), Some(c), true) = (
-            self.material.alpha_mode,
-            &self.base,
-            &base_coords,
-            factor >= 0.0,
-        ) {
+        if let (Some(cutoff), Some(base), Some(c)) =
+            (self.early_alpha_cutoff, &self.base, &base_coords)
+        {
             let mut bound = [0.0f32; BATCH];
             base.texture
                 .alpha_bound_batch(&c.u, &c.v, &c.lod, &mut bound);
@@ -166,6 +167,17 @@ impl<'a> Shader<'a> {
         };
         Some([c[0] + e[0], c[1] + e[1], c[2] + e[2], alpha])
     }
+}
+
+/// The cutoff of `material`'s early alpha test, if it takes one: an alpha-mask material with a
+/// base colour texture that is mostly cut away ([`Texture::wants_early_alpha_test`]) and a
+/// base alpha factor of at least 0 (the bound is an upper bound only then).
+pub(crate) fn early_alpha_cutoff(material: &Material, textures: &[Texture]) -> Option<f32> {
+    let AlphaMode::Mask { cutoff } = material.alpha_mode else {
+        return None;
+    };
+    let texture = textures.get(material.base_color_texture.as_ref()?.texture)?;
+    (material.base_color[3] >= 0.0 && texture.wants_early_alpha_test()).then_some(cutoff)
 }
 
 /// Texture coordinates and their screen derivatives (per pixel, along x and y) of a batch of

@@ -109,11 +109,7 @@ pub fn accumulate_views(
                         tile.reset(*rect);
                         view.rasterize_tile(prepared, i, rect, &mut tile);
                         tile.finish();
-                        for (d, s) in sum.iter_mut().zip(tile.color()) {
-                            for k in 0..4 {
-                                d[k] += s[k];
-                            }
-                        }
+                        add_tile(sum, tile.color());
                     }
                 });
         });
@@ -134,4 +130,46 @@ pub fn accumulate_views(
         }
         ColorImage::from_vec(w, h, data)
     })
+}
+
+/// `sum += tile`, pixel by pixel: the accumulation of `reference`'s views. Compiled for several
+/// instruction sets and chosen at run time ([`multiversion`]); additions only, so the same bits
+/// in every version.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+pub(crate) fn add_tile(sum: &mut [Rgba], tile: &[Rgba]) {
+    add_tile_baseline(sum, tile);
+}
+
+/// [`add_tile`] in the portable baseline build: its twin in tests.
+#[inline(always)]
+pub(crate) fn add_tile_baseline(sum: &mut [Rgba], tile: &[Rgba]) {
+    for (d, s) in sum.as_flattened_mut().iter_mut().zip(tile.as_flattened()) {
+        *d += s;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dispatched_tile_sum_is_bit_identical_to_the_baseline() {
+        let mut rng = crate::random::SplitMix64::new(3);
+        for n in [0usize, 1, 3, 17, 4096] {
+            let tile: Vec<Rgba> = (0..n)
+                .map(|_| std::array::from_fn(|_| rng.range(-2.0, 30.0)))
+                .collect();
+            let start: Vec<Rgba> = (0..n)
+                .map(|_| std::array::from_fn(|_| rng.range(0.0, 1e4)))
+                .collect();
+            let (mut a, mut b) = (start.clone(), start);
+            add_tile(&mut a, &tile);
+            add_tile_baseline(&mut b, &tile);
+            assert_eq!(a, b, "{n} pixels");
+        }
+    }
 }

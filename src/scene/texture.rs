@@ -70,6 +70,10 @@ impl PartialEq for Texture {
     }
 }
 
+/// Largest mean alpha of a texture for which alpha-mask materials take the early alpha test
+/// (see [`Texture::wants_early_alpha_test`]).
+pub(crate) const EARLY_ALPHA_TEST_MAX_MEAN: f32 = 0.5;
+
 /// Texels per side of the cells of [`AlphaBounds`].
 const BOUND_CELL: usize = 4;
 
@@ -248,6 +252,18 @@ impl Texture {
             levels,
             alpha_bounds: OnceLock::new(),
         }
+    }
+
+    /// True when the early alpha test pays for alpha-mask materials with this texture: when
+    /// most of it is cut away, its mean alpha (the 1x1 mip) at most
+    /// [`EARLY_ALPHA_TEST_MAX_MEAN`]. The test costs about a quarter of a lookup per fragment
+    /// and saves a lookup per fragment it rejects; it rejects fragments in wholly transparent
+    /// cells, which a cut-out texture has in about the proportion it is transparent, less its
+    /// edges (measured: on `grass`'s blade tufts 75% of the fragments are rejected and the frame
+    /// is 10% faster; on panels with 30% of their area in round holes it was 5% slower).
+    pub(crate) fn wants_early_alpha_test(&self) -> bool {
+        let mean = self.levels[self.levels.len() - 1].get(0, 0)[3];
+        mean <= EARLY_ALPHA_TEST_MAX_MEAN
     }
 
     /// Makes the bounds of the early alpha test now (they are otherwise made by the first

@@ -30,6 +30,9 @@
 //!    colour and the filtered edge image (no `V_i` stored). Passes 4 and 5 alternate rank by rank
 //!    as in fig. 2, so one intermediate image is reused ([`dof::filter`]); their times are summed
 //!    over the ranks. A last step restores in-focus pixels exactly and clamps negative ringing.
+//!    An opaque frame (every alpha 1, as rendered scenes are) carries only its three colour
+//!    channels through passes 4 and 5, a quarter fewer floats, and gets alpha 1 back; the
+//!    colour is bit for bit that of the four-channel passes (tested).
 //! 6. `fallback` ([`crate::methods::poisson::gather_into`]): where the filtered edge image exceeds
 //!    `mask_threshold` (fig. 15, right), the pixel is recomputed by the Scheuermann-style
 //!    gather with depth rejection, with `fallback_taps` Poisson-disc taps in the same aperture

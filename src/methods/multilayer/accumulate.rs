@@ -23,7 +23,7 @@ use crate::raster::from_half;
 /// Weight of level `s` of `levels` for a fragment at level coordinate `lambda`: with
 /// `S = floor(lambda)`, level S gets `1 - t` and level S + 1 gets `t`, where
 /// `t = (4^(lambda - S) - 1) / 3` blends the two box variances into the disc's.
-#[inline]
+#[inline(always)]
 pub fn level_weight(lambda: f32, s: usize, levels: usize) -> f32 {
     let top = (levels - 1) as f32;
     let l = lambda.clamp(0.0, top);
@@ -51,6 +51,45 @@ pub fn accumulate(
     width: usize,
     height: usize,
 ) -> ColorImage {
+    accumulate_with(levels, borders, epsilon, width, height, accumulate_row)
+}
+
+/// [`accumulate`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn accumulate_baseline(
+    levels: &[Level],
+    borders: &Borders,
+    epsilon: f32,
+    width: usize,
+    height: usize,
+) -> ColorImage {
+    accumulate_with(
+        levels,
+        borders,
+        epsilon,
+        width,
+        height,
+        accumulate_row_inner,
+    )
+}
+
+/// What every row of [`accumulate`] reads.
+struct RowInputs<'a> {
+    levels: &'a [Level],
+    borders: &'a Borders,
+    /// Per level, the depths it can serve (see [`accumulate_with`]).
+    gates: &'a [(f32, f32, f32, f32)],
+    epsilon: f32,
+}
+
+fn accumulate_with(
+    levels: &[Level],
+    borders: &Borders,
+    epsilon: f32,
+    width: usize,
+    height: usize,
+    row_fn: impl Fn(&RowInputs, usize, &mut [Rgba]) + Sync,
+) -> ColorImage {
     let n = levels.len();
     // Per level, the depths it can serve (weight above 0 needs lambda in (s - 1, s + 1)):
     // inside (near(s + 1), far(s + 1)) and outside [near(s - 1), far(s - 1)], widened a little
@@ -77,37 +116,65 @@ pub fn accumulate(
         })
         .collect();
     let mut data = vec![[0.0f32; 4]; width * height];
+    let inputs = RowInputs {
+        levels,
+        borders,
+        gates: &gates,
+        epsilon,
+    };
     data.par_chunks_mut(width.max(1))
         .enumerate()
-        .for_each(|(y, row)| {
-            let mut entries: Vec<Entry> = Vec::new();
-            for (x, out) in row.iter_mut().enumerate() {
-                entries.clear();
-                for (s, level) in levels.iter().enumerate() {
-                    let (cx, cy) = level.cell_of_pixel(x, y);
-                    let (depths, colors) = level.cell(cx, cy);
-                    let (i0, i1, o0, o1) = gates[s];
-                    for (&z, c) in depths.iter().zip(colors) {
-                        if z <= i0 || z >= i1 || (z > o0 && z < o1) {
-                            continue;
-                        }
-                        let weight = level_weight(borders.lambda(z), s, n);
-                        if weight > 0.0 {
-                            entries.push(Entry {
-                                depth_m: z,
-                                level: s as u8,
-                                weight,
-                                color: from_half(c),
-                            });
-                        }
-                    }
-                }
-                // Stable: equal depths keep level order.
-                entries.sort_by(|a, b| a.depth_m.total_cmp(&b.depth_m));
-                *out = composite(&entries, n, epsilon);
-            }
-        });
+        .for_each(|(y, row)| row_fn(&inputs, y, row));
     ColorImage::from_vec(width, height, data).expect("sizes agree by construction")
+}
+
+/// One row of [`accumulate`]. Compiled for several instruction sets and chosen at run time
+/// ([`multiversion`]): with SSE4.1 and later the level weight's `floor` is one instruction
+/// instead of a library call; the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn accumulate_row(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
+    accumulate_row_inner(inputs, y, row);
+}
+
+#[inline(always)]
+fn accumulate_row_inner(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
+    let RowInputs {
+        levels,
+        borders,
+        gates,
+        epsilon,
+    } = *inputs;
+    let n = levels.len();
+    let mut entries: Vec<Entry> = Vec::new();
+    for (x, out) in row.iter_mut().enumerate() {
+        entries.clear();
+        for (s, level) in levels.iter().enumerate() {
+            let (cx, cy) = level.cell_of_pixel(x, y);
+            let (depths, colors) = level.cell(cx, cy);
+            let (i0, i1, o0, o1) = gates[s];
+            for (&z, c) in depths.iter().zip(colors) {
+                if z <= i0 || z >= i1 || (z > o0 && z < o1) {
+                    continue;
+                }
+                let weight = level_weight(borders.lambda(z), s, n);
+                if weight > 0.0 {
+                    entries.push(Entry {
+                        depth_m: z,
+                        level: s as u8,
+                        weight,
+                        color: from_half(c),
+                    });
+                }
+            }
+        }
+        // Stable: equal depths keep level order.
+        entries.sort_by(|a, b| a.depth_m.total_cmp(&b.depth_m));
+        *out = composite(&entries, n, epsilon);
+    }
 }
 
 /// One fragment of one level at a pixel, with its level weight.
@@ -127,6 +194,7 @@ pub struct Entry {
 /// remaining fragment and takes every fragment within the depth threshold of it; within a
 /// level the group's fragments are combined with the over operator, across levels their
 /// weighted contributions add up; groups are blended with the over operator.
+#[inline(always)]
 pub fn composite(entries: &[Entry], levels: usize, epsilon: f32) -> Rgba {
     let mut out = [0.0f32; 4];
     let mut transmit = 1.0f32;

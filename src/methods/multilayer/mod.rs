@@ -38,7 +38,7 @@
 pub mod accumulate;
 pub mod filter;
 
-use crate::image::GrayImage;
+use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Camera, ThinLens};
 use crate::raster::{render_fragment_lists, FragmentLists, PreparedScene, View};
 use crate::scene::Scene;
@@ -191,7 +191,7 @@ impl Borders {
     /// the box filter with the same variance as the disc of radius `|C|` (a box of width `w` has
     /// variance `w^2 / 12` per axis, the disc `C^2 / 4`). Level S (a box of `2^S` pixels)
     /// matches the CoC where this equals S; -inf on the focal plane.
-    #[inline]
+    #[inline(always)]
     pub fn lambda(&self, z_m: f32) -> f32 {
         (3f32.sqrt() * self.lens.coc_px(z_m).abs()).log2()
     }
@@ -335,6 +335,29 @@ pub fn render(
     camera: &Camera,
     settings: &MultilayerSettings,
 ) -> Result<MethodOutput> {
+    render_with(scene, camera, settings, accumulate)
+}
+
+/// [`render`] with the accumulate pass built for the portable baseline only
+/// ([`accumulate::accumulate_baseline`]): the twin the run-time dispatched build is tested
+/// against.
+pub fn render_baseline(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &MultilayerSettings,
+) -> Result<MethodOutput> {
+    render_with(scene, camera, settings, accumulate::accumulate_baseline)
+}
+
+/// The accumulate pass's signature (see [`accumulate`]).
+type AccumulateFn = fn(&[Level], &Borders, f32, usize, usize) -> ColorImage;
+
+fn render_with(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &MultilayerSettings,
+    accumulate_fn: AccumulateFn,
+) -> Result<MethodOutput> {
     settings.validate()?;
     let lens = camera.thin_lens()?;
     check_memory(&lens, settings)?;
@@ -346,7 +369,7 @@ pub fn render(
     let borders = Borders::new(lens);
     let (levels, bytes) = timings.time(pass::FILTER, || filter(&lists, &borders, settings));
     let image = timings.time(pass::ACCUMULATE, || {
-        accumulate(
+        accumulate_fn(
             &levels,
             &borders,
             settings.epsilon,

@@ -31,7 +31,7 @@ pub mod trace;
 
 use glam::Vec2;
 
-use crate::image::GrayImage;
+use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, SampleSet, SamplerKind, ThinLens};
 use crate::random::SplitMix64;
 use crate::raster::{BinnedView, DepthLayers, LayerSpacing, PreparedScene, View};
@@ -267,6 +267,25 @@ pub fn render(
     camera: &Camera,
     settings: &MultiviewSettings,
 ) -> Result<MethodOutput> {
+    render_with(scene, camera, settings, trace::trace)
+}
+
+/// [`render`] with the trace pass built for the portable baseline only
+/// ([`trace::trace_baseline`]): the twin the run-time dispatched build is tested against.
+pub fn render_baseline(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &MultiviewSettings,
+) -> Result<MethodOutput> {
+    render_with(scene, camera, settings, trace::trace_baseline)
+}
+
+fn render_with(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &MultiviewSettings,
+    trace_fn: fn(&TraceInput) -> ColorImage,
+) -> Result<MethodOutput> {
     settings.validate()?;
     let lens = camera.thin_lens()?;
     let mut timings = Timings::default();
@@ -321,7 +340,7 @@ pub fn render(
         noise: &noise,
         lambda,
     };
-    let image = timings.time(pass::TRACE, || trace::trace(&input));
+    let image = timings.time(pass::TRACE, || trace_fn(&input));
     let bytes = layers.bytes()
         + nbuffers
             .iter()

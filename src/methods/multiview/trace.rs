@@ -94,7 +94,7 @@ impl LayerMip {
     /// The premultiplied colour and coverage at level `level` (>= 1) at image position `q`
     /// (pixels), filtered bilinearly between the level's texel centres, clamped to the coarsest
     /// level kept.
-    #[inline]
+    #[inline(always)]
     pub fn fetch(&self, level: usize, q: Vec2) -> Rgba {
         let k = level.min(self.levels.len());
         if k == 0 {
@@ -157,9 +157,21 @@ enum Ray {
 
 /// Traces every pixel.
 pub fn trace(input: &TraceInput) -> ColorImage {
+    trace_with(input, trace_row)
+}
+
+/// [`trace`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn trace_baseline(input: &TraceInput) -> ColorImage {
+    trace_with(input, trace_row_inner)
+}
+
+fn trace_with(
+    input: &TraceInput,
+    row_fn: impl Fn(&TraceInput, f32, usize, &mut [Rgba]) + Sync,
+) -> ColorImage {
     let layers = input.layers;
     let (w, h) = (layers.width, layers.height);
-    let m = layers.spacing.layers;
     let rmax = input
         .sets
         .iter()
@@ -169,49 +181,66 @@ pub fn trace(input: &TraceInput) -> ColorImage {
     let mut data = vec![[0.0f32; 4]; w * h];
     data.par_chunks_mut(w.max(1))
         .enumerate()
-        .for_each(|(y, row)| {
-            let mut open = vec![false; m];
-            for (x, out) in row.iter_mut().enumerate() {
-                let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
-                // Early layer culling for all rays of the pixel.
-                for (l, o) in open.iter_mut().enumerate() {
-                    *o = input.filled[l];
-                    if !*o {
-                        continue;
-                    }
-                    if let Some(nb) = input.nbuffers.and_then(|n| n[l].as_ref()) {
-                        let (a, b) = layers.spacing.bounds(l);
-                        let r = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1;
-                        let (xi, yi) = (x as i64, y as i64);
-                        if let Some(min) = nb.min(xi - r, yi - r, xi + r, yi + r) {
-                            let overlap = layers.spacing.overlap * layers.spacing.delta_px;
-                            *o = min <= b + overlap;
-                        }
-                    }
-                }
-                let set = &input.sets[input.noise[(y % NOISE_TILE) * NOISE_TILE + x % NOISE_TILE]
-                    as usize
-                    % input.sets.len()];
-                let mut acc = [0.0f32; 4];
-                let mut count = 0u32;
-                for &v in set {
-                    if let Ray::Color(c) = ray(input, &open, p, v) {
-                        for k in 0..4 {
-                            acc[k] += c[k];
-                        }
-                        count += 1;
-                    }
-                }
-                if count > 0 {
-                    let inv = 1.0 / count as f32;
-                    *out = acc.map(|c| c * inv);
-                }
-            }
-        });
+        .for_each(|(y, row)| row_fn(input, rmax, y, row));
     ColorImage::from_vec(w, h, data).expect("sizes agree by construction")
 }
 
+/// One row of [`trace`]. Compiled for several instruction sets and chosen at run time
+/// ([`multiversion`]): with SSE4.1 and later `floor` and `ceil` are one instruction instead of
+/// a library call; the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn trace_row(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
+    trace_row_inner(input, rmax, y, row);
+}
+
+#[inline(always)]
+fn trace_row_inner(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
+    let layers = input.layers;
+    let m = layers.spacing.layers;
+    let mut open = vec![false; m];
+    for (x, out) in row.iter_mut().enumerate() {
+        let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+        // Early layer culling for all rays of the pixel.
+        for (l, o) in open.iter_mut().enumerate() {
+            *o = input.filled[l];
+            if !*o {
+                continue;
+            }
+            if let Some(nb) = input.nbuffers.and_then(|n| n[l].as_ref()) {
+                let (a, b) = layers.spacing.bounds(l);
+                let r = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1;
+                let (xi, yi) = (x as i64, y as i64);
+                if let Some(min) = nb.min(xi - r, yi - r, xi + r, yi + r) {
+                    let overlap = layers.spacing.overlap * layers.spacing.delta_px;
+                    *o = min <= b + overlap;
+                }
+            }
+        }
+        let set = &input.sets[input.noise[(y % NOISE_TILE) * NOISE_TILE + x % NOISE_TILE] as usize
+            % input.sets.len()];
+        let mut acc = [0.0f32; 4];
+        let mut count = 0u32;
+        for &v in set {
+            if let Ray::Color(c) = ray(input, &open, p, v) {
+                for k in 0..4 {
+                    acc[k] += c[k];
+                }
+                count += 1;
+            }
+        }
+        if count > 0 {
+            let inv = 1.0 / count as f32;
+            *out = acc.map(|c| c * inv);
+        }
+    }
+}
+
 /// Traces one lens ray through `v` landing on pixel centre `p`.
+#[inline(always)]
 fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
     let layers = input.layers;
     let (w, h) = (layers.width as f32, layers.height as f32);
@@ -300,6 +329,7 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
 /// steps, each checked, with bisection when the linear guess does not shrink the bracket.
 /// Returns the refined hit (ray CoC and layer pixel) and the surface CoC under the ray just
 /// in front of it.
+#[inline(always)]
 fn refine(
     layers: &DepthLayers,
     l: usize,

@@ -425,109 +425,30 @@ const OPAQUE: f32 = 1e-5;
 
 /// Blends every tile (see the module documentation).
 pub fn blend(input: &BlendInput, lists: &TileLists, width: usize, height: usize) -> ColorImage {
-    let BlendInput {
-        fragments,
-        norms,
-        shape,
-        group_px,
-        merge,
-    } = *input;
+    blend_with(input, lists, width, height, blend_tile)
+}
+
+/// [`blend`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn blend_baseline(
+    input: &BlendInput,
+    lists: &TileLists,
+    width: usize,
+    height: usize,
+) -> ColorImage {
+    blend_with(input, lists, width, height, blend_tile_inner)
+}
+
+fn blend_with(
+    input: &BlendInput,
+    lists: &TileLists,
+    width: usize,
+    height: usize,
+    tile_fn: impl Fn(&BlendInput, &TileLists, usize, usize, usize) -> Vec<Rgba> + Sync,
+) -> ColorImage {
     let tiles: Vec<Vec<Rgba>> = (0..lists.tiles_x * lists.tiles_y)
         .into_par_iter()
-        .map(|t| {
-            let (tx, ty) = (t % lists.tiles_x, t / lists.tiles_x);
-            let x0 = tx * TILE_PX;
-            let y0 = ty * TILE_PX;
-            let x1 = (x0 + TILE_PX).min(width);
-            let y1 = (y0 + TILE_PX).min(height);
-            let tw = x1 - x0;
-            let mut st = TileState::new(tw, y1 - y0);
-            let mut batch_coc = f32::NAN;
-            for &(_, idx) in &lists.entries[lists.offsets[t]..lists.offsets[t + 1]] {
-                let f = &fragments[idx as usize];
-                // The list is in depth (CoC) order: a fragment beyond the batch's CoC range
-                // opens the next surface.
-                let same_surface = (f.coc_px - batch_coc).abs() <= group_px;
-                if !same_surface {
-                    st.flush();
-                    if st.open == 0 {
-                        break;
-                    }
-                    batch_coc = f.coc_px;
-                }
-                let centre = f.centre();
-                let c = draw_radius(f.coc_px);
-                let soft = f.soft_px(merge);
-                let reach = reach_px(f.coc_px, soft);
-                let py0 = (floor_px(centre.y - reach).max(y0 as f32) as usize).max(y0);
-                let py1 = (ceil_px(centre.y + reach).max(0.0) as usize + 1).min(y1);
-                let bx0 = (floor_px(centre.x - reach).max(x0 as f32) as usize).max(x0);
-                let bx1 = (ceil_px(centre.x + reach).max(0.0) as usize + 1).min(x1);
-                if bx0 >= bx1 || py0 >= py1 {
-                    continue;
-                }
-                let col = f.rgba();
-                let norm = norms[idx as usize];
-                let wcol = col.map(|v| v * norm);
-                // Pixel x is inside offsets [lo, hi] when lo <= x + 0.5 - cx <= hi.
-                let (bx0i, bx1i) = (bx0 as i32, bx1 as i32);
-                let first = |lo: f32| ceil_i(centre.x + lo - 0.5).clamp(bx0i, bx1i) as usize;
-                let last = |hi: f32| (floor_i(centre.x + hi - 0.5) + 1).clamp(bx0i, bx1i) as usize;
-                let fp = Footprint::new(shape, c, soft);
-                for py in py0..py1 {
-                    let dy = py as f32 + 0.5 - centre.y;
-                    let row = py - y0;
-                    let Some((outer, inner)) = fp.spans(dy) else {
-                        continue;
-                    };
-                    let (ox0, ox1) = match outer {
-                        Some((lo, hi)) => (first(lo), last(hi)),
-                        None => (bx0, bx1),
-                    };
-                    if ox0 >= ox1 {
-                        continue;
-                    }
-                    let (ix0, ix1) = match inner {
-                        Some((lo, hi)) => {
-                            let (a, b) = (first(lo).max(ox0), last(hi).min(ox1));
-                            if a < b {
-                                (a, b)
-                            } else {
-                                (ox0, ox0)
-                            }
-                        }
-                        None => (ox0, ox0),
-                    };
-                    st.touch(ox0 - x0, ox1 - x0, row);
-                    let edge_row = &mut st.edge[row * tw..(row + 1) * tw];
-                    if ix0 < ix1 {
-                        let base = row * (tw + 1);
-                        let (a, b) = (base + ix0 - x0, base + ix1 - x0);
-                        for (k, v) in wcol.iter().enumerate() {
-                            st.diff[a][k] += v;
-                            st.diff[b][k] -= v;
-                        }
-                        for px in (ox0..ix0).chain(ix1..ox1) {
-                            let cov = fp.coverage(px as f32 + 0.5 - centre.x, dy);
-                            let e = &mut edge_row[px - x0];
-                            for k in 0..4 {
-                                e[k] += cov * wcol[k];
-                            }
-                        }
-                    } else {
-                        for px in ox0..ox1 {
-                            let cov = fp.coverage(px as f32 + 0.5 - centre.x, dy);
-                            let e = &mut edge_row[px - x0];
-                            for k in 0..4 {
-                                e[k] += cov * wcol[k];
-                            }
-                        }
-                    }
-                }
-            }
-            st.flush();
-            st.out
-        })
+        .map(|t| tile_fn(input, lists, width, height, t))
         .collect();
     let mut data = vec![[0.0f32; 4]; width * height];
     for (t, tile) in tiles.into_iter().enumerate() {
@@ -541,4 +462,130 @@ pub fn blend(input: &BlendInput, lists: &TileLists, width: usize, height: usize)
         }
     }
     ColorImage::from_vec(width, height, data).expect("sizes agree by construction")
+}
+
+/// Tile `t` of [`blend`]. Compiled for several instruction sets and chosen at run time
+/// ([`multiversion`]); the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn blend_tile(
+    input: &BlendInput,
+    lists: &TileLists,
+    width: usize,
+    height: usize,
+    t: usize,
+) -> Vec<Rgba> {
+    blend_tile_inner(input, lists, width, height, t)
+}
+
+#[inline(always)]
+fn blend_tile_inner(
+    input: &BlendInput,
+    lists: &TileLists,
+    width: usize,
+    height: usize,
+    t: usize,
+) -> Vec<Rgba> {
+    let BlendInput {
+        fragments,
+        norms,
+        shape,
+        group_px,
+        merge,
+    } = *input;
+    let (tx, ty) = (t % lists.tiles_x, t / lists.tiles_x);
+    let x0 = tx * TILE_PX;
+    let y0 = ty * TILE_PX;
+    let x1 = (x0 + TILE_PX).min(width);
+    let y1 = (y0 + TILE_PX).min(height);
+    let tw = x1 - x0;
+    let mut st = TileState::new(tw, y1 - y0);
+    let mut batch_coc = f32::NAN;
+    for &(_, idx) in &lists.entries[lists.offsets[t]..lists.offsets[t + 1]] {
+        let f = &fragments[idx as usize];
+        // The list is in depth (CoC) order: a fragment beyond the batch's CoC range
+        // opens the next surface.
+        let same_surface = (f.coc_px - batch_coc).abs() <= group_px;
+        if !same_surface {
+            st.flush();
+            if st.open == 0 {
+                break;
+            }
+            batch_coc = f.coc_px;
+        }
+        let centre = f.centre();
+        let c = draw_radius(f.coc_px);
+        let soft = f.soft_px(merge);
+        let reach = reach_px(f.coc_px, soft);
+        let py0 = (floor_px(centre.y - reach).max(y0 as f32) as usize).max(y0);
+        let py1 = (ceil_px(centre.y + reach).max(0.0) as usize + 1).min(y1);
+        let bx0 = (floor_px(centre.x - reach).max(x0 as f32) as usize).max(x0);
+        let bx1 = (ceil_px(centre.x + reach).max(0.0) as usize + 1).min(x1);
+        if bx0 >= bx1 || py0 >= py1 {
+            continue;
+        }
+        let col = f.rgba();
+        let norm = norms[idx as usize];
+        let wcol = col.map(|v| v * norm);
+        // Pixel x is inside offsets [lo, hi] when lo <= x + 0.5 - cx <= hi.
+        let (bx0i, bx1i) = (bx0 as i32, bx1 as i32);
+        let first = |lo: f32| ceil_i(centre.x + lo - 0.5).clamp(bx0i, bx1i) as usize;
+        let last = |hi: f32| (floor_i(centre.x + hi - 0.5) + 1).clamp(bx0i, bx1i) as usize;
+        let fp = Footprint::new(shape, c, soft);
+        for py in py0..py1 {
+            let dy = py as f32 + 0.5 - centre.y;
+            let row = py - y0;
+            let Some((outer, inner)) = fp.spans(dy) else {
+                continue;
+            };
+            let (ox0, ox1) = match outer {
+                Some((lo, hi)) => (first(lo), last(hi)),
+                None => (bx0, bx1),
+            };
+            if ox0 >= ox1 {
+                continue;
+            }
+            let (ix0, ix1) = match inner {
+                Some((lo, hi)) => {
+                    let (a, b) = (first(lo).max(ox0), last(hi).min(ox1));
+                    if a < b {
+                        (a, b)
+                    } else {
+                        (ox0, ox0)
+                    }
+                }
+                None => (ox0, ox0),
+            };
+            st.touch(ox0 - x0, ox1 - x0, row);
+            let edge_row = &mut st.edge[row * tw..(row + 1) * tw];
+            if ix0 < ix1 {
+                let base = row * (tw + 1);
+                let (a, b) = (base + ix0 - x0, base + ix1 - x0);
+                for (k, v) in wcol.iter().enumerate() {
+                    st.diff[a][k] += v;
+                    st.diff[b][k] -= v;
+                }
+                for px in (ox0..ix0).chain(ix1..ox1) {
+                    let cov = fp.coverage(px as f32 + 0.5 - centre.x, dy);
+                    let e = &mut edge_row[px - x0];
+                    for k in 0..4 {
+                        e[k] += cov * wcol[k];
+                    }
+                }
+            } else {
+                for px in ox0..ox1 {
+                    let cov = fp.coverage(px as f32 + 0.5 - centre.x, dy);
+                    let e = &mut edge_row[px - x0];
+                    for k in 0..4 {
+                        e[k] += cov * wcol[k];
+                    }
+                }
+            }
+        }
+    }
+    st.flush();
+    st.out
 }

@@ -138,6 +138,7 @@ fn splat(
     height: usize,
     settings: &SplatSettings,
     timings: &mut Timings,
+    blend_fn: BlendFn,
 ) -> Result<(ColorImage, SplatStats, usize)> {
     if width > build::MAX_SIDE_PX || height > build::MAX_SIDE_PX {
         return Err(Error::invalid(
@@ -192,7 +193,7 @@ fn splat(
             group_px: settings.group_px,
             merge: settings.merge,
         };
-        blend::blend(&input, &lists, width, height)
+        blend_fn(&input, &lists, width, height)
     });
     let stats = SplatStats {
         fragments: fragments.len(),
@@ -215,12 +216,36 @@ pub fn render(
     render_detailed(color, depth, lens, settings).map(|(o, _)| o)
 }
 
+/// [`render`] with the blend pass built for the portable baseline only
+/// ([`blend::blend_baseline`]): the twin the run-time dispatched build is tested against.
+pub fn render_baseline(
+    color: &ColorImage,
+    depth: &GrayImage,
+    lens: &ThinLens,
+    settings: &SplatSettings,
+) -> Result<MethodOutput> {
+    render_detailed_with(color, depth, lens, settings, blend::blend_baseline).map(|(o, _)| o)
+}
+
+/// The blend pass's signature (see [`blend::blend`]).
+type BlendFn = fn(&blend::BlendInput, &build::TileLists, usize, usize) -> ColorImage;
+
 /// [`render`], also returning the run's figures.
 pub fn render_detailed(
     color: &ColorImage,
     depth: &GrayImage,
     lens: &ThinLens,
     settings: &SplatSettings,
+) -> Result<(MethodOutput, SplatStats)> {
+    render_detailed_with(color, depth, lens, settings, blend::blend)
+}
+
+fn render_detailed_with(
+    color: &ColorImage,
+    depth: &GrayImage,
+    lens: &ThinLens,
+    settings: &SplatSettings,
+    blend_fn: BlendFn,
 ) -> Result<(MethodOutput, SplatStats)> {
     settings.validate()?;
     coc_map::check_frame(color, depth, lens)?;
@@ -233,6 +258,7 @@ pub fn render_detailed(
         color.height(),
         settings,
         &mut timings,
+        blend_fn,
     )?;
     Ok((
         MethodOutput {
@@ -281,6 +307,7 @@ pub fn render_scene(
         lens.height_px,
         settings,
         &mut timings,
+        blend::blend,
     )?;
     let depth = GrayImage::from_vec(lens.width_px, lens.height_px, lists.nearest_depth())?;
     Ok((
