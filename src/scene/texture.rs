@@ -979,13 +979,8 @@ mod tests {
     /// from magnification to past the last level.
     #[test]
     fn alpha_bounds_bound_every_lookup() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rng = crate::random::SplitMix64::new(0x9e37_79b9);
+        let mut next = move || rng.range(0.0, 1.0);
         let mut lookups = 0;
         for (w, h) in [
             (1, 1),
