@@ -366,9 +366,10 @@ fn multilayer_settings_are_checked() {
 }
 
 #[test]
-fn accumulate_is_bit_identical_to_its_baseline_build() {
-    // The run-time dispatched accumulate pass (AVX-512, AVX2 or NEON where present; `floor` in
-    // one instruction) does the same arithmetic in the same order as the portable build.
+fn filter_and_accumulate_are_bit_identical_to_their_baseline_builds() {
+    // The run-time dispatched filter and accumulate passes (AVX-512, AVX2 or NEON where present;
+    // `floor` in one instruction) do the same arithmetic in the same order as the portable
+    // builds.
     let scene = defocus::scene::builtin::load("railing").unwrap();
     let mut camera = scene.defaults.clone().unwrap().camera;
     camera.width_px = 96;

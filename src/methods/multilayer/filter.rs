@@ -134,6 +134,7 @@ struct Partial {
 
 /// Merges four depth-sorted lists into `out` (see the module documentation). `keep(z)` says
 /// whether a merged fragment at depth `z` is kept (truncation).
+#[inline(always)]
 pub fn merge4(
     sources: [(&[f32], &[HalfRgba]); 4],
     epsilon: f32,
@@ -199,6 +200,41 @@ pub fn merge4(
 
 /// Applies one step to `level`. `keep(z)` filters the merged fragments (truncation).
 pub fn step(level: &Level, step: Step, epsilon: f32, keep: &(dyn Fn(f32) -> bool + Sync)) -> Level {
+    step_with(level, step, epsilon, keep, step_row)
+}
+
+/// [`step`] built for the portable baseline only (no run-time dispatch): the twin the
+/// dispatched versions are tested against, bit for bit.
+pub fn step_baseline(
+    level: &Level,
+    step: Step,
+    epsilon: f32,
+    keep: &(dyn Fn(f32) -> bool + Sync),
+) -> Level {
+    step_with(level, step, epsilon, keep, step_row_inner)
+}
+
+/// One output row of a step: per cell the number of fragments, then their depths and colours.
+type Row = (Vec<u32>, Vec<f32>, Vec<HalfRgba>);
+
+/// What every row of a step reads: the level, the step, its source distance `d`, the output
+/// width, `epsilon` and `keep`.
+struct RowInputs<'a> {
+    level: &'a Level,
+    step: Step,
+    d: usize,
+    nw: usize,
+    epsilon: f32,
+    keep: &'a (dyn Fn(f32) -> bool + Sync),
+}
+
+fn step_with(
+    level: &Level,
+    step: Step,
+    epsilon: f32,
+    keep: &(dyn Fn(f32) -> bool + Sync),
+    row_fn: impl Fn(&RowInputs, usize) -> Row + Sync,
+) -> Level {
     let (w, h) = (level.width, level.height);
     let (nw, nh, stride, origin, d) = match step {
         Step::Mip => (
@@ -224,35 +260,17 @@ pub fn step(level: &Level, step: Step, epsilon: f32, keep: &(dyn Fn(f32) -> bool
             offset,
         ),
     };
-    let rows: Vec<(Vec<u32>, Vec<f32>, Vec<HalfRgba>)> = (0..nh)
+    let inputs = RowInputs {
+        level,
+        step,
+        d,
+        nw,
+        epsilon,
+        keep,
+    };
+    let rows: Vec<Row> = (0..nh)
         .into_par_iter()
-        .map(|y| {
-            let mut counts = Vec::with_capacity(nw);
-            let mut depth = Vec::new();
-            let mut color = Vec::new();
-            // Source cells of a row or column: (lo, hi), clamped to the level (border cells
-            // extended, fig. 4).
-            let pair = |i: usize, n: usize| -> (usize, usize) {
-                match step {
-                    Step::Mip => ((2 * i).min(n - 1), (2 * i + 1).min(n - 1)),
-                    Step::Stack { .. } if d == 1 => (i, (i + 1).min(n - 1)),
-                    Step::Stack { .. } => (i.saturating_sub(d / 2), (i + d / 2).min(n - 1)),
-                }
-            };
-            let (sy, y1) = pair(y, h);
-            for x in 0..nw {
-                let (sx, x1) = pair(x, w);
-                let sources = [
-                    level.cell(sx, sy),
-                    level.cell(x1, sy),
-                    level.cell(sx, y1),
-                    level.cell(x1, y1),
-                ];
-                let n = merge4(sources, epsilon, keep, &mut depth, &mut color);
-                counts.push(n as u32);
-            }
-            (counts, depth, color)
-        })
+        .map(|y| row_fn(&inputs, y))
         .collect();
     let mut offsets = Vec::with_capacity(nw * nh + 1);
     offsets.push(0u32);
@@ -277,4 +295,53 @@ pub fn step(level: &Level, step: Step, epsilon: f32, keep: &(dyn Fn(f32) -> bool
         depth,
         color,
     }
+}
+
+/// Output row `y` of a step. Compiled for several instruction sets and chosen at run time
+/// ([`multiversion`]); the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn step_row(inputs: &RowInputs, y: usize) -> Row {
+    step_row_inner(inputs, y)
+}
+
+#[inline(always)]
+fn step_row_inner(inputs: &RowInputs, y: usize) -> Row {
+    let RowInputs {
+        level,
+        step,
+        d,
+        nw,
+        epsilon,
+        keep,
+    } = *inputs;
+    let (w, h) = (level.width, level.height);
+    let mut counts = Vec::with_capacity(nw);
+    let mut depth = Vec::new();
+    let mut color = Vec::new();
+    // Source cells of a row or column: (lo, hi), clamped to the level (border cells
+    // extended, fig. 4).
+    let pair = |i: usize, n: usize| -> (usize, usize) {
+        match step {
+            Step::Mip => ((2 * i).min(n - 1), (2 * i + 1).min(n - 1)),
+            Step::Stack { .. } if d == 1 => (i, (i + 1).min(n - 1)),
+            Step::Stack { .. } => (i.saturating_sub(d / 2), (i + d / 2).min(n - 1)),
+        }
+    };
+    let (sy, y1) = pair(y, h);
+    for x in 0..nw {
+        let (sx, x1) = pair(x, w);
+        let sources = [
+            level.cell(sx, sy),
+            level.cell(x1, sy),
+            level.cell(sx, y1),
+            level.cell(x1, y1),
+        ];
+        let n = merge4(sources, epsilon, keep, &mut depth, &mut color);
+        counts.push(n as u32);
+    }
+    (counts, depth, color)
 }

@@ -294,13 +294,25 @@ pub fn filter(
     borders: &Borders,
     settings: &MultilayerSettings,
 ) -> (Vec<Level>, usize) {
+    filter_with(lists, borders, settings, filter::step)
+}
+
+/// A step of the filter pass (see [`filter::step`]).
+type StepFn = fn(&Level, Step, f32, &(dyn Fn(f32) -> bool + Sync)) -> Level;
+
+fn filter_with(
+    lists: &FragmentLists,
+    borders: &Borders,
+    settings: &MultilayerSettings,
+    step_fn: StepFn,
+) -> (Vec<Level>, usize) {
     let eps = settings.epsilon;
     let mut base = Level::base(lists);
     let mut peak = lists.bytes();
     let keep_all = |_: f32| true;
     let mut k = settings.supersample;
     while k > 1 {
-        base = filter::step(&base, Step::Mip, eps, &keep_all);
+        base = step_fn(&base, Step::Mip, eps, &keep_all);
         peak = peak.max(lists.bytes() + base.bytes());
         k /= 2;
     }
@@ -322,7 +334,7 @@ pub fn filter(
         let s = i + 1;
         let truncate = settings.truncation;
         let keep = move |z: f32| !truncate || borders.lambda(z) > s as f32 - 1.0;
-        let next = filter::step(&levels[i], st, eps, &keep);
+        let next = step_fn(&levels[i], st, eps, &keep);
         levels.push(next);
         total = total.max(levels.iter().map(Level::bytes).sum::<usize>());
     }
@@ -335,18 +347,24 @@ pub fn render(
     camera: &Camera,
     settings: &MultilayerSettings,
 ) -> Result<MethodOutput> {
-    render_with(scene, camera, settings, accumulate)
+    render_with(scene, camera, settings, accumulate, filter::step)
 }
 
-/// [`render`] with the accumulate pass built for the portable baseline only
-/// ([`accumulate::accumulate_baseline`]): the twin the run-time dispatched build is tested
-/// against.
+/// [`render`] with the filter and accumulate passes built for the portable baseline only
+/// ([`filter::step_baseline`], [`accumulate::accumulate_baseline`]): the twin the run-time
+/// dispatched build is tested against.
 pub fn render_baseline(
     scene: &Scene,
     camera: &Camera,
     settings: &MultilayerSettings,
 ) -> Result<MethodOutput> {
-    render_with(scene, camera, settings, accumulate::accumulate_baseline)
+    render_with(
+        scene,
+        camera,
+        settings,
+        accumulate::accumulate_baseline,
+        filter::step_baseline,
+    )
 }
 
 /// The accumulate pass's signature (see [`accumulate`]).
@@ -357,6 +375,7 @@ fn render_with(
     camera: &Camera,
     settings: &MultilayerSettings,
     accumulate_fn: AccumulateFn,
+    step_fn: StepFn,
 ) -> Result<MethodOutput> {
     settings.validate()?;
     let lens = camera.thin_lens()?;
@@ -367,7 +386,9 @@ fn render_with(
     })?;
     let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, settings));
     let borders = Borders::new(lens);
-    let (levels, bytes) = timings.time(pass::FILTER, || filter(&lists, &borders, settings));
+    let (levels, bytes) = timings.time(pass::FILTER, || {
+        filter_with(&lists, &borders, settings, step_fn)
+    });
     let image = timings.time(pass::ACCUMULATE, || {
         accumulate_fn(
             &levels,
