@@ -389,6 +389,19 @@ struct PendingPixels {
     vq: [f32; BATCH],
 }
 
+impl PendingPixels {
+    /// Queues pixel (`x`, `y`) at `depth_m` with its plane values `e` (1/w, u/w, v/w); true
+    /// when the batch is full.
+    #[inline(always)]
+    fn push(&mut self, x: usize, y: usize, depth_m: f32, e: Vec4) -> bool {
+        let i = self.n;
+        (self.x[i], self.y[i], self.depth_m[i]) = (x as u32, y as u32, depth_m);
+        (self.q[i], self.uq[i], self.vq[i]) = (e.x, e.y, e.z);
+        self.n += 1;
+        self.n == BATCH
+    }
+}
+
 /// A bound on `q * farthest` (rounded) at or below which `1 / q` rounds to at least
 /// `farthest`, so the fragment at `1 / q` metres is hidden without dividing. With unit roundoff
 /// u = 2^-24, rounded products and quotients are within a factor (1 ± u) of the exact ones: a
@@ -498,11 +511,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 if depth_m >= farthest {
                     continue;
                 }
-                let i = p.n;
-                (p.x[i], p.y[i], p.depth_m[i]) = (xx as u32, y as u32, depth_m);
-                (p.q[i], p.uq[i], p.vq[i]) = (e.x, e.y, e.z);
-                p.n += 1;
-                if p.n == BATCH {
+                if p.push(xx, y, depth_m, e) {
                     x = xx + 1;
                     full = true;
                     break;
@@ -519,13 +528,8 @@ pub(crate) fn raster_triangle<T: TileSink>(
             if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
                 continue;
             }
-            let p = &mut *pending;
-            let i = p.n;
-            (p.x[i], p.y[i], p.depth_m[i]) = (x as u32, y as u32, depth_m);
-            (p.q[i], p.uq[i], p.vq[i]) = (e.x, e.y, e.z);
-            p.n += 1;
-            if p.n == BATCH {
-                shade_and_emit(p, tile);
+            if pending.push(x, y, depth_m, e) {
+                shade_and_emit(pending, tile);
             }
         }
     });
@@ -582,13 +586,8 @@ mod tests {
 
     #[test]
     fn double_division_is_integer_floor_division() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = crate::random::SplitMix64::new(0x9e37_79b9);
+        let mut next = move || rng.next_u64();
         for i in 0..200_000 {
             // Magnitudes up to 2^50, exact multiples and their neighbours.
             let b = (next() >> (14 + i % 50)).max(1) as i64;

@@ -306,13 +306,8 @@ mod tests {
 
     #[test]
     fn hoisted_uv_transform_matches_uv_transform_apply_bit_for_bit() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32 * 8.0 - 4.0
-        };
+        let mut rng = crate::random::SplitMix64::new(0x2545_f491);
+        let mut next = move || rng.range(-4.0, 4.0);
         for _ in 0..1000 {
             let t = UvTransform {
                 offset: Vec2::new(next(), next()),

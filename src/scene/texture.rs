@@ -1056,13 +1056,8 @@ mod tests {
 
     #[test]
     fn batch_sampling_matches_single_lookups_bit_for_bit() {
-        let mut state = 0x3c6e_f372_fe94_f82bu64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rng = crate::random::SplitMix64::new(0x3c6e_f372);
+        let mut next = move || rng.range(0.0, 1.0);
         let mut batches = 0;
         // Power-of-two and other sizes, so every sampler meets both the batch and the
         // per-lookup path.

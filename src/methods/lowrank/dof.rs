@@ -546,27 +546,23 @@ fn finish<const CH: usize>(
     out: &[[f32; CH]],
 ) -> ColorImage {
     let (w, h) = (color.width(), color.height());
-    let mut image = ColorImage::new(w, h, [0.0; 4]);
-    if w == 0 || out.len() != w * h || inter.keys.len() != w * h {
-        return image;
+    if out.len() != w * h || inter.keys.len() != w * h {
+        return ColorImage::new(w, h, [0.0; 4]);
     }
-    image
-        .pixels_mut()
-        .par_chunks_mut(w)
-        .zip(out.par_chunks(w))
-        .enumerate()
-        .for_each(|(y, (row, filtered))| {
-            let keys = &inter.keys[y * w..(y + 1) * w];
-            for (x, ((o, f), &key)) in row.iter_mut().zip(filtered).zip(keys).enumerate() {
-                *o = if bank.half_of(key) == 0 {
-                    color.get(x, y)
-                } else {
-                    let c = |k: usize| if k < CH { f[k].max(0.0) } else { 1.0 };
-                    [c(0), c(1), c(2), c(3)]
-                };
+    let pixels: Vec<Rgba> = out
+        .par_iter()
+        .zip(&inter.keys)
+        .zip(color.pixels())
+        .map(|((f, &key), &c)| {
+            if bank.half_of(key) == 0 {
+                c
+            } else {
+                let v = |k: usize| if k < CH { f[k].max(0.0) } else { 1.0 };
+                [v(0), v(1), v(2), v(3)]
             }
-        });
-    image
+        })
+        .collect();
+    ColorImage::from_vec(w, h, pixels).expect("sizes agree by construction")
 }
 
 /// Taps of `base` scaled to `radius_px`, by summing the overlap of each base cell with each

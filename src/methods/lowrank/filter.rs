@@ -330,16 +330,8 @@ pub fn filter_separable_channels(
 
 /// The RGBA image of colours `rgb` with alpha `alpha` everywhere.
 pub(crate) fn with_alpha(w: usize, h: usize, rgb: &[[f32; 3]], alpha: f32) -> ColorImage {
-    let mut out = ColorImage::new(w, h, [0.0; 4]);
-    out.pixels_mut()
-        .par_chunks_mut(4096)
-        .zip(rgb.par_chunks(4096))
-        .for_each(|(o, c)| {
-            for (o, c) in o.iter_mut().zip(c) {
-                *o = [c[0], c[1], c[2], alpha];
-            }
-        });
-    out
+    let pixels: Vec<Rgba> = rgb.par_iter().map(|c| [c[0], c[1], c[2], alpha]).collect();
+    ColorImage::from_vec(w, h, pixels).expect("sizes agree by construction")
 }
 
 /// Convolves `img` with `kernel` (any size), the 2D filter that [`filter_separable`]
