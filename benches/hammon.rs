@@ -1,5 +1,7 @@
 //! `hammon` benchmarks on a procedural 1280x720 frame. Ids: `hammon/<pass>/<w>x<h>` for each
-//! pass of `methods/hammon` (inputs from the earlier passes, computed once), `hammon/total/<w>x<h>`
+//! pass of `methods/hammon` (inputs from the earlier passes, computed once; `downsample` and
+//! `composite` compute the blur amounts from depth as `hammon::render` does, and `coc` is the
+//! full-resolution CoC image alone, which the render no longer writes), `hammon/total/<w>x<h>`
 //! for the whole method, and `memory_floor/<w>x<h>`: read colour and depth once and write one
 //! colour image, rows in parallel as the passes are: the least any method reading these inputs
 //! can cost. Report `hammon/total` over `memory_floor`.
@@ -87,8 +89,8 @@ fn hammon_passes(c: &mut Criterion) {
     let lens = lens();
     let settings = HammonSettings::default();
     let k = Constants::new(&settings, &lens, W, H).expect("valid settings");
-    let s = coc::coc(&depth, &k).expect("valid depth");
-    let shrunk = downsample::downsample(&color, &s).expect("sizes");
+    let amounts = coc::Amounts::Depth(&depth, &k);
+    let shrunk = downsample::downsample(&color, amounts).expect("sizes");
     let blurred = blur::blur(&shrunk, k.kernel()).expect("kernel");
     let medium = near_coc::near_coc(&shrunk, &blurred).expect("sizes");
 
@@ -97,8 +99,12 @@ fn hammon_passes(c: &mut Criterion) {
     group.bench_function(format!("coc/{size}"), |b| {
         b.iter(|| coc::coc(&depth, &k).expect("valid depth"))
     });
-    group.bench_function(format!("downsample/{size}"), |b| {
+    let s = coc::coc(&depth, &k).expect("valid depth");
+    group.bench_function(format!("downsample_from_coc/{size}"), |b| {
         b.iter(|| downsample::downsample(&color, &s).expect("sizes"))
+    });
+    group.bench_function(format!("downsample/{size}"), |b| {
+        b.iter(|| downsample::downsample(&color, amounts).expect("sizes"))
     });
     group.bench_function(format!("blur/{size}"), |b| {
         b.iter(|| blur::blur(&shrunk, k.kernel()).expect("kernel"))
@@ -107,7 +113,7 @@ fn hammon_passes(c: &mut Criterion) {
         b.iter(|| near_coc::near_coc(&shrunk, &blurred).expect("sizes"))
     });
     group.bench_function(format!("composite/{size}"), |b| {
-        b.iter(|| composite::composite(&color, &s, &medium, &blurred, &k).expect("sizes"))
+        b.iter(|| composite::composite(&color, amounts, &medium, &blurred, &k).expect("sizes"))
     });
     group.bench_function(format!("total/{size}"), |b| {
         b.iter(|| hammon::render(&color, &depth, &lens, &settings).expect("render"))

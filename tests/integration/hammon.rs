@@ -429,6 +429,99 @@ fn downsample_agrees_with_its_naive_twin() {
     }
 }
 
+/// Seeded view-axis depths in metres around a 1 m focus: near (0.2 m) to far (50 m), a tenth
+/// of them sky (+inf).
+fn seeded_depth(w: usize, h: usize, seed: u64) -> GrayImage {
+    let mut rng = Lcg::new(seed);
+    let px = (0..w * h)
+        .map(|_| {
+            if rng.next() < 0.1 {
+                f32::INFINITY
+            } else {
+                0.2 * 250f32.powf(rng.next())
+            }
+        })
+        .collect();
+    GrayImage::from_vec(w, h, px).unwrap()
+}
+
+/// The render computes the blur amounts from depth inside `downsample` and `composite`
+/// (`coc::Amounts::Depth`); both must give the same bits as from the image of pass `coc`,
+/// for the thin-lens and the artist curves, dispatched and baseline builds.
+#[test]
+fn amounts_from_depth_match_the_coc_image_bit_for_bit() {
+    let artist = HammonSettings {
+        coc: CocMode::Artist {
+            near_start_m: 0.3,
+            near_end_m: 0.8,
+            far_start_m: 1.5,
+            far_end_m: 20.0,
+        },
+        ..Default::default()
+    };
+    for (i, &(w, h)) in TWIN_SIZES.iter().enumerate() {
+        let color = seeded_color(w, h, 100 + i as u64);
+        let depth = seeded_depth(w, h, 110 + i as u64);
+        for settings in [HammonSettings::default(), artist] {
+            let k = Constants::new(&settings, &lens(w, h, 1.0, 1.4), w, h).unwrap();
+            let s = coc::coc(&depth, &k).unwrap();
+            let from_depth = coc::Amounts::Depth(&depth, &k);
+            let shrunk = downsample::downsample(&color, &s).unwrap();
+            assert_eq!(downsample::downsample(&color, from_depth).unwrap(), shrunk);
+            assert_eq!(
+                downsample::downsample_baseline(&color, from_depth).unwrap(),
+                shrunk
+            );
+            let large = blur::blur(&shrunk, k.kernel()).unwrap();
+            let medium = near_coc::near_coc(&shrunk, &large).unwrap();
+            let out = composite::composite(&color, &s, &medium, &large, &k).unwrap();
+            assert_eq!(
+                composite::composite(&color, from_depth, &medium, &large, &k).unwrap(),
+                out,
+                "{w}x{h}"
+            );
+            assert_eq!(
+                composite::composite_baseline(&color, from_depth, &medium, &large, &k).unwrap(),
+                out,
+                "{w}x{h}"
+            );
+        }
+    }
+}
+
+/// Each pass that computes the blur amounts from depth rejects bad depth as pass `coc` does,
+/// naming the first bad pixel.
+#[test]
+fn passes_reading_depth_reject_bad_depth_naming_the_pixel() {
+    let (w, h) = (13, 9);
+    let color = seeded_color(w, h, 5);
+    let k = Constants::new(&HammonSettings::default(), &lens(w, h, 1.0, 2.0), w, h).unwrap();
+    let mut depth = GrayImage::new(w, h, 1.0);
+    *depth.get_mut(6, 8) = f32::NAN;
+    *depth.get_mut(2, 7) = -3.0;
+    let quarter = seeded_quarter(w.div_ceil(4), h.div_ceil(4), 3);
+    let from_depth = coc::Amounts::Depth(&depth, &k);
+    for err in [
+        coc::coc(&depth, &k).unwrap_err(),
+        downsample::downsample(&color, from_depth).unwrap_err(),
+        composite::composite(&color, from_depth, &quarter, &quarter, &k).unwrap_err(),
+    ] {
+        let msg = err.to_string();
+        assert!(
+            matches!(err, Error::Invalid { name: "depth", .. }) && msg.contains("(2, 7)"),
+            "{msg}"
+        );
+    }
+    // Depth of another size than the constants is a mismatch, not a panic.
+    let small = GrayImage::new(w - 1, h, 1.0);
+    let err = downsample::downsample(
+        &ColorImage::new(w - 1, h, [0.5; 4]),
+        coc::Amounts::Depth(&small, &k),
+    )
+    .unwrap_err();
+    assert!(matches!(err, Error::Mismatch(_)), "{err}");
+}
+
 /// A seeded quarter-res image: colour and near blur in [0, 1].
 fn seeded_quarter(w: usize, h: usize, seed: u64) -> QuarterImage {
     QuarterImage {
@@ -687,7 +780,6 @@ fn passes_are_timed_under_their_pass_names() {
     assert_eq!(
         names,
         [
-            "hammon/coc",
             "hammon/downsample",
             "hammon/blur",
             "hammon/near_coc",

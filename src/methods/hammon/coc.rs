@@ -46,6 +46,13 @@ fn fill_row(
     "aarch64+neon"
 ))]
 fn row(out: &mut [f32], depth: &[f32], k: &Constants) -> bool {
+    row_inner(out, depth, k)
+}
+
+/// [`row`] inlined into the caller (for passes that are themselves compiled per instruction
+/// set).
+#[inline(always)]
+pub(crate) fn row_inner(out: &mut [f32], depth: &[f32], k: &Constants) -> bool {
     match k.curve {
         Curve::Physical {
             lens,
@@ -84,20 +91,106 @@ pub fn coc(depth: &GrayImage, k: &Constants) -> Result<GrayImage> {
         .zip(depth.pixels().par_chunks(w))
         .map(|(o, d)| row(o, d, k))
         .collect();
-    if let Some(y) = bad_rows.iter().position(|&b| b) {
-        let row = depth.row(y);
-        let x = row
-            .iter()
-            .position(|&z| z.is_nan() || z <= 0.0)
-            .unwrap_or(0);
-        return Err(Error::invalid(
-            "depth",
-            format!(
-                "pixel ({x}, {y}) has depth {} m: expected a view-axis distance in metres \
-                 greater than 0 (+inf for sky)",
-                row[x]
-            ),
-        ));
+    if bad_rows.contains(&true) {
+        return Err(invalid_depth(depth));
     }
     GrayImage::from_vec(w, h, out)
+}
+
+/// The error for the first pixel of `depth` (in row order) whose depth is NaN, zero or
+/// negative (pixel (0, 0) if there is none).
+pub(crate) fn invalid_depth(depth: &GrayImage) -> Error {
+    let w = depth.width();
+    let i = depth
+        .pixels()
+        .iter()
+        .position(|&z| z.is_nan() || z <= 0.0)
+        .unwrap_or(0);
+    let (x, y) = (i % w, i / w);
+    Error::invalid(
+        "depth",
+        format!(
+            "pixel ({x}, {y}) has depth {} m: expected a view-axis distance in metres \
+             greater than 0 (+inf for sky)",
+            depth.pixels()[i]
+        ),
+    )
+}
+
+/// Where a pass reads the signed blur amounts `s`.
+#[derive(Clone, Copy, Debug)]
+pub enum Amounts<'a> {
+    /// Computed beforehand by [`coc`].
+    Signed(&'a GrayImage),
+    /// Computed from view-axis depth row by row as the pass reads them, as the chapter's
+    /// downsample and final shaders do: no full-resolution image of `s` is written or read
+    /// back. The depth is validated as [`coc`] does.
+    Depth(&'a GrayImage, &'a Constants),
+}
+
+impl<'a> From<&'a GrayImage> for Amounts<'a> {
+    fn from(s: &'a GrayImage) -> Self {
+        Amounts::Signed(s)
+    }
+}
+
+impl Amounts<'_> {
+    /// Width and height of the image the amounts come from.
+    pub fn size(&self) -> (usize, usize) {
+        let (Amounts::Signed(image) | Amounts::Depth(image, _)) = self;
+        (image.width(), image.height())
+    }
+
+    /// Fails unless the amounts are `width` x `height` (and, from depth, the constants are for
+    /// that size too).
+    pub(crate) fn check_size(&self, what: &str, width: usize, height: usize) -> Result<()> {
+        let (w, h) = self.size();
+        let k_size = match self {
+            Amounts::Signed(_) => None,
+            Amounts::Depth(_, k) => Some((k.width(), k.height())),
+        };
+        let source = match self {
+            Amounts::Signed(_) => "CoC image",
+            Amounts::Depth(..) => "depth",
+        };
+        if (w, h) != (width, height) {
+            return Err(Error::Mismatch(format!(
+                "{what} is {width}x{height} but the {source} is {w}x{h}"
+            )));
+        }
+        if let Some((kw, kh)) = k_size.filter(|&s| s != (w, h)) {
+            return Err(Error::Mismatch(format!(
+                "depth is {w}x{h} but the constants are for {kw}x{kh}"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Rows `y0..y1` of `s`, contiguous: a slice of the image, or computed from depth into
+    /// `scratch`. The flag is true if some depth among them is not > 0 (or NaN).
+    #[inline(always)]
+    pub(crate) fn rows<'b>(
+        &'b self,
+        y0: usize,
+        y1: usize,
+        scratch: &'b mut [f32],
+    ) -> (&'b [f32], bool) {
+        let (Amounts::Signed(image) | Amounts::Depth(image, _)) = self;
+        let w = image.width();
+        let range = w * y0..w * y1;
+        match self {
+            Amounts::Signed(s) => (&s.pixels()[range], false),
+            Amounts::Depth(depth, k) => {
+                let out = &mut scratch[..range.len()];
+                let bad = row_inner(out, &depth.pixels()[range], k);
+                (out, bad)
+            }
+        }
+    }
+
+    /// The error for a pass that found bad depth (see [`Self::rows`]).
+    pub(crate) fn error(&self) -> Error {
+        let (Amounts::Signed(image) | Amounts::Depth(image, _)) = self;
+        invalid_depth(image)
+    }
 }

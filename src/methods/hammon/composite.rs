@@ -1,7 +1,8 @@
 //! Pass `composite` (section 28.5.2, Listing 28-4 `ApplyDepthOfField`): the variable-width blur
 //! as a piecewise-linear blend of four blur levels.
 //!
-//! Reads the full-resolution colour and signed blur amounts `s` (pass `coc`), the medium image
+//! Reads the full-resolution colour and signed blur amounts `s` (computed from depth row by
+//! row in the render, as the listing's `dofEqFar` does, or from an image of them), the medium image
 //! (pass `near_coc`: colour and near CoC) and the large image (pass `blur`); writes the output.
 //! Per pixel:
 //! 1. near = the medium image's CoC, sampled bilinearly; far = `max(s, 0)` (already multiplied
@@ -32,6 +33,7 @@
 
 use rayon::prelude::*;
 
+use super::coc::Amounts;
 use super::{quarter_size, saturate, Constants, LerpDistances, QuarterImage};
 use crate::image::{ColorImage, GrayImage, Rgba};
 use crate::{Error, Result};
@@ -39,23 +41,20 @@ use crate::{Error, Result};
 /// Fails unless the inputs have the sizes of the frame of `k` and of its quarter-res images.
 fn check_sizes(
     color: &ColorImage,
-    coc: &GrayImage,
+    amounts: &Amounts,
     medium: &QuarterImage,
     large: &QuarterImage,
     k: &Constants,
 ) -> Result<()> {
     let (w, h) = (k.width(), k.height());
-    for (what, size) in [
-        ("colour image", (color.width(), color.height())),
-        ("CoC image", (coc.width(), coc.height())),
-    ] {
-        if size != (w, h) {
-            return Err(Error::Mismatch(format!(
-                "{what} is {}x{} but the constants are for {w}x{h}",
-                size.0, size.1
-            )));
-        }
+    if (color.width(), color.height()) != (w, h) {
+        return Err(Error::Mismatch(format!(
+            "colour image is {}x{} but the constants are for {w}x{h}",
+            color.width(),
+            color.height()
+        )));
     }
+    amounts.check_size("colour image", w, h)?;
     let (qw, qh) = quarter_size(w, h);
     for (what, q) in [("medium image", medium), ("large image", large)] {
         q.check()?;
@@ -124,40 +123,38 @@ impl Segments {
     }
 }
 
-/// `acc += w p` per channel.
+/// `a + b` per lane.
 #[inline(always)]
-fn add_scaled(acc: &mut Rgba, w: f32, p: Rgba) {
-    for (a, v) in acc.iter_mut().zip(p) {
-        *a += w * v;
+fn add<const N: usize>(a: [f32; N], b: [f32; N]) -> [f32; N] {
+    let mut out = a;
+    for (o, v) in out.iter_mut().zip(b) {
+        *o += v;
     }
+    out
+}
+
+/// The mean of the 17 pixels of fig. 28-5, `at(r, d)` giving the pixel(s) at row `y + r - 2`,
+/// column `x + d` (one pixel for N = 4, four for N = 16). Per row `r` (y down), the columns
+/// are `d` in {0, 1}, {-2..=1}, {-2..=2}, {-1..=2}, {-1, 0}. Summed as a tree (pairs within a
+/// row, then rows), so no add waits on more than five before it.
+#[inline(always)]
+fn small_sum<const N: usize>(at: impl Fn(usize, isize) -> [f32; N]) -> [f32; N] {
+    let r0 = add(at(0, 0), at(0, 1));
+    let r1 = add(add(at(1, -2), at(1, -1)), add(at(1, 0), at(1, 1)));
+    let r2 = add(
+        add(add(at(2, -2), at(2, -1)), add(at(2, 0), at(2, 1))),
+        at(2, 2),
+    );
+    let r3 = add(add(at(3, -1), at(3, 0)), add(at(3, 1), at(3, 2)));
+    let r4 = add(at(4, -1), at(4, 0));
+    add(add(add(r0, r1), add(r2, r3)), r4).map(|v| v * (1.0 / 17.0))
 }
 
 /// The 17-pixel small blur of fig. 28-5 at column `x`, from rows `y - 2..=y + 2` (clamped).
 #[inline(always)]
 fn small_blur(rows: &[&[Rgba]; 5], x: usize) -> Rgba {
     let last = rows[0].len() - 1;
-    let (xm2, xm1) = (x.saturating_sub(2), x.saturating_sub(1));
-    let (xp1, xp2) = ((x + 1).min(last), (x + 2).min(last));
-    let mut sum = [0.0f32; 4];
-    let mut add = |p: Rgba| add_scaled(&mut sum, 1.0, p);
-    add(rows[0][x]);
-    add(rows[0][xp1]);
-    add(rows[1][xm2]);
-    add(rows[1][xm1]);
-    add(rows[1][x]);
-    add(rows[1][xp1]);
-    add(rows[2][xm2]);
-    add(rows[2][xm1]);
-    add(rows[2][x]);
-    add(rows[2][xp1]);
-    add(rows[2][xp2]);
-    add(rows[3][xm1]);
-    add(rows[3][x]);
-    add(rows[3][xp1]);
-    add(rows[3][xp2]);
-    add(rows[4][xm1]);
-    add(rows[4][x]);
-    sum.map(|v| v * (1.0 / 17.0))
+    small_sum(|r, d| rows[r][x.saturating_add_signed(d).min(last)])
 }
 
 /// Horizontal bilinear upsampling by 4 in groups: output pixel `4q + j` lies between texels
@@ -168,83 +165,102 @@ const UPSAMPLE_LEFT: [usize; 4] = [0, 0, 1, 1];
 /// See [`UPSAMPLE_LEFT`].
 const UPSAMPLE_FRACTION: [f32; 4] = [0.625, 0.875, 0.125, 0.375];
 
-/// Fills `padded` (length `n + 2`) with `lerp(a, b, f)` and one copy of the first and last
-/// values at the ends (clamp to edge).
+/// Fills `padded` (`n + 2` texels of `CH` floats) with `a + f (b - a)` and one copy of the
+/// first and last texels at the ends (clamp to edge). Over flat floats, so it vectorises.
 #[inline(always)]
-fn pad_lerp<T: Copy>(padded: &mut [T], a: &[T], b: &[T], lerp: impl Fn(T, T) -> T) {
+fn pad_lerp<const CH: usize>(padded: &mut [f32], a: &[f32], b: &[f32], f: f32) {
     let n = a.len();
-    for ((p, &a), &b) in padded[1..=n].iter_mut().zip(a).zip(b) {
-        *p = lerp(a, b);
+    for ((p, &a), &b) in padded[CH..CH + n].iter_mut().zip(a).zip(b) {
+        *p = a + f * (b - a);
     }
-    padded[0] = padded[1];
-    padded[n + 1] = padded[n];
+    padded.copy_within(CH..2 * CH, 0);
+    padded.copy_within(n..n + CH, n + CH);
 }
 
 /// Blends unblurred, small, medium and large blur per pixel by the blur amount (Listing 28-4).
-pub fn composite(
+/// The amounts are an image of `s` (pass [`super::coc`]) or computed here from depth
+/// ([`Amounts::Depth`]), which fails as [`super::coc::coc`] does on bad depth.
+pub fn composite<'a>(
     color: &ColorImage,
-    coc: &GrayImage,
+    amounts: impl Into<Amounts<'a>>,
     medium: &QuarterImage,
     large: &QuarterImage,
     k: &Constants,
 ) -> Result<ColorImage> {
-    composite_with(color, coc, medium, large, k, composite_row)
+    composite_with(color, amounts.into(), medium, large, k, composite_row)
 }
 
 /// [`composite`] built for the portable baseline only (no run-time dispatch): the twin the
 /// dispatched versions are tested against, bit for bit.
-pub fn composite_baseline(
+pub fn composite_baseline<'a>(
     color: &ColorImage,
-    coc: &GrayImage,
+    amounts: impl Into<Amounts<'a>>,
     medium: &QuarterImage,
     large: &QuarterImage,
     k: &Constants,
 ) -> Result<ColorImage> {
-    composite_with(color, coc, medium, large, k, composite_row_inner::<true>)
+    composite_with(
+        color,
+        amounts.into(),
+        medium,
+        large,
+        k,
+        composite_row_inner::<true>,
+    )
 }
 
 /// The inputs every row of [`composite`] reads.
 struct RowInputs<'a> {
     color: &'a ColorImage,
-    coc: &'a GrayImage,
+    amounts: Amounts<'a>,
     medium: &'a QuarterImage,
     large: &'a QuarterImage,
     seg: Segments,
 }
 
 /// Per-thread scratch rows: the quarter-res rows interpolated vertically at the output row,
-/// padded (medium colour, medium near CoC, large colour).
-type RowScratch = (Vec<Rgba>, Vec<f32>, Vec<Rgba>);
+/// padded (medium colour, medium near CoC, large colour), the row's amounts `s` when they are
+/// computed from depth, and its blend amounts `t`.
+type RowScratch = (Vec<Rgba>, Vec<f32>, Vec<Rgba>, Vec<f32>, Vec<f32>);
 
 fn composite_with(
     color: &ColorImage,
-    coc: &GrayImage,
+    amounts: Amounts,
     medium: &QuarterImage,
     large: &QuarterImage,
     k: &Constants,
-    row_fn: impl Fn(&RowInputs, &mut RowScratch, usize, &mut [Rgba]) + Sync,
+    row_fn: impl Fn(&RowInputs, &mut RowScratch, usize, &mut [Rgba]) -> bool + Sync,
 ) -> Result<ColorImage> {
-    check_sizes(color, coc, medium, large, k)?;
+    check_sizes(color, &amounts, medium, large, k)?;
     let (w, h) = (color.width(), color.height());
     let qw = medium.width();
     let inputs = RowInputs {
         color,
-        coc,
+        amounts,
         medium,
         large,
         seg: Segments::new(k.lerp_distances()),
     };
     let mut out = vec![[0.0f32; 4]; w * h];
-    out.par_chunks_mut(w).enumerate().for_each_init(
-        || {
-            (
-                vec![[0.0f32; 4]; qw + 2],
-                vec![0.0f32; qw + 2],
-                vec![[0.0f32; 4]; qw + 2],
-            )
-        },
-        |scratch, (y, out_row)| row_fn(&inputs, scratch, y, out_row),
-    );
+    let bad = out
+        .par_chunks_mut(w)
+        .enumerate()
+        .map_init(
+            || {
+                (
+                    vec![[0.0f32; 4]; qw + 2],
+                    vec![0.0f32; qw + 2],
+                    vec![[0.0f32; 4]; qw + 2],
+                    vec![0.0f32; w],
+                    vec![0.0f32; w],
+                )
+            },
+            |scratch, (y, out_row)| row_fn(&inputs, scratch, y, out_row),
+        )
+        .reduce(|| false, |a, b| a | b);
+    if bad {
+        return Err(amounts.error());
+    }
     ColorImage::from_vec(w, h, out)
 }
 
@@ -256,8 +272,13 @@ fn composite_with(
     "x86_64+avx2",
     "aarch64+neon"
 ))]
-fn composite_row(inputs: &RowInputs, scratch: &mut RowScratch, y: usize, out_row: &mut [Rgba]) {
-    composite_row_inner::<true>(inputs, scratch, y, out_row);
+fn composite_row(
+    inputs: &RowInputs,
+    scratch: &mut RowScratch,
+    y: usize,
+    out_row: &mut [Rgba],
+) -> bool {
+    composite_row_inner::<true>(inputs, scratch, y, out_row)
 }
 
 #[inline(always)]
@@ -266,37 +287,47 @@ fn composite_row_inner<const GROUPED: bool>(
     scratch: &mut RowScratch,
     y: usize,
     out_row: &mut [Rgba],
-) {
+) -> bool {
     let RowInputs {
         color,
-        coc,
+        ref amounts,
         medium,
         large,
         seg,
     } = *inputs;
-    let (med_c, med_k, large_c) = scratch;
+    let (med_c, med_k, large_c, s_scratch, t) = scratch;
+    let (s, bad) = amounts.rows(y, y + 1, s_scratch);
     let (h, qh) = (color.height(), medium.height());
     // The quarter-res rows interpolated vertically at this row, padded.
     let (y0, y1, fy) = quarter_tap(y, qh);
-    let lerp1 = |a: f32, b: f32| a + fy * (b - a);
-    let lerp = |a: Rgba, b: Rgba| lerp4(a, b, fy);
-    pad_lerp(med_k, medium.coc.row(y0), medium.coc.row(y1), lerp1);
-    // A row with no near blur (every interpolated near CoC, hence every bilinear one, at most
-    // 0) and no far blur is in focus throughout: every pixel would be copied.
-    let no_blur = |v: &f32| v.is_nan() || *v <= 0.0;
-    if med_k.iter().all(no_blur) && coc.row(y).iter().all(no_blur) {
+    pad_lerp::<1>(med_k, medium.coc.row(y0), medium.coc.row(y1), fy);
+    blend_amounts(t, s, med_k);
+    // A row in focus throughout: every pixel is copied.
+    if t.iter().all(|v| v.is_nan() || *v <= 0.0) {
         out_row.copy_from_slice(color.row(y));
-        return;
+        return bad;
     }
-    pad_lerp(med_c, medium.color.row(y0), medium.color.row(y1), lerp);
-    pad_lerp(large_c, large.color.row(y0), large.color.row(y1), lerp);
+    fn flat(img: &ColorImage, y: usize) -> &[f32] {
+        img.row(y).as_flattened()
+    }
+    pad_lerp::<4>(
+        med_c.as_flattened_mut(),
+        flat(&medium.color, y0),
+        flat(&medium.color, y1),
+        fy,
+    );
+    pad_lerp::<4>(
+        large_c.as_flattened_mut(),
+        flat(&large.color, y0),
+        flat(&large.color, y1),
+        fy,
+    );
     let rows = [-2isize, -1, 0, 1, 2]
         .map(|dy| color.row((y as isize + dy).clamp(0, h as isize - 1) as usize));
     let row = RowRefs {
         rows,
-        s: coc.row(y),
+        t,
         med_c,
-        med_k,
         large_c,
         seg,
     };
@@ -313,36 +344,50 @@ fn composite_row_inner<const GROUPED: bool>(
             }
         }
     }
+    bad
 }
 
-/// One row's inputs: the five colour rows around it, its blur amounts, and the padded
+/// The blend amounts `t = max(near, s)` of a row, with the near CoC upsampled bilinearly from
+/// the padded, vertically interpolated row `med_k` (pixel `4q + j` between padded texels
+/// `q + UPSAMPLE_LEFT[j]` and the next).
+#[inline(always)]
+fn blend_amounts(t: &mut [f32], s: &[f32], med_k: &[f32]) {
+    let near = |mk: &[f32], j: usize| {
+        let (l, f) = (UPSAMPLE_LEFT[j], UPSAMPLE_FRACTION[j]);
+        mk[l] + f * (mk[l + 1] - mk[l])
+    };
+    let mut groups = t.chunks_exact_mut(4).zip(s.chunks_exact(4));
+    let mut q = 0;
+    for (t4, s4) in &mut groups {
+        let mk: &[f32; 3] = med_k[q..q + 3].try_into().expect("three padded texels");
+        for j in 0..4 {
+            t4[j] = max(near(mk, j), s4[j]);
+        }
+        q += 1;
+    }
+    let rest = s.len() / 4 * 4;
+    for (j, (t, &s)) in t[rest..].iter_mut().zip(&s[rest..]).enumerate() {
+        *t = max(near(&med_k[q..q + 3], j), s);
+    }
+}
+
+/// One row's inputs: the five colour rows around it, its blend amounts, and the padded
 /// quarter-res rows interpolated vertically at it.
 struct RowRefs<'a> {
     rows: [&'a [Rgba]; 5],
-    s: &'a [f32],
+    t: &'a [f32],
     med_c: &'a [Rgba],
-    med_k: &'a [f32],
     large_c: &'a [Rgba],
     seg: Segments,
 }
 
 impl RowRefs<'_> {
-    /// The blend amount `t = max(near, s)` of pixel `4q + j`, with the near CoC upsampled
-    /// bilinearly.
-    #[inline(always)]
-    fn amount(&self, q: usize, j: usize) -> f32 {
-        let mk = &self.med_k[q..q + 3];
-        let (l, f) = (UPSAMPLE_LEFT[j], UPSAMPLE_FRACTION[j]);
-        let near = mk[l] + f * (mk[l + 1] - mk[l]);
-        max(near, self.s[4 * q + j])
-    }
-
     /// Output pixel `4q + j`: the two levels of the segment of `t` blended, reading only those.
     #[inline(always)]
     fn pixel(&self, q: usize, j: usize) -> Rgba {
         let x = 4 * q + j;
         let unblurred = self.rows[2][x];
-        let t = self.amount(q, j);
+        let t = self.t[x];
         if t.is_nan() || t <= 0.0 {
             return unblurred;
         }
@@ -372,15 +417,22 @@ impl RowRefs<'_> {
     fn group(&self, q: usize, out: &mut [Rgba; 4]) {
         let x = 4 * q;
         let unblurred: &[Rgba; 4] = self.rows[2][x..x + 4].try_into().expect("a whole group");
-        let t4: [f32; 4] = std::array::from_fn(|j| self.amount(q, j));
+        let t4: &[f32; 4] = self.t[x..x + 4].try_into().expect("a whole group");
         if t4.iter().all(|t| t.is_nan() || *t <= 0.0) {
             *out = *unblurred;
             return;
         }
         let u: [f32; 16] = lanes(unblurred);
-        let small = small_blur16(&self.rows, x);
-        let (med, big) = (upsample16(self.med_c, q), upsample16(self.large_c, q));
         let seg = self.seg;
+        // Beyond `d0 + d1` only medium and large have weight: where the whole group is there
+        // (the near field, the far distance), the 17 loads of the small blur are skipped and
+        // its lanes, never selected, hold the unblurred colour.
+        let small = if t4.iter().any(|&t| t < seg.d01) {
+            small_blur16(&self.rows, x)
+        } else {
+            u
+        };
+        let (med, big) = (upsample16(self.med_c, q), upsample16(self.large_c, q));
         let mut t = [0.0f32; 16];
         for (i, t) in t.iter_mut().enumerate() {
             *t = t4[i / 4];
@@ -442,35 +494,18 @@ fn upsample16(c: &[Rgba], q: usize) -> [f32; 16] {
 /// lie inside the rows): the same 17 pixels each, added in the same order.
 #[inline(always)]
 fn small_blur16(rows: &[&[Rgba]; 5], x: usize) -> [f32; 16] {
-    let at = |r: usize, start: usize| -> [f32; 16] {
-        let p: &[Rgba; 4] = rows[r][start..start + 4]
-            .try_into()
-            .expect("inside the row");
-        lanes(p)
-    };
-    let mut sum = at(0, x);
-    let mut add = |p: [f32; 16]| {
-        for (a, v) in sum.iter_mut().zip(p) {
-            *a += v;
-        }
-    };
-    add(at(0, x + 1));
-    add(at(1, x - 2));
-    add(at(1, x - 1));
-    add(at(1, x));
-    add(at(1, x + 1));
-    add(at(2, x - 2));
-    add(at(2, x - 1));
-    add(at(2, x));
-    add(at(2, x + 1));
-    add(at(2, x + 2));
-    add(at(3, x - 1));
-    add(at(3, x));
-    add(at(3, x + 1));
-    add(at(3, x + 2));
-    add(at(4, x - 1));
-    add(at(4, x));
-    sum.map(|v| v * (1.0 / 17.0))
+    // Columns x - 2 ..= x + 5 of each row: fixed windows, so the taps need no checks.
+    let window =
+        |r: usize| -> &[Rgba; 8] { rows[r][x - 2..x + 6].try_into().expect("inside the row") };
+    let win = [window(0), window(1), window(2), window(3), window(4)];
+    small_sum(|r, d| {
+        let start = (d + 2) as usize;
+        lanes(
+            win[r][start..start + 4]
+                .try_into()
+                .expect("inside the window"),
+        )
+    })
 }
 
 /// Bilinear sample of `img` at (`u`, `v`) in texel units (texel i covers [i, i + 1)), clamped
@@ -503,7 +538,7 @@ pub fn naive(
     large: &QuarterImage,
     k: &Constants,
 ) -> Result<ColorImage> {
-    check_sizes(color, coc, medium, large, k)?;
+    check_sizes(color, &Amounts::Signed(coc), medium, large, k)?;
     let (w, h) = (color.width(), color.height());
     let (scale, bias) = k.lerp_distances().scale_bias();
     let near_image = medium.coc.map(|v| [v]);
@@ -587,7 +622,7 @@ mod tests {
             let coc = GrayImage::from_vec(w, h, s).unwrap();
             let inputs = RowInputs {
                 color: &color,
-                coc: &coc,
+                amounts: Amounts::Signed(&coc),
                 medium: &medium,
                 large: &large,
                 seg,
@@ -596,6 +631,8 @@ mod tests {
                 vec![[0.0f32; 4]; qw + 2],
                 vec![0.0f32; qw + 2],
                 vec![[0.0f32; 4]; qw + 2],
+                vec![0.0f32; w],
+                vec![0.0f32; w],
             );
             for y in 0..h {
                 let mut grouped = vec![[0.0f32; 4]; w];

@@ -7,19 +7,22 @@
 //! RGBA) and its view-axis depth in metres. Everything runs on the CPU, rows in parallel.
 //!
 //! # Passes, in order (each timed as `hammon/<pass>`, one file each)
-//! 1. [`coc`] (section 28.5.3): reads depth; writes a full-resolution signed blur amount `s`
-//!    in [-1, 1]: `-near` in front of the in-focus range, `+far * far_to_near_ratio` behind it,
-//!    0 for sky (depth > `sky_depth_m`). 1 means "the large blur". Either the artist curve of
-//!    fig. 28-6 or the thin-lens CoC ([`crate::lens::ThinLens::coc_px`]), see [`CocMode`].
-//!    Also validates the depth (finite or +inf, > 0).
-//! 2. [`downsample`] (Listing 28-1): reads colour and `s`; writes a 1/4 x 1/4 image: the mean
+//! The signed blur amount `s` of a pixel, in [-1, 1], is `-near` in front of the in-focus
+//! range, `+far * far_to_near_ratio` behind it, 0 for sky (depth > `sky_depth_m`); 1 means
+//! "the large blur". It comes from either the artist curve of fig. 28-6 or the thin-lens CoC
+//! ([`crate::lens::ThinLens::coc_px`]), see [`CocMode`]. [`coc`] (section 28.5.3) holds its
+//! function and the depth validation (finite or +inf, > 0). As in the chapter's shaders, the
+//! two full-resolution passes compute it from depth row by row where they read it
+//! ([`coc::Amounts::Depth`]); [`coc::coc`] makes a whole image of it, which both passes also
+//! accept.
+//! 1. [`downsample`] (Listing 28-1): reads colour and depth; writes a 1/4 x 1/4 image: the mean
 //!    RGBA of each 4x4 block and the MAX near CoC of its 16 pixels ("shrunk").
-//! 3. [`blur`] (section 28.5.5): reads the shrunk image; writes its Gaussian blur, colour and
+//! 2. [`blur`] (section 28.5.5): reads the shrunk image; writes its Gaussian blur, colour and
 //!    near CoC together ("large blur" colour, and the blurred CoC `DB`).
-//! 4. [`near_coc`] (Listings 28-2, 28-3): reads shrunk and blurred; writes
+//! 3. [`near_coc`] (Listings 28-2, 28-3): reads shrunk and blurred; writes
 //!    `D = 2 max(DB, D0) - D0` (clamped to [0, 1]) with the shrunk colour, then its 3x3
 //!    [1 2 1]^2/16 blur: the "medium blur" colour with the final near CoC.
-//! 5. [`composite`] (Listing 28-4): reads colour, `s`, medium and large; writes the output.
+//! 4. [`composite`] (Listing 28-4): reads colour, depth, medium and large; writes the output.
 //!    Small blur = the 17 pixels of fig. 28-5 (four bilinear taps and the centre); medium and
 //!    large are sampled bilinearly; `t = max(near, far)`; colour = the piecewise-linear blend of
 //!    unblurred / small / medium / large by `t` with the weights of `dofLerpScale/Bias`.
@@ -46,9 +49,6 @@
 //! the blend in between is linear in |C|. The chapter leaves d0..d2 to the artist.
 //!
 //! # Where we differ from the chapter, and why
-//! - Depth to CoC is its own full-resolution pass instead of being recomputed in the downsample
-//!   and final shaders: it reads and writes 4 bytes per pixel (0.6 ms of the 5.9 ms total
-//!   below) and leaves one CoC function, one depth validation, and no depth in the final pass.
 //! - The weapon (view-model) curve of section 28.5.4, selected by negative depth, is omitted:
 //!   depth must be positive.
 //! - The large Gaussian is a truncated Gaussian (radius ceil(3σ) quarter-res texels, clamp to
@@ -559,12 +559,16 @@ pub fn render(
     }
     let constants = Constants::new(settings, lens, color.width(), color.height())?;
     let mut timings = Timings::default();
-    let s = timings.time("hammon/coc", || coc::coc(depth, &constants))?;
-    let shrunk = timings.time("hammon/downsample", || downsample::downsample(color, &s))?;
+    // The signed blur amounts are computed from depth where downsample and composite read
+    // them, as the chapter's shaders do: no full-resolution image of them is written.
+    let amounts = coc::Amounts::Depth(depth, &constants);
+    let shrunk = timings.time("hammon/downsample", || {
+        downsample::downsample(color, amounts)
+    })?;
     let blurred = timings.time("hammon/blur", || blur::blur(&shrunk, constants.kernel()))?;
     let medium = timings.time("hammon/near_coc", || near_coc::near_coc(&shrunk, &blurred))?;
     let image = timings.time("hammon/composite", || {
-        composite::composite(color, &s, &medium, &blurred, &constants)
+        composite::composite(color, amounts, &medium, &blurred, &constants)
     })?;
     Ok(MethodOutput {
         image,
