@@ -74,14 +74,16 @@
 //! # Cost
 //! Criterion medians at 1280x720 on the 2-core development machine (`benches/hammon.rs`, a
 //! procedural frame with sky, a receding far field, an in-focus band and a near disc; every row
-//! pass compiled for AVX-512, AVX2 and NEON and chosen at run time): `coc` 0.43 ms,
-//! `downsample` 0.59 ms, `blur` 0.54 ms, `near_coc` 0.20 ms, `composite` 2.2 ms, total 4.2 ms,
-//! against 1.43 ms for the memory floor (read colour + depth, write one colour image:
-//! `memory_floor/1280x720`), a ratio of 2.9. The passes read full-resolution data three times
-//! (depth; colour and `s`; colour and `s` again with the output write), so about 2.5 floors is
-//! the least this structure can cost. Computing the CoC inside `downsample` and `composite`
-//! instead (as the chapter's shaders do) saves 7 MB of traffic but computes it twice, and was
-//! slower (4.3 -> 4.7 ms). The chapter measured 1 - 1.5 ms at 1024x768 on a 2006 GPU.
+//! pass compiled for AVX-512, AVX2 and NEON and chosen at run time): `downsample` 0.70 ms
+//! (0.58 ms from a CoC image), `blur` 0.41 ms, `near_coc` 0.17 ms, `composite` 1.98 ms, total
+//! 3.19 ms, against 1.31-1.38 ms for the memory floor (read colour + depth, write one colour
+//! image: `memory_floor/1280x720`), a ratio of 2.3-2.4. The composite alone moves the floor's
+//! traffic, and the downsample reads colour and depth once more, so this structure costs at
+//! least 1.5 floors before any arithmetic. With a separate CoC pass writing a full-resolution
+//! image (as before), the total was 3.85 ms: computing the CoC a row at a time inside both
+//! passes saves that image's write and two reads. Computed pixel by pixel inside the old
+//! per-pixel loops it had been slower (4.3 -> 4.7 ms). The chapter measured 1 - 1.5 ms at
+//! 1024x768 on a 2006 GPU.
 //!
 //! Every output row depends only on inputs, never on another thread's work, so the output is
 //! bit-identical whatever the number of threads.
