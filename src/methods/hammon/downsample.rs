@@ -2,10 +2,11 @@
 //!
 //! Reads the full-resolution colour and the signed blur amounts `s`, either from depth (the
 //! render: computed row by row with [`super::coc`]'s function, as the listing does) or from an
-//! image of them; writes the "shrunk" quarter-resolution image: for each 4x4 block, the mean premultiplied RGBA of its
-//! pixels (the listing's four bilinear taps, each the mean of 2x2 pixels) and the MAX of their
-//! near blur amounts `max(-s, 0)` (the listing's 16 depth taps). Where the width or height is
-//! not a multiple of 4 the last block is partial and averages the pixels it has.
+//! image of them; writes the "shrunk" quarter-resolution image: for each 4x4 block, the mean
+//! premultiplied RGBA of its pixels (the listing's four bilinear taps, each the mean of 2x2
+//! pixels) and the MAX of their near blur amounts `max(-s, 0)` (the listing's 16 depth taps).
+//! Where the width or height is not a multiple of 4 the last block is partial and averages the
+//! pixels it has.
 
 use rayon::prelude::*;
 
@@ -41,10 +42,13 @@ pub fn downsample_baseline<'a>(
     downsample_with(color, amounts.into(), block_row_inner)
 }
 
+/// One quarter-res row of the downsample: [`block_row`] or its portable twin.
+type BlockRowFn = fn(&ColorImage, &Amounts, &mut [f32], usize, &mut [Rgba], &mut [f32]) -> bool;
+
 fn downsample_with(
     color: &ColorImage,
     amounts: Amounts,
-    row_fn: impl Fn(&ColorImage, &Amounts, &mut [f32], usize, &mut [Rgba], &mut [f32]) -> bool + Sync,
+    row_fn: BlockRowFn,
 ) -> Result<QuarterImage> {
     let (w, h) = (color.width(), color.height());
     crate::image::check_size(w, h)?;
