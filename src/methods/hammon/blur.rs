@@ -12,7 +12,7 @@
 //! `out[j] = sum_i w[i] in_i[j]` over contiguous `f32`s with blocks of outputs kept in
 //! registers across all taps, 8 registers wide for the instruction set chosen at run time. The
 //! horizontal filter is `lowrank`'s row filter ([`filter_span`]). The vertical one runs two
-//! adjacent rows at once ([`vertical_pair`]): they share all but one of their source rows, so
+//! adjacent rows at once (`vertical_pair`): they share all but one of their source rows, so
 //! each is loaded once for both. On the benchmark frame: 0.55 ms with one row at a time and
 //! blocks of two AVX-512 registers (each tap's add waited on the previous one), 0.45 ms with
 //! the shared filter's 128-float blocks, 0.37 ms in row pairs. The sums are the same in the
