@@ -6,7 +6,7 @@
 //! | id | module | input |
 //! |---|---|---|
 //! | `pinhole` | [`pinhole`] | scene (no blur; optional supersampling) |
-//! | `reference` | [`reference`] | scene (ground truth: accumulation over the lens) |
+//! | `reference` | [`reference`](mod@reference) | scene (ground truth: accumulation over the lens) |
 //! | `hammon` | [`hammon`] | colour + depth (post-process blend of blur levels, GPU Gems 3 ch. 28) |
 //! | `lowrank` | [`lowrank`] | colour + depth, or colour + CoC map (aperture kernel as a sum of separable filters, McGraw; depth-edge mask with 2D fallback; tilt-shift) |
 //! | `gaussian` | [`gaussian`] | colour + depth (baseline: separable Gaussian gather sized by the CoC, after Zhou et al. 2007) |

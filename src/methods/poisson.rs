@@ -3,7 +3,7 @@
 //! fig. 12, and the full DoF solution McGraw uses on masked pixels, section 4).
 //!
 //! # Passes, in order (each timed as `poisson/<pass>`)
-//! 1. [`coc`](super::coc_map::coc) (`poisson/coc`, the shared pass of [`super::coc_map`]): reads depth; writes the signed CoC radius in pixels from
+//! 1. [`coc`](super::coc_map::coc()) (`poisson/coc`, the shared pass of [`super::coc_map`]): reads depth; writes the signed CoC radius in pixels from
 //!    [`ThinLens::coc_px`] (the one CoC function), clamped to `±max_coc_px`. Validates the depth
 //!    (NaN, zero or negative is an error; +inf is allowed, the far limit). `lowrank` and
 //!    `gaussian` use this pass too.

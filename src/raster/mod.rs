@@ -1,7 +1,7 @@
 //! One triangle rasterizer for every method, emitting fragments into sinks.
 //!
 //! Passes, in order, for each view:
-//! 1. `setup` ([`setup`]): project camera-space triangles with the view's (possibly sheared)
+//! 1. `setup` (`setup.rs`): project camera-space triangles with the view's (possibly sheared)
 //!    projection, cull back faces of single-sided materials, clip in homogeneous space against
 //!    the near and far planes (and a guard band), snap to 1/256-pixel fixed point, and build
 //!    edge functions and perspective-correct attribute planes.

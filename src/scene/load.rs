@@ -5,7 +5,7 @@
 //! 1. Parse the file and check it: broken syntax, indices out of range, data past the end of a
 //!    buffer, required extensions we do not support and non-triangle primitives are errors that
 //!    name the file, the element and what was expected. Nothing panics on malformed input.
-//! 2. Flatten the node hierarchy: every mesh instance becomes a [`Mesh`] in world space.
+//! 2. Flatten the node hierarchy: every mesh instance becomes a [`Mesh`](super::Mesh) in world space.
 //! 3. Decode the textures the materials use (in parallel): base colour and emissive images are
 //!    sRGB-decoded to linear light, alpha stays linear and straight (not premultiplied).
 //! 4. Cameras: each glTF perspective camera becomes a [`Camera`] (see [`FileCamera`]); the first
