@@ -128,23 +128,24 @@ impl<'a> From<&'a GrayImage> for Amounts<'a> {
 }
 
 impl Amounts<'_> {
+    /// The image the amounts come from: the CoC image or the depth.
+    fn image(&self) -> &GrayImage {
+        let (Amounts::Signed(image) | Amounts::Depth(image, _)) = self;
+        image
+    }
+
     /// Width and height of the image the amounts come from.
     pub fn size(&self) -> (usize, usize) {
-        let (Amounts::Signed(image) | Amounts::Depth(image, _)) = self;
-        (image.width(), image.height())
+        (self.image().width(), self.image().height())
     }
 
     /// Fails unless the amounts are `width` x `height` (and, from depth, the constants are for
     /// that size too).
     pub(crate) fn check_size(&self, what: &str, width: usize, height: usize) -> Result<()> {
         let (w, h) = self.size();
-        let k_size = match self {
-            Amounts::Signed(_) => None,
-            Amounts::Depth(_, k) => Some((k.width(), k.height())),
-        };
-        let source = match self {
-            Amounts::Signed(_) => "CoC image",
-            Amounts::Depth(..) => "depth",
+        let (source, k_size) = match self {
+            Amounts::Signed(_) => ("CoC image", None),
+            Amounts::Depth(_, k) => ("depth", Some((k.width(), k.height()))),
         };
         if (w, h) != (width, height) {
             return Err(Error::Mismatch(format!(
@@ -168,8 +169,7 @@ impl Amounts<'_> {
         y1: usize,
         scratch: &'b mut [f32],
     ) -> (&'b [f32], bool) {
-        let (Amounts::Signed(image) | Amounts::Depth(image, _)) = self;
-        let w = image.width();
+        let w = self.image().width();
         let range = w * y0..w * y1;
         match self {
             Amounts::Signed(s) => (&s.pixels()[range], false),
@@ -186,7 +186,6 @@ impl Amounts<'_> {
 
     /// The error for a pass that found bad depth (see [`Self::rows`]).
     pub(crate) fn error(&self) -> Error {
-        let (Amounts::Signed(image) | Amounts::Depth(image, _)) = self;
-        invalid_depth(image)
+        invalid_depth(self.image())
     }
 }

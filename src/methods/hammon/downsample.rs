@@ -42,6 +42,10 @@ pub fn downsample_baseline<'a>(
     downsample_with(color, amounts.into(), block_row_inner)
 }
 
+/// Scratch per worker, in rows of `w` floats: the block's amounts (4 rows), its column sums of
+/// colour (4 floats a pixel), its column maxima of near blur (1) and the block sums (4).
+const SCRATCH_ROWS: usize = 4 + 4 + 1 + 4;
+
 /// One quarter-res row of the downsample: [`block_row`] or its portable twin.
 type BlockRowFn = fn(&ColorImage, &Amounts, &mut [f32], usize, &mut [Rgba], &mut [f32]) -> bool;
 
@@ -61,7 +65,7 @@ fn downsample_with(
         .zip(out_coc.par_chunks_mut(qw))
         .enumerate()
         .map_init(
-            || vec![0.0f32; 13 * w],
+            || vec![0.0f32; SCRATCH_ROWS * w],
             |scratch, (qy, (oc, ok))| row_fn(color, &amounts, scratch, qy, oc, ok),
         )
         .reduce(|| false, |a, b| a | b);
