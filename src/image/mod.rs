@@ -7,6 +7,10 @@
 
 pub mod io;
 
+use std::mem::MaybeUninit;
+
+use rayon::prelude::*;
+
 use crate::{Error, Result};
 
 /// A linear-light RGBA pixel, colour premultiplied by alpha.
@@ -134,6 +138,42 @@ impl<P: Copy> Image<P> {
     /// True when both images have the same size.
     pub fn same_size<Q>(&self, other: &Image<Q>) -> bool {
         self.width == other.width && self.height == other.height
+    }
+}
+
+impl<P: Copy + Send + Sync> Image<P> {
+    /// A `width` x `height` image whose rows are written in parallel by `fill(state, y, row)`,
+    /// straight into fresh memory, with `state` made by `init` once per worker (scratch rows).
+    /// Returns the image and whether any call of `fill` returned true (e.g. bad input seen).
+    ///
+    /// The memory is not filled with a constant first. For a full-resolution frame that fill
+    /// is a whole extra pass of writes: on the 1280x720 benchmark frame, reading colour and depth
+    /// and writing one colour image took 1.41 ms after a zero fill and 0.76 ms without.
+    ///
+    /// Fails as [`check_size`] does.
+    ///
+    /// # Safety
+    /// `fill` must write every element of the row it is given before it returns (it may panic
+    /// instead: the panic reaches the caller and no image is made).
+    pub(crate) unsafe fn par_from_rows<S>(
+        width: usize,
+        height: usize,
+        init: impl Fn() -> S + Sync + Send,
+        fill: impl Fn(&mut S, usize, &mut [MaybeUninit<P>]) -> bool + Sync + Send,
+    ) -> Result<(Self, bool)> {
+        check_size(width, height)?;
+        let n = width * height;
+        let mut data: Vec<P> = Vec::with_capacity(n);
+        let flag = data.spare_capacity_mut()[..n]
+            .par_chunks_mut(width)
+            .enumerate()
+            .map_init(init, |state, (y, row)| fill(state, y, row))
+            .reduce(|| false, |a, b| a | b);
+        // SAFETY: the rows `par_chunks_mut` handed out cover `0..n`, and the caller's `fill`
+        // wrote every element of each before returning (a panic would have left this function
+        // before here).
+        unsafe { data.set_len(n) };
+        Ok((Self::from_vec(width, height, data)?, flag))
     }
 }
 

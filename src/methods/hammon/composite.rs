@@ -32,7 +32,7 @@
 //! four clamped weights written out per pixel compiled to about 270 instructions per blurred
 //! pixel (see `mod.rs`). Groups beyond `d0 + d1` skip the small blur, which no lane selects.
 
-use rayon::prelude::*;
+use std::mem::MaybeUninit;
 
 use super::coc::Amounts;
 use super::{quarter_size, saturate, Constants, LerpDistances, QuarterImage};
@@ -230,7 +230,7 @@ fn composite_with(
     medium: &QuarterImage,
     large: &QuarterImage,
     k: &Constants,
-    row_fn: impl Fn(&RowInputs, &mut RowScratch, usize, &mut [Rgba]) -> bool + Sync,
+    row_fn: impl Fn(&RowInputs, &mut RowScratch, usize, &mut [MaybeUninit<Rgba>]) -> bool + Sync + Send,
 ) -> Result<ColorImage> {
     check_sizes(color, &amounts, medium, large, k)?;
     let (w, h) = (color.width(), color.height());
@@ -242,27 +242,31 @@ fn composite_with(
         large,
         seg: Segments::new(k.lerp_distances()),
     };
-    let mut out = vec![[0.0f32; 4]; w * h];
-    let bad = out
-        .par_chunks_mut(w)
-        .enumerate()
-        .map_init(
-            || {
-                (
-                    vec![[0.0f32; 4]; qw + 2],
-                    vec![0.0f32; qw + 2],
-                    vec![[0.0f32; 4]; qw + 2],
-                    vec![0.0f32; w],
-                    vec![0.0f32; w],
-                )
-            },
-            |scratch, (y, out_row)| row_fn(&inputs, scratch, y, out_row),
+    // SAFETY: `row_fn` is `composite_row` or `composite_row_inner`, which write every pixel
+    // of the row they are given.
+    let (out, bad) = unsafe {
+        ColorImage::par_from_rows(
+            w,
+            h,
+            || row_scratch(w, qw),
+            |scratch, y, out_row| row_fn(&inputs, scratch, y, out_row),
         )
-        .reduce(|| false, |a, b| a | b);
+    }?;
     if bad {
         return Err(amounts.error());
     }
-    ColorImage::from_vec(w, h, out)
+    Ok(out)
+}
+
+/// Scratch rows for a `w`-pixel frame with `qw`-texel quarter-res rows.
+fn row_scratch(w: usize, qw: usize) -> RowScratch {
+    (
+        vec![[0.0f32; 4]; qw + 2],
+        vec![0.0f32; qw + 2],
+        vec![[0.0f32; 4]; qw + 2],
+        vec![0.0f32; w],
+        vec![0.0f32; w],
+    )
 }
 
 /// One output row of [`composite`]. Compiled for several instruction sets and chosen at run
@@ -277,17 +281,19 @@ fn composite_row(
     inputs: &RowInputs,
     scratch: &mut RowScratch,
     y: usize,
-    out_row: &mut [Rgba],
+    out_row: &mut [MaybeUninit<Rgba>],
 ) -> bool {
     composite_row_inner::<true>(inputs, scratch, y, out_row)
 }
 
+/// One output row `y`, every pixel of `out_row` written (as [`composite_with`] relies on):
+/// copied when the whole row is in focus, else group by group or pixel by pixel.
 #[inline(always)]
 fn composite_row_inner<const GROUPED: bool>(
     inputs: &RowInputs,
     scratch: &mut RowScratch,
     y: usize,
-    out_row: &mut [Rgba],
+    out_row: &mut [MaybeUninit<Rgba>],
 ) -> bool {
     let RowInputs {
         color,
@@ -305,7 +311,9 @@ fn composite_row_inner<const GROUPED: bool>(
     blend_amounts(t, s, med_k);
     // A row in focus throughout: every pixel is copied.
     if t.iter().all(|v| v.is_nan() || *v <= 0.0) {
-        out_row.copy_from_slice(color.row(y));
+        for (o, &c) in out_row.iter_mut().zip(color.row(y)) {
+            o.write(c);
+        }
         return bad;
     }
     fn flat(img: &ColorImage, y: usize) -> &[f32] {
@@ -337,11 +345,11 @@ fn composite_row_inner<const GROUPED: bool>(
         // Whole groups whose small-blur footprint (columns 4q - 2 ..= 4q + 5) lies inside the
         // row take the 16-lane form; the edges and a partial last group go pixel by pixel.
         if GROUPED && q > 0 && 4 * q + 6 <= w {
-            let out4: &mut [Rgba; 4] = out4.try_into().expect("a whole group");
+            let out4: &mut [MaybeUninit<Rgba>; 4] = out4.try_into().expect("a whole group");
             row.group(q, out4);
         } else {
             for (j, o) in out4.iter_mut().enumerate() {
-                *o = row.pixel(q, j);
+                o.write(row.pixel(q, j));
             }
         }
     }
@@ -415,12 +423,14 @@ impl RowRefs<'_> {
     /// with the arithmetic of [`Self::pixel`] (same operations in the same order, so the same
     /// bits) but no branch per pixel. A group in focus throughout is copied.
     #[inline(always)]
-    fn group(&self, q: usize, out: &mut [Rgba; 4]) {
+    fn group(&self, q: usize, out: &mut [MaybeUninit<Rgba>; 4]) {
         let x = 4 * q;
         let unblurred: &[Rgba; 4] = self.rows[2][x..x + 4].try_into().expect("a whole group");
         let t4: &[f32; 4] = self.t[x..x + 4].try_into().expect("a whole group");
         if t4.iter().all(|t| t.is_nan() || *t <= 0.0) {
-            *out = *unblurred;
+            for (o, &c) in out.iter_mut().zip(unblurred) {
+                o.write(c);
+            }
             return;
         }
         let u: [f32; 16] = lanes(unblurred);
@@ -457,7 +467,7 @@ impl RowRefs<'_> {
             v[i] = select(t > 0.0, blend, u[i]);
         }
         for (o, c) in out.iter_mut().zip(v.chunks_exact(4)) {
-            *o = c.try_into().expect("four channels");
+            o.write(c.try_into().expect("four channels"));
         }
     }
 }
@@ -631,25 +641,31 @@ mod tests {
                 large: &large,
                 seg,
             };
-            let mut scratch = (
-                vec![[0.0f32; 4]; qw + 2],
-                vec![0.0f32; qw + 2],
-                vec![[0.0f32; 4]; qw + 2],
-                vec![0.0f32; w],
-                vec![0.0f32; w],
-            );
-            for y in 0..h {
-                let mut grouped = vec![[0.0f32; 4]; w];
-                let mut pixels = vec![[0.0f32; 4]; w];
-                composite_row_inner::<true>(&inputs, &mut scratch, y, &mut grouped);
-                composite_row_inner::<false>(&inputs, &mut scratch, y, &mut pixels);
-                for (x, (a, b)) in grouped.iter().zip(&pixels).enumerate() {
-                    assert_eq!(
-                        a.map(f32::to_bits),
-                        b.map(f32::to_bits),
-                        "{w}x{h} at ({x}, {y})"
-                    );
-                }
+            // SAFETY: `composite_row_inner` writes every pixel of its row.
+            let (grouped, pixels) = unsafe {
+                (
+                    ColorImage::par_from_rows(
+                        w,
+                        h,
+                        || row_scratch(w, qw),
+                        |scratch, y, out| composite_row_inner::<true>(&inputs, scratch, y, out),
+                    ),
+                    ColorImage::par_from_rows(
+                        w,
+                        h,
+                        || row_scratch(w, qw),
+                        |scratch, y, out| composite_row_inner::<false>(&inputs, scratch, y, out),
+                    ),
+                )
+            };
+            let (grouped, pixels) = (grouped.unwrap().0, pixels.unwrap().0);
+            for (i, (a, b)) in grouped.pixels().iter().zip(pixels.pixels()).enumerate() {
+                let (x, y) = (i % w, i / w);
+                assert_eq!(
+                    a.map(f32::to_bits),
+                    b.map(f32::to_bits),
+                    "{w}x{h} at ({x}, {y})"
+                );
             }
         }
     }
