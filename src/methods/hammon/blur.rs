@@ -12,20 +12,20 @@
 //! `out[j] = sum_i w[i] in_i[j]` over contiguous `f32`s with blocks of outputs kept in
 //! registers across all taps, 8 registers wide for the instruction set chosen at run time. The
 //! horizontal filter is `lowrank`'s row filter ([`filter_span`]). The vertical one runs two
-//! adjacent rows at once with `lowrank`'s [`filter_rows`]: they share all but one of their
-//! source rows, so each is loaded once for both. On the benchmark frame: 0.55 ms with one row
-//! at a time and blocks of two AVX-512 registers (each tap's add waited on the previous one),
-//! 0.45 ms with the shared filter's 128-float blocks, 0.37 ms in row pairs. The sums are the
-//! same in the same order throughout, so the bits are too (unit test
-//! `filter_rows_match_the_span_filter_bit_for_bit` in `lowrank::filter`).
+//! adjacent rows at once (`vertical_pair`): they share all but one of their source rows, so
+//! each is loaded once for both. On the benchmark frame: 0.55 ms with one row at a time and
+//! blocks of two AVX-512 registers (each tap's add waited on the previous one), 0.45 ms with
+//! the shared filter's 128-float blocks, 0.37 ms in row pairs. The sums are the same in the
+//! same order throughout, so the bits are too (unit test
+//! `row_pairs_match_single_rows_bit_for_bit`). `lowrank`'s general
+//! [`crate::methods::lowrank::filter::filter_rows`], which takes up to eight rows and skips
+//! zero taps, was 10-20% slower here on two rows than this pair filter, so the blur keeps it.
 
 use rayon::prelude::*;
 
 use super::QuarterImage;
 use crate::image::{ColorImage, GrayImage};
-use crate::methods::lowrank::filter::{
-    filter_rows, filter_rows_baseline, filter_span, filter_span_baseline,
-};
+use crate::methods::lowrank::filter::{filter_span, filter_span_baseline};
 use crate::{Error, Result};
 
 /// Weights of a Gaussian of standard deviation `sigma` (in texels) at offsets `-r..=r`,
@@ -66,7 +66,7 @@ pub fn blur_baseline(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterIma
         kernel,
         Filters {
             span: filter_span_baseline,
-            rows: filter_rows_baseline,
+            pair: vertical_pair_baseline,
         },
     )
 }
@@ -75,14 +75,14 @@ pub fn blur_baseline(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterIma
 /// [`filter_span`] or its portable twin.
 type Span = fn(&mut [f32], &[(f32, usize)], &[f32]);
 
-/// The vertical filter of adjacent rows at once ([`filter_rows`] or its portable twin).
-type Rows = fn(&mut [&mut [f32]], &[f32], &[usize], &[f32], bool);
+/// The vertical filter of two adjacent rows at once ([`vertical_pair`] or its portable twin).
+type Pair = fn(&mut [f32], &mut [f32], &[f32], &[usize], &[f32]);
 
 /// The row filters a blur runs with.
 #[derive(Clone, Copy)]
 struct Filters {
     span: Span,
-    rows: Rows,
+    pair: Pair,
 }
 
 /// Blurs colour and near CoC of `shrunk` with the separable kernel `kernel` (odd length,
@@ -93,7 +93,7 @@ pub fn blur(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterImage> {
         kernel,
         Filters {
             span: filter_span,
-            rows: filter_rows,
+            pair: vertical_pair,
         },
     )
 }
@@ -136,10 +136,10 @@ fn blur_with(shrunk: &QuarterImage, kernel: &[f32], filters: Filters) -> Result<
                 if n == 2 {
                     bases.clear();
                     bases.extend((0..=kernel.len()).map(|i| 4 * w * src_row(i)));
-                    (filters.rows)(&mut [c0, c1], kernel, bases, color, false);
+                    (filters.pair)(c0, c1, kernel, bases, color);
                     bases.clear();
                     bases.extend((0..=kernel.len()).map(|i| w * src_row(i)));
-                    (filters.rows)(&mut [k0, k1], kernel, bases, coc, false);
+                    (filters.pair)(k0, k1, kernel, bases, coc);
                 } else {
                     taps.clear();
                     taps.extend(
@@ -193,6 +193,105 @@ fn horizontal(
     span(out_coc, taps, pad_coc);
 }
 
+/// The vertical filter of two adjacent output rows: with `n = kernel.len()` and `base` the
+/// offsets of `n + 1` source rows, `a[p] = sum_{i < n} kernel[i] src[base[i] + p]` and
+/// `b[p] = sum_{i < n} kernel[i] src[base[i + 1] + p]`, each summed in the order of `i` (as
+/// [`filter_span`] does, so the same bits). Each source row is loaded once for both. Compiled
+/// for several instruction sets and chosen at run time ([`multiversion`]): blocks of 8
+/// registers for the two rows together.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn vertical_pair(a: &mut [f32], b: &mut [f32], kernel: &[f32], base: &[usize], src: &[f32]) {
+    const AVX512: bool = multiversion::target::selected_target!().supports_feature_str("avx512f");
+    const AVX2: bool = multiversion::target::selected_target!().supports_feature_str("avx2");
+    if AVX512 {
+        pair_span::<64>(a, b, kernel, base, src);
+    } else if AVX2 {
+        pair_span::<32>(a, b, kernel, base, src);
+    } else {
+        pair_span::<16>(a, b, kernel, base, src);
+    }
+}
+
+/// [`vertical_pair`] as the portable baseline build only: its twin.
+fn vertical_pair_baseline(
+    a: &mut [f32],
+    b: &mut [f32],
+    kernel: &[f32],
+    base: &[usize],
+    src: &[f32],
+) {
+    pair_span::<16>(a, b, kernel, base, src);
+}
+
+#[inline(always)]
+fn pair_span<const L: usize>(
+    a: &mut [f32],
+    b: &mut [f32],
+    kernel: &[f32],
+    base: &[usize],
+    src: &[f32],
+) {
+    let mut p = 0;
+    while p + L <= a.len() {
+        pair_block::<L>(a, b, p, kernel, base, src);
+        p += L;
+    }
+    while p + 4 <= a.len() {
+        pair_block::<4>(a, b, p, kernel, base, src);
+        p += 4;
+    }
+    while p < a.len() {
+        pair_block::<1>(a, b, p, kernel, base, src);
+        p += 1;
+    }
+}
+
+/// One block of `L` floats of [`vertical_pair`] at `p`, both rows' sums kept in registers.
+#[inline(always)]
+fn pair_block<const L: usize>(
+    a: &mut [f32],
+    b: &mut [f32],
+    p: usize,
+    kernel: &[f32],
+    base: &[usize],
+    src: &[f32],
+) {
+    let n = kernel.len();
+    let (Some(oa), Some(ob)) = (
+        a.get_mut(p..).and_then(|o| o.first_chunk_mut::<L>()),
+        b.get_mut(p..).and_then(|o| o.first_chunk_mut::<L>()),
+    ) else {
+        return;
+    };
+    let row = |i: usize| src.get(base[i] + p..).and_then(|s| s.first_chunk::<L>());
+    let (mut acc_a, mut acc_b) = ([0.0f32; L], [0.0f32; L]);
+    if let Some(x) = row(0) {
+        for t in 0..L {
+            acc_a[t] += kernel[0] * x[t];
+        }
+    }
+    for i in 1..n {
+        if let Some(x) = row(i) {
+            let (wa, wb) = (kernel[i], kernel[i - 1]);
+            for t in 0..L {
+                acc_a[t] += wa * x[t];
+                acc_b[t] += wb * x[t];
+            }
+        }
+    }
+    if let Some(x) = row(n) {
+        for t in 0..L {
+            acc_b[t] += kernel[n - 1] * x[t];
+        }
+    }
+    *oa = acc_a;
+    *ob = acc_b;
+}
+
 /// The straightforward twin of [`blur`]: the 2D sum `sum_i sum_j k[i] k[j] in(x + j - r,
 /// y + i - r)` with clamped coordinates, texel by texel. Kept to test the fast version against.
 pub fn naive(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterImage> {
@@ -221,4 +320,42 @@ pub fn naive(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterImage> {
         }
     }
     Ok(QuarterImage { color, coc })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::random::SplitMix64;
+
+    /// Each row of a pair gets the bits of the single-row filter over its own source rows,
+    /// for widths with whole blocks, partial blocks and single floats left over.
+    #[test]
+    fn row_pairs_match_single_rows_bit_for_bit() {
+        let mut rng = SplitMix64::new(3);
+        for (len, taps) in [(1, 1), (5, 3), (37, 7), (200, 25), (333, 13)] {
+            let rows = taps + 1;
+            let src: Vec<f32> = (0..len * rows).map(|_| rng.range(-2.0, 5.0)).collect();
+            let kernel: Vec<f32> = (0..taps).map(|_| rng.range(0.0, 1.0)).collect();
+            // Source rows in a shuffled order, as clamped rows repeat at the image's edges.
+            let base: Vec<usize> = (0..rows).map(|_| len * rng.below(rows)).collect();
+            for pair in [vertical_pair as Pair, vertical_pair_baseline] {
+                let (mut a, mut b) = (vec![0.0f32; len], vec![0.0f32; len]);
+                pair(&mut a, &mut b, &kernel, &base, &src);
+                for (out, first) in [(&a, 0), (&b, 1)] {
+                    let list: Vec<(f32, usize)> = kernel
+                        .iter()
+                        .zip(&base[first..])
+                        .map(|(&k, &o)| (k, o))
+                        .collect();
+                    let mut single = vec![0.0f32; len];
+                    filter_span_baseline(&mut single, &list, &src);
+                    assert_eq!(
+                        out.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        single.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        "{len} floats, {taps} taps, row {first}"
+                    );
+                }
+            }
+        }
+    }
 }
