@@ -20,7 +20,10 @@
 //! output rows in column strips of [`STRIP_PX`] pixels, so the `r x n` source rows of a strip
 //! stay in L2 from one output row to the next (without strips, rank 3 at 65 px streamed
 //! 195 rows of 20 KB from L3 for each output row and was only 2.5x faster than the 2D
-//! convolution). Blocks run in parallel; the output does not depend on the thread count.
+//! convolution). The vertical pass takes eight adjacent output rows at once ([`filter_rows`]):
+//! they share all but seven of their source rows, so each source row is loaded once for all
+//! eight instead of once per output row. Blocks run in parallel; the output does not depend on
+//! the thread count.
 //! [`filter_separable_naive`] and [`filter_full_2d_naive`] are the per-pixel twins, written
 //! from the equations in f64.
 
