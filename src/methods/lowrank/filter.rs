@@ -373,21 +373,11 @@ pub(crate) fn for_each_strip<P: Send>(
     w: usize,
     f: impl Fn(usize, usize, &mut [P], &mut Vec<(f32, usize)>) + Sync,
 ) {
-    if w == 0 {
-        return;
-    }
-    out.par_chunks_mut(ROW_BLOCK * w).enumerate().for_each_init(
-        Vec::new,
-        |scratch, (block, rows)| {
-            let y0 = block * ROW_BLOCK;
-            for x0 in (0..w).step_by(STRIP_PX) {
-                let x1 = (x0 + STRIP_PX).min(w);
-                for (dy, row) in rows.chunks_mut(w).enumerate() {
-                    f(y0 + dy, x0, &mut row[x0..x1], scratch);
-                }
-            }
-        },
-    );
+    for_each_block_strip(out, w, |y0, x0, x1, rows, scratch| {
+        for (dy, row) in rows.chunks_mut(w).enumerate() {
+            f(y0 + dy, x0, &mut row[x0..x1], scratch);
+        }
+    });
 }
 
 /// [`for_each_strip`] for [`filter_rows`]: runs `f(y, x0, strips, scratch)` for every group of
@@ -398,24 +388,35 @@ fn for_each_strip_rows<const CH: usize>(
     w: usize,
     f: impl Fn(usize, usize, &mut [&mut [f32]], &mut Vec<usize>) + Sync,
 ) {
+    for_each_block_strip(out, w, |y0, x0, x1, rows, scratch| {
+        for (g, group) in rows.chunks_mut(MAX_ROWS * w).enumerate() {
+            let mut strips: [&mut [f32]; MAX_ROWS] = std::array::from_fn(|_| &mut [][..]);
+            let mut m = 0;
+            for (s, row) in strips.iter_mut().zip(group.chunks_mut(w)) {
+                *s = row[x0..x1].as_flattened_mut();
+                m += 1;
+            }
+            f(y0 + g * MAX_ROWS, x0, &mut strips[..m], scratch);
+        }
+    });
+}
+
+/// The walk of [`for_each_strip`]: `f(y0, x0, x1, rows, scratch)` for every block of
+/// [`ROW_BLOCK`] rows from `y0` (in parallel) and, within it, every column strip `x0..x1`, in
+/// order, with scratch made once per worker.
+fn for_each_block_strip<P: Send, S: Default + Send>(
+    out: &mut [P],
+    w: usize,
+    f: impl Fn(usize, usize, usize, &mut [P], &mut S) + Sync,
+) {
     if w == 0 {
         return;
     }
     out.par_chunks_mut(ROW_BLOCK * w).enumerate().for_each_init(
-        Vec::new,
+        S::default,
         |scratch, (block, rows)| {
-            let y0 = block * ROW_BLOCK;
             for x0 in (0..w).step_by(STRIP_PX) {
-                let x1 = (x0 + STRIP_PX).min(w);
-                for (g, group) in rows.chunks_mut(MAX_ROWS * w).enumerate() {
-                    let mut strips: [&mut [f32]; MAX_ROWS] = std::array::from_fn(|_| &mut [][..]);
-                    let mut m = 0;
-                    for (s, row) in strips.iter_mut().zip(group.chunks_mut(w)) {
-                        *s = row[x0..x1].as_flattened_mut();
-                        m += 1;
-                    }
-                    f(y0 + g * MAX_ROWS, x0, &mut strips[..m], scratch);
-                }
+                f(block * ROW_BLOCK, x0, (x0 + STRIP_PX).min(w), rows, scratch);
             }
         },
     );
