@@ -124,7 +124,7 @@ fn hammon_passes(c: &mut Criterion) {
     c.bench_function(&format!("memory_floor/{size}"), |b| {
         b.iter(|| {
             // Written straight into fresh memory, as `composite` writes its output: a zero fill
-            // first would be a second pass of writes (1.41 ms against 0.76 ms on the
+            // first would be a second pass of writes (1.41 ms against 0.76 ms on the AMD EPYC
             // development machine), which no method needs.
             let mut out: Vec<[f32; 4]> = Vec::with_capacity(W * H);
             out.spare_capacity_mut()

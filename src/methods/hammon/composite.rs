@@ -224,14 +224,17 @@ struct RowInputs<'a> {
 /// computed from depth, and its blend amounts `t`.
 type RowScratch = (Vec<Rgba>, Vec<f32>, Vec<Rgba>, Vec<f32>, Vec<f32>);
 
-fn composite_with(
+fn composite_with<F>(
     color: &ColorImage,
     amounts: Amounts,
     medium: &QuarterImage,
     large: &QuarterImage,
     k: &Constants,
-    row_fn: impl Fn(&RowInputs, &mut RowScratch, usize, &mut [MaybeUninit<Rgba>]) -> bool + Sync + Send,
-) -> Result<ColorImage> {
+    row_fn: F,
+) -> Result<ColorImage>
+where
+    F: Fn(&RowInputs, &mut RowScratch, usize, &mut [MaybeUninit<Rgba>]) -> bool + Sync + Send,
+{
     check_sizes(color, &amounts, medium, large, k)?;
     let (w, h) = (color.width(), color.height());
     let qw = medium.width();

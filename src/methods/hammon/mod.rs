@@ -80,14 +80,14 @@
 //! image: `memory_floor/1280x720`), a ratio of 2.3-2.4. The composite alone moves the floor's
 //! traffic, and the downsample reads colour and depth once more, so this structure costs at
 //! least 1.5 floors before any arithmetic. Both the composite and that floor then wrote into a
-//! zero-filled frame; now both write straight into fresh memory
-//! (`Image::par_from_rows` for the composite). On a second machine (AMD EPYC,
-//! 32 MB L3) that took the composite from 2.21-2.83 to 1.74-2.21 ms, the total from 4.19-5.30
-//! to 3.19-3.56 ms, and the floor from 1.21-1.53 to 0.74-0.81 ms: 4.3-4.4 floors. With a separate CoC pass writing a full-resolution
-//! image (as before), the total was 3.85 ms: computing the CoC a row at a time inside both
-//! passes saves that image's write and two reads. Computed pixel by pixel inside the old
-//! per-pixel loops it had been slower (4.3 -> 4.7 ms). The chapter measured 1 - 1.5 ms at
-//! 1024x768 on a 2006 GPU.
+//! zero-filled frame; now both write straight into fresh memory (`Image::par_from_rows` for
+//! the composite). On a second machine (AMD EPYC, 32 MB L3) that took the composite from
+//! 2.21-2.83 to 1.74-2.21 ms, the total from 4.19-5.30 to 3.19-3.56 ms, and the floor from
+//! 1.21-1.53 to 0.74-0.81 ms: 4.3-4.4 floors. With a separate CoC pass writing a
+//! full-resolution image (as before), the total was 3.85 ms: computing the CoC a row at a time
+//! inside both passes saves that image's write and two reads. Computed pixel by pixel inside
+//! the old per-pixel loops it had been slower (4.3 -> 4.7 ms). The chapter measured 1 - 1.5 ms
+//! at 1024x768 on a 2006 GPU.
 //!
 //! Every output row depends only on inputs, never on another thread's work, so the output is
 //! bit-identical whatever the number of threads.

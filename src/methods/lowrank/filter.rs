@@ -160,7 +160,7 @@ pub const MAX_ROWS: usize = 8;
 ///
 /// The vertical taps of a separable filter read a different source row each, so [`filter_span`]
 /// loads one block per product; adjacent output rows share all but one of their source rows,
-/// and here each load serves up to four products.
+/// and here each load serves up to [`MAX_ROWS`] products.
 ///
 /// Compiled for several instruction sets and chosen at run time ([`multiversion`]), the same
 /// arithmetic in every version.
@@ -674,7 +674,7 @@ mod dispatch_tests {
         }
     }
 
-    /// Each row of [`filter_rows`] (dispatched and baseline, 1 to 4 rows, overwriting and
+    /// Each row of [`filter_rows`] (dispatched and baseline, 1 to 8 rows, overwriting and
     /// adding) gets the bits of the one-row filter over its own list of nonzero taps, for
     /// lengths with whole blocks, partial blocks and single floats left over, with zero taps
     /// among the others and source rows repeated in any order, as clamped rows are.
