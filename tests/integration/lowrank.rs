@@ -230,20 +230,36 @@ fn separable_filter_matches_its_naive_twin_on_odd_and_one_pixel_images() {
     let mut rng = Rng(7);
     let odd_kernel = GrayImage::from_vec(7, 5, (0..35).map(|_| rng.next_f32()).collect()).unwrap();
     let kernels = [kernel("poly:5", 9), odd_kernel, kernel("disc", 1)];
-    for (w, h) in [(1, 1), (1, 7), (13, 1), (31, 17), (4, 9), (133, 37)] {
+    for (w, h) in [
+        (1, 1),
+        (1, 7),
+        (13, 1),
+        (31, 17),
+        (4, 9),
+        (133, 37),
+        (300, 41),
+    ] {
         let img = random_image(w, h, (w * 100 + h) as u64);
         for k in &kernels {
             let lr = decompose(k).unwrap();
             for rank in [1, 2, lr.len()] {
-                let fast = filter_separable(&img, &lr, rank);
                 let naive = filter::filter_separable_naive(&img, &lr, rank);
-                let d = max_abs_diff(&fast, &naive);
-                assert!(
-                    d < F32_TOLERANCE * 4.0,
-                    "{w}x{h}, kernel {}x{}, rank {rank}: {d}",
-                    k.width(),
-                    k.height()
-                );
+                for schedule in [filter::Schedule::Banded, filter::Schedule::Fig2] {
+                    let fast = filter::filter_separable_with(
+                        &img,
+                        &lr,
+                        rank,
+                        filter::Channels::Auto,
+                        schedule,
+                    );
+                    let d = max_abs_diff(&fast, &naive);
+                    assert!(
+                        d < F32_TOLERANCE * 4.0,
+                        "{w}x{h}, kernel {}x{}, rank {rank}, {schedule:?}: {d}",
+                        k.width(),
+                        k.height()
+                    );
+                }
             }
             let fast = filter_full_2d(&img, k);
             let naive = filter::filter_full_2d_naive(&img, k);
@@ -270,10 +286,17 @@ fn opaque_images_take_the_colour_only_path_bit_for_bit() {
         for k in &kernels {
             let lr = decompose(k).unwrap();
             for rank in [1, 2, lr.len()] {
-                let rgb = filter_separable(&img, &lr, rank);
-                let rgba =
-                    filter::filter_separable_channels(&img, &lr, rank, filter::Channels::Rgba);
-                assert_eq!(rgb.pixels(), rgba.pixels(), "{w}x{h}, rank {rank}");
+                for schedule in [filter::Schedule::Banded, filter::Schedule::Fig2] {
+                    let with = |channels| {
+                        filter::filter_separable_with(&img, &lr, rank, channels, schedule)
+                    };
+                    let (rgb, rgba) = (with(filter::Channels::Auto), with(filter::Channels::Rgba));
+                    assert_eq!(
+                        rgb.pixels(),
+                        rgba.pixels(),
+                        "{w}x{h}, rank {rank}, {schedule:?}"
+                    );
+                }
             }
             let rgb = filter_full_2d(&img, k);
             let rgba = filter::filter_full_2d_channels(&img, k, filter::Channels::Rgba);
