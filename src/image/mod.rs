@@ -161,12 +161,14 @@ impl<P: Copy + Send + Sync> Image<P> {
         init: impl Fn() -> S + Sync + Send,
         fill: impl Fn(&mut S, usize, &mut [MaybeUninit<P>]) -> bool + Sync + Send,
     ) -> Result<(Self, bool)> {
+        check_size(width, height)?;
         // SAFETY: the caller's `fill` writes every element of its row, which is the whole band.
-        unsafe { Self::par_from_bands(width, height, 1, init, fill) }
+        Ok(unsafe { Self::par_from_bands(width, height, 1, init, fill) })
     }
 
-    /// [`Image::par_from_rows`] a band of `band` rows at a time: `fill(state, y0, rows)` gets the
-    /// rows `y0..` of one band (the last may be shorter), flattened.
+    /// [`Image::par_from_rows`] a band of `band` rows at a time, without its size check (for an
+    /// image the size of one that exists): `fill(state, y0, rows)` gets the rows `y0..` of one
+    /// band (the last may be shorter), flattened.
     ///
     /// # Safety
     /// `fill` must write every element of the rows it is given before it returns (it may panic
@@ -177,20 +179,25 @@ impl<P: Copy + Send + Sync> Image<P> {
         band: usize,
         init: impl Fn() -> S + Sync + Send,
         fill: impl Fn(&mut S, usize, &mut [MaybeUninit<P>]) -> bool + Sync + Send,
-    ) -> Result<(Self, bool)> {
-        check_size(width, height)?;
+    ) -> (Self, bool) {
         let n = width * height;
+        let band = band.max(1);
         let mut data: Vec<P> = Vec::with_capacity(n);
         let flag = data.spare_capacity_mut()[..n]
-            .par_chunks_mut((width * band.max(1)).max(1))
+            .par_chunks_mut((width * band).max(1))
             .enumerate()
-            .map_init(init, |state, (b, rows)| fill(state, b * band.max(1), rows))
+            .map_init(init, |state, (b, rows)| fill(state, b * band, rows))
             .reduce(|| false, |a, b| a | b);
         // SAFETY: the bands `par_chunks_mut` handed out cover `0..n`, and the caller's `fill`
         // wrote every element of each before returning (a panic would have left this function
         // before here).
         unsafe { data.set_len(n) };
-        Ok((Self::from_vec(width, height, data)?, flag))
+        let image = Self {
+            width,
+            height,
+            data,
+        };
+        (image, flag)
     }
 }
 

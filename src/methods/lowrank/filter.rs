@@ -596,7 +596,7 @@ fn separable_banded<const CH: usize>(
     };
     // SAFETY: `band` writes every pixel of its rows: `sum` holds `w * CH` floats per row, one
     // pixel per `CH`, and the final loop writes each pixel from them.
-    let made = unsafe {
+    let (out, _) = unsafe {
         ColorImage::par_from_bands(
             w,
             h,
@@ -605,8 +605,7 @@ fn separable_banded<const CH: usize>(
             band,
         )
     };
-    made.map(|(img, _)| img)
-        .expect("the image being filtered has this size, so it passed the same check")
+    out
 }
 
 /// Filters `img` with the rank-`rank` approximation of the kernel decomposed in `lr` (eq. 1).
