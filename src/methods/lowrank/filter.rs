@@ -172,9 +172,9 @@ pub const MAX_ROWS: usize = 8;
 /// output row, zero where it is none of that row's taps, so the loop tests nothing per product
 /// (a test of each weight for zero and range took a third of the vertical pass), and it asks
 /// for the lines it will read two blocks on: its source rows are kilobytes apart, more streams
-/// than the hardware prefetchers follow. Rank 3 at 65 px, 1280x720, RGBA: 30.9 ms with the
-/// tests and no prefetch, 22.9 ms without the tests and with it (the banded schedule, least of
-/// two interleaved runs on an AMD EPYC with AVX-512).
+/// than the hardware prefetchers follow. Rank 3 at 65 px, 1280x720, RGBA, banded schedule: 29.5
+/// ms with the tests and no prefetch, 27.3 ms with the prefetch, 22.9 ms without the tests too
+/// (least of two interleaved runs on an AMD EPYC with AVX-512).
 ///
 /// Compiled for several instruction sets and chosen at run time ([`multiversion`]), the same
 /// arithmetic in every version.
@@ -646,9 +646,10 @@ pub enum Schedule {
     Fig2,
     /// Band by band of [`BAND_ROWS`] output rows, in parallel: for each rank the vertical taps
     /// filter the band's source rows into a scratch band that stays in cache, and the horizontal
-    /// taps filter that into the output band. No intermediate image is stored, and each output
-    /// pixel is written once per rank while it is in cache. The default: rank 3 at 65 px,
-    /// 1280x720, RGBA took 22.9 ms against fig. 2's 31-37 ms (AMD EPYC, AVX-512).
+    /// taps add that into a band of sums, also in cache, which is written out once. No
+    /// intermediate image is stored. The default: rank 3 at 65 px, 1280x720, RGBA took
+    /// 22.4-22.9 ms against fig. 2's 34.9-38.3 ms, both with the same [`filter_rows`] (AMD EPYC,
+    /// AVX-512).
     Banded,
 }
 
