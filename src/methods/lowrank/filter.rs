@@ -682,17 +682,8 @@ pub fn filter_separable_with(
                 .par_iter()
                 .map(|p| [p[0], p[1], p[2]])
                 .collect();
-            // The alpha every pixel would get: the taps applied to a constant 1 in the order of
-            // the RGBA filter (vertical, then horizontal, in list order).
-            let mut alpha = 0.0f32;
-            for (i, (hv, vv)) in horizontal.iter().zip(&vertical).enumerate() {
-                let down = vv.iter().filter(|&&t| t != 0.0).fold(0.0f32, |a, &t| a + t);
-                let start = if i == 0 { 0.0 } else { alpha };
-                alpha = hv
-                    .iter()
-                    .filter(|&&t| t != 0.0)
-                    .fold(start, |a, &t| a + t * down);
-            }
+            // The RGBA filter runs the vertical taps, then the horizontal ones.
+            let alpha = constant_alpha(&vertical, &horizontal);
             let taps = (&horizontal[..], &vertical[..]);
             separable_banded::<3>(src.as_flattened(), (w, h), taps, centre, alpha)
         }
@@ -708,19 +699,11 @@ pub fn filter_separable_with(
             // against 18 ms at rank 2.)
             let mut inter = vec![0.0f32; w * h * 3];
             let mut out = vec![[0.0f32; 3]; w * h];
-            // The alpha every pixel would get: the taps applied to a constant 1 in list order.
-            let mut alpha = 0.0f32;
             for (i, (hv, vv)) in horizontal.iter().zip(&vertical).enumerate() {
                 horizontal_pass::<3>(img, hv, cx, &mut inter);
                 vertical_pass::<3>(&inter, &mut out, (w, h), vv, cy, i == 0);
-                let across = hv.iter().filter(|&&t| t != 0.0).fold(0.0f32, |a, &t| a + t);
-                let start = if i == 0 { 0.0 } else { alpha };
-                alpha = vv
-                    .iter()
-                    .filter(|&&t| t != 0.0)
-                    .fold(start, |a, &t| a + t * across);
             }
-            with_alpha(w, h, &out, alpha)
+            with_alpha(w, h, &out, constant_alpha(&horizontal, &vertical))
         }
         (Schedule::Fig2, false) => {
             let (cx, cy) = centre;
@@ -733,6 +716,22 @@ pub fn filter_separable_with(
             out
         }
     }
+}
+
+/// The alpha every pixel of an opaque image gets from the RGBA filter: each rank's `first` taps,
+/// then its `second` taps, applied to a constant 1 with the filters' products and sums in their
+/// order (nonzero taps in list order, ranks accumulated in order), so the same bits.
+fn constant_alpha(first: &[Vec<f32>], second: &[Vec<f32>]) -> f32 {
+    let mut alpha = 0.0f32;
+    for (i, (a, b)) in first.iter().zip(second).enumerate() {
+        let once = a.iter().filter(|&&t| t != 0.0).fold(0.0f32, |s, &t| s + t);
+        let start = if i == 0 { 0.0 } else { alpha };
+        alpha = b
+            .iter()
+            .filter(|&&t| t != 0.0)
+            .fold(start, |s, &t| s + t * once);
+    }
+    alpha
 }
 
 /// The RGBA image of colours `rgb` with alpha `alpha` everywhere.
