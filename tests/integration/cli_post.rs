@@ -599,5 +599,46 @@ fn kernel_filter_blurs_an_image_with_the_low_rank_and_the_full_kernel() {
         "{} vs eq. 4 {e3}",
         diff / norm
     );
+    // Fig. 2's order of passes gives the same blur but for rounding.
+    let fig2 = dir.join("fig2.exr");
+    let o = defocus(&[
+        "kernel",
+        "--aperture",
+        "poly:6",
+        "--size",
+        "21",
+        "--rank",
+        "3",
+        "--filter",
+        s(&input),
+        "--filter-out",
+        s(&fig2),
+        "--schedule",
+        "fig2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let fig2 = io::read_color(&fig2).unwrap();
+    let most = low
+        .pixels()
+        .iter()
+        .zip(fig2.pixels())
+        .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
+        .fold(0.0f32, f32::max);
+    assert!(most < 1e-5, "banded and fig. 2 differ by {most}");
+    let bad = dir.join("bad.exr");
+    let o = defocus(&[
+        "kernel",
+        "--size",
+        "5",
+        "--filter",
+        s(&input),
+        "--filter-out",
+        s(&bad),
+        "--schedule",
+        "diagonal",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("fig2"), "{}", stderr(&o));
+    assert!(!bad.exists());
     std::fs::remove_dir_all(dir).unwrap();
 }

@@ -4,11 +4,10 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use clap::Args;
+use clap::{Args, ValueEnum};
 use defocus::image::{io, ColorImage, GrayImage};
-use defocus::methods::lowrank::{
-    decompose, filter_full_2d, filter_separable, kernel_image, KernelSpec,
-};
+use defocus::methods::lowrank::filter::{filter_separable_with, Channels, Schedule};
+use defocus::methods::lowrank::{decompose, filter_full_2d, kernel_image, KernelSpec};
 use defocus::metrics;
 
 use crate::common::{check_output, parse_aperture, IMAGE_EXTENSIONS};
@@ -45,10 +44,15 @@ pub struct KernelArgs {
     /// (EXR and PFM keep its negative lobes; PNG clamps them to 0).
     #[arg(long, value_name = "FILE")]
     pub approx_out: Option<PathBuf>,
-    /// Blur this image with the kernel, spatially invariant (McGraw fig. 2: per rank a
-    /// horizontal then a vertical pass), at the highest rank asked for; needs --filter-out.
+    /// Blur this image with the kernel, spatially invariant (McGraw eq. 1: per rank a
+    /// horizontal and a vertical pass), at the highest rank asked for; needs --filter-out.
     #[arg(long, value_name = "IMAGE", requires = "filter_out")]
     pub filter: Option<PathBuf>,
+    /// Order of the --filter passes: `banded` (band by band, no intermediate image; the
+    /// fastest) or `fig2` (the paper's fig. 2: each rank's horizontal pass over the whole image,
+    /// then its vertical pass). Both compute eq. 1; they differ by rounding only.
+    #[arg(long, value_enum, default_value_t = ScheduleArg::Banded, requires = "filter")]
+    pub schedule: ScheduleArg,
     /// Where the low-rank blur of --filter goes (.exr, .png or .pfm).
     #[arg(long, value_name = "FILE", requires = "filter")]
     pub filter_out: Option<PathBuf>,
@@ -59,6 +63,15 @@ pub struct KernelArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `--schedule`: the order of the separable filter's passes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ScheduleArg {
+    /// Band by band ([`Schedule::Banded`]).
+    Banded,
+    /// The paper's fig. 2 ([`Schedule::Fig2`]).
+    Fig2,
 }
 
 /// Parses `R` or `A..B` into an inclusive range of ranks from 1.
@@ -231,7 +244,11 @@ fn filter_image(
 ) -> Result<Filtered> {
     let img = io::read_color(input)?;
     let start = std::time::Instant::now();
-    let low = filter_separable(&img, lr, rank);
+    let schedule = match a.schedule {
+        ScheduleArg::Banded => Schedule::Banded,
+        ScheduleArg::Fig2 => Schedule::Fig2,
+    };
+    let low = filter_separable_with(&img, lr, rank, Channels::Auto, schedule);
     let separable_ms = start.elapsed().as_secs_f64() * 1e3;
     io::write_color(&set.stage(out)?, &low)?;
     let (full_2d_ms, against_2d) = match &a.full_2d_out {
