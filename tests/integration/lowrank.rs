@@ -269,6 +269,26 @@ fn separable_filter_matches_its_naive_twin_on_odd_and_one_pixel_images() {
     }
 }
 
+/// Both schedules give the same bits on one thread as on several: bands and blocks are fixed
+/// by the image, not by the thread count, and each output float is one sum in a fixed order.
+#[test]
+fn separable_filter_bits_do_not_depend_on_the_thread_count() {
+    let img = random_image(150, 70, 9);
+    let lr = decompose(&kernel("poly:6", 21)).unwrap();
+    for schedule in [filter::Schedule::Banded, filter::Schedule::Fig2] {
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    filter::filter_separable_with(&img, &lr, 3, filter::Channels::Auto, schedule)
+                })
+        };
+        assert_eq!(run(1).pixels(), run(3).pixels(), "{schedule:?}");
+    }
+}
+
 /// An opaque image is filtered in its colour channels only (issue #15's RGB path): the result,
 /// alpha included, is bit-identical to filtering all four channels, since every colour float
 /// goes through the same products and sums and the alpha is the taps' sum in the same order.
