@@ -31,11 +31,11 @@
 //! [`filter_separable_naive`] and [`filter_full_2d_naive`] are the per-pixel twins, written
 //! from the equations in f64.
 
+use std::mem::MaybeUninit;
+
 use rayon::prelude::*;
 
 use super::svd::LowRank;
-use std::mem::MaybeUninit;
-
 use crate::image::{ColorImage, GrayImage, Rgba};
 
 /// Floats per register block of [`filter_span`] (8 RGBA pixels).
@@ -507,11 +507,11 @@ pub const BAND_ROWS: usize = 16;
 /// [`Schedule::Banded`]: the separable filter of every rank, band by band of [`BAND_ROWS`]
 /// output rows (bands in parallel). For each rank, the vertical taps filter the band's source
 /// rows into a padded scratch band ([`filter_rows`], eight rows at once, in column strips of
-/// [`STRIP_PX`]), whose rows the horizontal taps then filter into the output rows
-/// ([`filter_span`], adding from the second rank on). `src` is the image's first `CH` channels,
-/// flattened. With three channels, each band is summed in scratch and written out with alpha
-/// `alpha`. Per band, RGBA at 1280 px wide: a scratch band and an output band of 16 rows,
-/// 350 KB each, which stay in L2 for all ranks.
+/// [`STRIP_PX`]), whose rows the horizontal taps then filter into a band of sums
+/// ([`filter_span`], adding from the second rank on); the sums are written into the band's
+/// fresh output rows once, after the last rank, with alpha `alpha` when `CH` is 3. `src` is the
+/// image's first `CH` channels, flattened. Per band, RGBA at 1280 px wide: a scratch band and a
+/// band of sums of 16 rows, 350 KB each, which stay in L2 for all ranks.
 fn separable_banded<const CH: usize>(
     src: &[f32],
     (w, h): (usize, usize),
