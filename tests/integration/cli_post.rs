@@ -541,15 +541,18 @@ fn kernel_filter_blurs_an_image_with_the_low_rank_and_the_full_kernel() {
     let input = dir.join("dot.exr");
     io::write_color(&input, &img).unwrap();
     let (low, full) = (dir.join("low.exr"), dir.join("full.exr"));
+    let kernel = [
+        "kernel",
+        "--aperture",
+        "poly:6",
+        "--size",
+        "21",
+        "--rank",
+        "3",
+    ];
     let o = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(kernel)
         .args([
-            "kernel",
-            "--aperture",
-            "poly:6",
-            "--size",
-            "21",
-            "--rank",
-            "3",
             "--json",
             "--filter",
             s(&input),
@@ -601,21 +604,20 @@ fn kernel_filter_blurs_an_image_with_the_low_rank_and_the_full_kernel() {
     );
     // Fig. 2's order of passes gives the same blur but for rounding.
     let fig2 = dir.join("fig2.exr");
-    let o = defocus(&[
-        "kernel",
-        "--aperture",
-        "poly:6",
-        "--size",
-        "21",
-        "--rank",
-        "3",
-        "--filter",
-        s(&input),
-        "--filter-out",
-        s(&fig2),
-        "--schedule",
-        "fig2",
-    ]);
+    let o = defocus(
+        &[
+            &kernel[..],
+            &[
+                "--filter",
+                s(&input),
+                "--filter-out",
+                s(&fig2),
+                "--schedule",
+                "fig2",
+            ],
+        ]
+        .concat(),
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let fig2 = io::read_color(&fig2).unwrap();
     let most = low

@@ -798,15 +798,11 @@ fn output_is_bit_identical_with_one_thread_and_with_many() {
     let lens = tele_lens(w, h, 1.0, 2.0);
     let settings = settings_with_large_blur(16.0, h);
     let run = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| {
-                hammon::render(&color, &depth, &lens, &settings)
-                    .unwrap()
-                    .image
-            })
+        crate::with_threads(threads, || {
+            hammon::render(&color, &depth, &lens, &settings)
+                .unwrap()
+                .image
+        })
     };
     assert_eq!(run(1), run(4));
 }

@@ -277,13 +277,9 @@ fn separable_filter_bits_do_not_depend_on_the_thread_count() {
     let lr = decompose(&kernel("poly:6", 21)).unwrap();
     for schedule in [filter::Schedule::Banded, filter::Schedule::Fig2] {
         let run = |threads: usize| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| {
-                    filter::filter_separable_with(&img, &lr, 3, filter::Channels::Auto, schedule)
-                })
+            crate::with_threads(threads, || {
+                filter::filter_separable_with(&img, &lr, 3, filter::Channels::Auto, schedule)
+            })
         };
         assert_eq!(run(1).pixels(), run(3).pixels(), "{schedule:?}");
     }

@@ -30,6 +30,16 @@ pub fn shared_assets() -> Option<std::path::PathBuf> {
     }
 }
 
+/// Runs `f` in a fresh rayon pool of `threads` threads (for tests that the output does not
+/// depend on the thread count).
+pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a thread pool")
+        .install(f)
+}
+
 /// A camera at the origin looking down -Z: 50 mm on a 36 mm sensor, `w`x`h` pixels.
 pub fn test_camera(w: usize, h: usize, focus_m: f32, fstop: f32) -> defocus::lens::Camera {
     defocus::lens::Camera {

@@ -214,13 +214,7 @@ fn culling_changes_nothing_and_threads_do_not_matter() {
     });
     let d = max_diff(&culled, &unculled);
     assert!(d < 1e-6, "culling must not change the image: {d}");
-    let with = |n: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build()
-            .unwrap()
-            .install(|| run(&base))
-    };
+    let with = |n: usize| crate::with_threads(n, || run(&base));
     assert_eq!(with(1), with(2));
 }
 

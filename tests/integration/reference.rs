@@ -256,13 +256,7 @@ fn output_is_bit_identical_with_one_and_two_threads() {
         seed: 17,
         ..settings(Aperture::parse("poly:7,rot=10").unwrap(), 48)
     };
-    let in_pool = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| run(&scene, &camera, &s).image)
-    };
+    let in_pool = |threads: usize| crate::with_threads(threads, || run(&scene, &camera, &s).image);
     let a = in_pool(1);
     let b = in_pool(2);
     let bits = |img: &ColorImage| {
