@@ -2,8 +2,9 @@
 //!
 //! Ids: `lowrank/full2d/k<K>/<w>x<h>` (the 2D convolution with a K x K disc kernel) and
 //! `lowrank/rank<r>/k<K>/<w>x<h>` (its rank-r separable approximation, eq. 1, banded schedule;
-//! `lowrank/fig2/rank3/...` in fig. 2's order) on a procedural image; `<method>/dof/<scene>/<w>x<h>` for depth of field from the pinhole colour and depth of
-//! a built-in scene (`lowrank`, and the `gaussian` and `poisson` baselines). The paper timed
+//! `lowrank/fig2/rank3/...` in fig. 2's order) on a procedural image;
+//! `<method>/dof/<scene>/<w>x<h>` for depth of field from the pinhole colour and depth of a
+//! built-in scene (`lowrank`, and the `gaussian` and `poisson` baselines). The paper timed
 //! 1920x1080; the main table is 1280x720, with the 65 px kernel also at 1920x1080.
 
 #![expect(

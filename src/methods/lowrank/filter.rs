@@ -390,13 +390,7 @@ pub enum Channels {
 fn horizontal_pass<const CH: usize>(img: &ColorImage, taps: &[f32], c: usize, inter: &mut [f32]) {
     let w = img.width();
     let n = taps.len();
-    // inter(x) = sum_k t[k] padded[x + n - 1 - k]: tap k reads from float CH (n - 1 - k).
-    let list: Vec<(f32, usize)> = taps
-        .iter()
-        .enumerate()
-        .filter(|(_, &wk)| wk != 0.0)
-        .map(|(k, &wk)| (wk, (n - 1 - k) * CH))
-        .collect();
+    let list = padded_row_taps::<CH>(taps);
     inter
         .par_chunks_mut(w * CH)
         .enumerate()
@@ -406,6 +400,48 @@ fn horizontal_pass<const CH: usize>(img: &ColorImage, taps: &[f32], c: usize, in
         });
 }
 
+/// The nonzero `taps` of a horizontal filter as [`filter_span`]'s list over a row padded with
+/// `n - 1 - c` pixels on the left (`n = taps.len()`, `CH` floats per pixel):
+/// `out(x) = sum_k taps[k] padded[x + n - 1 - k]`, so tap k reads from float `CH (n - 1 - k)`.
+fn padded_row_taps<const CH: usize>(taps: &[f32]) -> Vec<(f32, usize)> {
+    let n = taps.len();
+    taps.iter()
+        .enumerate()
+        .filter(|(_, &wk)| wk != 0.0)
+        .map(|(k, &wk)| (wk, (n - 1 - k) * CH))
+        .collect()
+}
+
+/// The vertical filter of a group of adjacent output rows `strips` (top first, each the columns
+/// from `x0` of rows `y..`) by [`filter_rows`]: `strips[r](x) (+)= sum_k taps[k]
+/// src(x, clamp(y + r + c - k))`, `src` with rows of `w` pixels of `CH` floats and `h` rows,
+/// clamped to its edge. `base` is scratch for the source rows' offsets.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "a group, its filter, its source and scratch, as both callers hold them"
+)]
+fn vertical_rows<const CH: usize>(
+    strips: &mut [&mut [f32]],
+    (y, x0): (usize, usize),
+    taps: &[f32],
+    c: usize,
+    src: &[f32],
+    (w, h): (usize, usize),
+    base: &mut Vec<usize>,
+    add: bool,
+) {
+    // With the bottom row of the group first, output row `y + m - 1 - r` reads source row
+    // `y + m - 1 - r + c - k` for tap k: entry `k + r` of one list.
+    let m = strips.len();
+    let bottom = y + m - 1 + c;
+    base.clear();
+    base.extend(
+        (0..taps.len() + m - 1).map(|j| (bottom.saturating_sub(j).min(h - 1) * w + x0) * CH),
+    );
+    strips.reverse();
+    filter_rows(strips, taps, base, src, add);
+}
+
 /// Output rows per parallel task of the vertical passes.
 pub const ROW_BLOCK: usize = 32;
 
@@ -413,11 +449,12 @@ pub const ROW_BLOCK: usize = 32;
 /// for a block of output rows stay in the L2 cache.
 pub const STRIP_PX: usize = 128;
 
-/// Runs `f(y, x0, strip, scratch)` for every output row `y` and column strip `[x0, x0 + strip.len())` of
-/// `out` (rows of `w` pixels of `P`): blocks of [`ROW_BLOCK`] rows in parallel, and within a
-/// block strip by strip, so that the source rows a strip reads are reused from cache by the
-/// next output row. Every output pixel is computed by the same operations in the same order
-/// whatever the partition, so the result does not depend on the thread count.
+/// Runs `f(y, x0, strip, scratch)` for every output row `y` and column strip
+/// `[x0, x0 + strip.len())` of `out` (rows of `w` pixels of `P`): blocks of [`ROW_BLOCK`] rows
+/// in parallel, and within a block strip by strip, so that the source rows a strip reads are
+/// reused from cache by the next output row. Every output pixel is computed by the same
+/// operations in the same order whatever the partition, so the result does not depend on the
+/// thread count.
 pub(crate) fn for_each_strip<P: Send>(
     out: &mut [P],
     w: usize,
@@ -488,16 +525,7 @@ fn vertical_pass<const CH: usize>(
     first: bool,
 ) {
     for_each_strip_rows(out, w, |y, x0, strips, base| {
-        // With the bottom row of the group first, output row `y + m - 1 - r` reads source row
-        // `y + m - 1 - r + c - k` for tap k: entry `k + r` of one list.
-        let m = strips.len();
-        let bottom = y + m - 1 + c;
-        base.clear();
-        base.extend(
-            (0..taps.len() + m - 1).map(|j| (bottom.saturating_sub(j).min(h - 1) * w + x0) * CH),
-        );
-        strips.reverse();
-        filter_rows(strips, taps, base, inter, !first);
+        vertical_rows::<CH>(strips, (y, x0), taps, c, inter, (w, h), base, !first);
     });
 }
 
@@ -525,16 +553,9 @@ fn separable_banded<const CH: usize>(
     }
     let left = n - 1 - cx;
     let padded_w = (w + n - 1) * CH;
-    // out(x) = sum_k t[k] padded[x + n - 1 - k]: tap k reads from float CH (n - 1 - k).
     let lists: Vec<Vec<(f32, usize)>> = horizontal
         .iter()
-        .map(|taps| {
-            taps.iter()
-                .enumerate()
-                .filter(|(_, &wk)| wk != 0.0)
-                .map(|(k, &wk)| (wk, (n - 1 - k) * CH))
-                .collect()
-        })
+        .map(|t| padded_row_taps::<CH>(t))
         .collect();
     let band = |(tmp, base, sum): &mut (Vec<f32>, Vec<usize>, Vec<f32>),
                 y0: usize,
@@ -554,18 +575,8 @@ fn separable_banded<const CH: usize>(
                     {
                         *s = &mut row[(left + x0) * CH..(left + x1) * CH];
                     }
-                    // With the bottom row of the group first, scratch row `y0 + g0 + m - 1 - r`
-                    // reads source row `y0 + g0 + m - 1 - r + cy - k` for tap k: entry `k + r`
-                    // of one list.
-                    let bottom = y0 + g0 + m - 1 + cy;
-                    base.clear();
-                    base.extend(
-                        (0..vt.len() + m - 1)
-                            .map(|j| (bottom.saturating_sub(j).min(h - 1) * w + x0) * CH),
-                    );
                     let strips = &mut strips[..m];
-                    strips.reverse();
-                    filter_rows(strips, vt, base, src, false);
+                    vertical_rows::<CH>(strips, (y0 + g0, x0), vt, cy, src, (w, h), base, false);
                 }
             }
             for (t, o) in tmp.chunks_mut(padded_w).zip(sum.chunks_mut(w * CH)) {
