@@ -46,7 +46,11 @@ fn bench(c: &mut Criterion) {
     for half in [false, true] {
         for compression in ExrCompression::ALL {
             let name = if half { "write_exr_half" } else { "write_exr" };
-            let options = ExrOptions { compression, half };
+            let options = ExrOptions {
+                compression,
+                half,
+                placement: None,
+            };
             g.bench_function(format!("{name}/{}/{w}x{h}", compression.name()), |b| {
                 b.iter(|| io::write_color_with(&path, &img, &options).expect("write"))
             });

@@ -92,6 +92,80 @@ pub struct ExrOptions {
     pub compression: ExrCompression,
     /// Store colour as 16-bit half floats instead of 32-bit floats (depth always stays 32-bit).
     pub half: bool,
+    /// Where the image lies in its frame. `None`: it is the whole frame, at (0, 0).
+    pub placement: Option<Placement>,
+}
+
+/// Where an image's pixels lie in its frame, as an OpenEXR file records it: the stored pixels
+/// (the data window) start at `data_origin`, and the frame (the display window) starts at
+/// `display_origin` and is `display_size` pixels, all in the file's pixel coordinates (x right,
+/// y down). Compositors write a data window smaller than the frame (a bounding box) or larger
+/// (overscan); pixel (0, 0) of the image read from the file is at `data_origin`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Placement {
+    /// The data window's top-left pixel.
+    pub data_origin: (i32, i32),
+    /// The display window's top-left pixel.
+    pub display_origin: (i32, i32),
+    /// The display window's width and height in pixels.
+    pub display_size: (usize, usize),
+}
+
+impl Placement {
+    /// A `width` x `height` image that is its whole frame, at (0, 0).
+    pub fn full(width: usize, height: usize) -> Self {
+        Self {
+            data_origin: (0, 0),
+            display_origin: (0, 0),
+            display_size: (width, height),
+        }
+    }
+
+    /// The image's top-left pixel relative to the frame's.
+    pub fn offset(&self) -> (i64, i64) {
+        (
+            i64::from(self.data_origin.0) - i64::from(self.display_origin.0),
+            i64::from(self.data_origin.1) - i64::from(self.display_origin.1),
+        )
+    }
+
+    /// Whether a `width` x `height` image so placed is exactly its frame.
+    pub fn is_full(&self, width: usize, height: usize) -> bool {
+        self.offset() == (0, 0) && self.display_size == (width, height)
+    }
+
+    /// The frame's centre pixel as a pixel of the image, clamped into a `width` x `height`
+    /// image (the centre of a frame the image does not cover is its nearest pixel).
+    pub fn frame_centre_in_image(&self, width: usize, height: usize) -> (usize, usize) {
+        let (ox, oy) = self.offset();
+        let at = |size: usize, origin: i64, n: usize| {
+            (size as i64 / 2 - origin).clamp(0, n as i64 - 1) as usize
+        };
+        (
+            at(self.display_size.0, ox, width),
+            at(self.display_size.1, oy, height),
+        )
+    }
+}
+
+/// The placement of the image in an OpenEXR file (its first layer's data window in the display
+/// window), read from the header alone; `None` when the file is not OpenEXR by its content.
+pub fn read_exr_placement(path: &Path) -> Result<Option<Placement>> {
+    if input_format(path, "input image")? != FileFormat::Exr {
+        return Ok(None);
+    }
+    let meta = exr::meta::MetaData::read_from_buffered(BufReader::new(open(path)?), false)
+        .map_err(|e| exr_read_error(path, e))?;
+    let Some(header) = meta.headers.first() else {
+        return Err(Error::format(path, "the OpenEXR file has no layers"));
+    };
+    let display = header.shared_attributes.display_window;
+    let data = header.own_attributes.layer_position;
+    Ok(Some(Placement {
+        data_origin: (data.0, data.1),
+        display_origin: (display.position.0, display.position.1),
+        display_size: (display.size.0, display.size.1),
+    }))
 }
 
 /// The file formats this module reads and writes.
@@ -647,6 +721,17 @@ pub fn write_exr_layers(
     height: usize,
     channels: &[(&str, &[f32])],
 ) -> Result<()> {
+    write_exr_layers_placed(path, width, height, channels, None)
+}
+
+/// [`write_exr_layers`] with the image placed in its frame (`None`: the whole frame).
+pub fn write_exr_layers_placed(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: &[(&str, &[f32])],
+    placement: Option<Placement>,
+) -> Result<()> {
     check_output_size(path, width, height)?;
     let owned = channels
         .iter()
@@ -659,6 +744,7 @@ pub fn write_exr_layers(
         owned,
         &ExrOptions {
             half: false,
+            placement,
             ..ExrOptions::default()
         },
     )
@@ -891,13 +977,22 @@ fn write_exr(
             ),
         ));
     }
+    let placement = options
+        .placement
+        .unwrap_or_else(|| Placement::full(width, height));
+    let (x, y) = placement.data_origin;
     let layer = exr::prelude::Layer::new(
         (width, height),
-        LayerAttributes::default(),
+        LayerAttributes {
+            layer_position: Vec2(x, y),
+            ..LayerAttributes::default()
+        },
         options.compression.encoding(),
         channels,
     );
-    let image = ExrImage::from_layer(layer);
+    let display =
+        exr::meta::attribute::IntegerBounds::new(placement.display_origin, placement.display_size);
+    let image = ExrImage::new(exr::meta::header::ImageAttributes::new(display), layer);
     write_atomic(path, |out| {
         image.write().to_buffered(out).map_err(|e| match e {
             exr::error::Error::Io(e) => Error::io(path, e),

@@ -4,6 +4,7 @@
 use std::path::Path;
 use std::process::Command;
 
+use defocus::image::io::{ExrOptions, Placement};
 use defocus::image::{io, ColorImage, GrayImage};
 
 use crate::cli::{defocus, s, stderr, temp_dir};
@@ -642,5 +643,137 @@ fn kernel_filter_blurs_an_image_with_the_low_rank_and_the_full_kernel() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("fig2"), "{}", stderr(&o));
     assert!(!bad.exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Writes depth as a grey PFM (bottom row first, as the format stores it).
+fn write_depth_pfm(path: &Path, depth: &GrayImage) {
+    let (w, h) = (depth.width(), depth.height());
+    let mut pfm = format!("Pf\n{w} {h}\n-1.0\n").into_bytes();
+    for y in (0..h).rev() {
+        for &z in depth.row(y) {
+            pfm.extend(z.to_le_bytes());
+        }
+    }
+    std::fs::write(path, pfm).unwrap();
+}
+
+/// The `(x0, y0, w, h)` part of `img`.
+fn crop<P: Copy + Send + Sync>(
+    img: &defocus::image::Image<P>,
+    (x0, y0, w, h): (usize, usize, usize, usize),
+) -> defocus::image::Image<P> {
+    let rows = (y0..y0 + h).flat_map(|y| img.row(y)[x0..x0 + w].iter().copied());
+    defocus::image::Image::from_vec(w, h, rows.collect()).unwrap()
+}
+
+/// An OpenEXR colour image whose data window is part of its display window (a compositor's
+/// bounding box): the output keeps both windows, and depth for the whole frame (as an EXR with
+/// its own windows, or as a PFM the size of the frame) is cut to the colour's pixels at their
+/// place, which gives the same image as depth cut by hand.
+#[test]
+fn blur_keeps_an_exr_data_window_in_its_frame_and_cuts_depth_to_it() {
+    let dir = temp_dir("window");
+    let (color, depth) = write_frame(&dir.join("frame.exr"));
+    // The frame starts at (100, 50) in the file's coordinates; the colour holds its part from
+    // (6, 4), 36x24 pixels.
+    let part = (6, 4, 36, 24);
+    let frame = Placement {
+        data_origin: (100, 50),
+        display_origin: (100, 50),
+        display_size: (W, H),
+    };
+    let placed = Placement {
+        data_origin: (106, 54),
+        ..frame
+    };
+    let color_part = dir.join("color_part.exr");
+    let options = ExrOptions {
+        placement: Some(placed),
+        ..ExrOptions::default()
+    };
+    io::write_color_with(&color_part, &crop(&color, part), &options).unwrap();
+    assert_eq!(io::read_exr_placement(&color_part).unwrap(), Some(placed));
+    let depth_frame = dir.join("depth_frame.exr");
+    io::write_exr_layers_placed(&depth_frame, W, H, &[("Z", depth.pixels())], Some(frame)).unwrap();
+    let depth_frame_pfm = dir.join("depth_frame.pfm");
+    write_depth_pfm(&depth_frame_pfm, &depth);
+    let depth_part = dir.join("depth_part.pfm");
+    write_depth_pfm(&depth_part, &crop(&depth, part));
+
+    let run = |depth: &Path, out: &Path, coc_out: Option<&Path>| {
+        let mut args = vec![
+            "blur",
+            "--color",
+            s(&color_part),
+            "--depth",
+            s(depth),
+            "--method",
+            "hammon",
+            "--focus",
+            "2",
+            "--fstop",
+            "1",
+            "--focal-length",
+            "200",
+            "--out",
+            s(out),
+        ];
+        if let Some(c) = coc_out {
+            args.extend(["--coc-out", s(c)]);
+        }
+        defocus(&args)
+    };
+    let by_hand = dir.join("by_hand.exr");
+    let o = run(&depth_part, &by_hand, None);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let expected = io::read_color(&by_hand).unwrap();
+    assert_eq!((expected.width(), expected.height()), (36, 24));
+    assert_eq!(io::read_exr_placement(&by_hand).unwrap(), Some(placed));
+    for depth in [&depth_frame, &depth_frame_pfm] {
+        let (out, coc) = (dir.join("out.exr"), dir.join("coc.exr"));
+        let o = run(depth, &out, Some(&coc));
+        assert!(o.status.success(), "{}: {}", depth.display(), stderr(&o));
+        assert_eq!(
+            io::read_color(&out).unwrap(),
+            expected,
+            "{}",
+            depth.display()
+        );
+        assert_eq!(io::read_exr_placement(&out).unwrap(), Some(placed));
+        assert_eq!(io::read_exr_placement(&coc).unwrap(), Some(placed));
+    }
+    // A PNG output cannot hold the place: it says so, and holds the pixels.
+    let png = dir.join("out.png");
+    let o = run(&depth_frame, &png, None);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("write .exr to keep it"),
+        "{}",
+        stderr(&o)
+    );
+    // Depth that misses some colour pixels is refused, naming both windows, and writes nothing.
+    let depth_small = dir.join("depth_small.exr");
+    let small = Placement {
+        data_origin: (110, 54),
+        ..frame
+    };
+    io::write_exr_layers_placed(
+        &depth_small,
+        36,
+        24,
+        &[("Z", crop(&depth, part).pixels())],
+        Some(small),
+    )
+    .unwrap();
+    let refused = dir.join("refused.exr");
+    let o = run(&depth_small, &refused, None);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("36x24 pixels from (110, 54)") && e.contains("36x24 pixels from (106, 54)"),
+        "{e}"
+    );
+    assert!(!refused.exists());
     std::fs::remove_dir_all(dir).unwrap();
 }

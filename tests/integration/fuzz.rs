@@ -104,6 +104,7 @@ fn valid_images(dir: &Path) -> Vec<PathBuf> {
             io::ExrOptions {
                 compression: io::ExrCompression::Zip,
                 half: false,
+                placement: None,
             },
         ),
         (
@@ -111,6 +112,7 @@ fn valid_images(dir: &Path) -> Vec<PathBuf> {
             io::ExrOptions {
                 compression: io::ExrCompression::Piz,
                 half: true,
+                placement: None,
             },
         ),
     ] {

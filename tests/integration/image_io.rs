@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use defocus::image::io::{
     ensure_not_same_file, radial_to_view_depth, read_color, read_depth, read_exr_channels,
-    write_color, write_depth_exr, write_exr_layers, write_png16, DepthRead,
+    write_color, write_depth_exr, write_exr_layers, write_png16, DepthRead, Placement,
 };
 use defocus::image::{srgb_encode, ColorImage, GrayImage};
 use defocus::Error;
@@ -710,4 +710,32 @@ fn jpeg_colour_is_read_and_srgb_decoded_and_refused_as_depth_or_output() {
     let e = defocus::image::io::write_color(&dir.join("out.jpg"), &c).unwrap_err();
     assert!(e.to_string().contains("JPEG"), "{e}");
     std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// A data window's place in its display window: the offset, whether it is the whole frame, and
+/// the frame's centre as a pixel of the image (clamped into it when the image does not reach it).
+#[test]
+fn placement_gives_the_offset_and_the_frame_centre_in_image_pixels() {
+    let p = Placement {
+        data_origin: (106, 54),
+        display_origin: (100, 50),
+        display_size: (48, 32),
+    };
+    assert_eq!(p.offset(), (6, 4));
+    assert!(!p.is_full(48, 32));
+    // The frame's centre pixel (24, 16) is the image's (18, 12).
+    assert_eq!(p.frame_centre_in_image(36, 24), (18, 12));
+    // An image in the frame's top-left 10x10 corner: its nearest pixel to the centre.
+    assert_eq!(p.frame_centre_in_image(10, 10), (9, 9));
+    let full = Placement::full(48, 32);
+    assert!(full.is_full(48, 32) && !full.is_full(48, 31));
+    assert_eq!(full.frame_centre_in_image(48, 32), (24, 16));
+    // Overscan: the image starts 8 pixels before the frame.
+    let over = Placement {
+        data_origin: (-8, -8),
+        display_origin: (0, 0),
+        display_size: (48, 32),
+    };
+    assert_eq!(over.offset(), (-8, -8));
+    assert_eq!(over.frame_centre_in_image(64, 48), (32, 24));
 }

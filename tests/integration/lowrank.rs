@@ -5,7 +5,7 @@ use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::{Aperture, ThinLens};
 use defocus::methods::lowrank::{
     self, decompose, dof, filter, filter_full_2d, filter_separable, kernel_image, tilt_shift_coc,
-    CustomShape, KernelSpec, LowRankSettings, TiltShift,
+    tilt_shift_coc_in_frame, CustomShape, KernelSpec, LowRankSettings, TiltShift,
 };
 use defocus::methods::{gaussian, poisson};
 use defocus::Error;
@@ -1009,6 +1009,38 @@ fn tilt_shift_band_is_sharp_inside_and_reaches_the_maximum_blur_outside() {
     assert_ne!(out.image.row(5), img.row(5));
     assert!(tilt_shift_coc(w, h, &TiltShift { width: -1.0, ..ts }).is_err());
     assert!(tilt_shift_coc(0, h, &ts).is_err());
+}
+
+/// A part of a frame (an OpenEXR data window) gets the band of the whole frame: its CoC map is
+/// the whole frame's map cut at its place, including a part that reaches past the frame's edge.
+#[test]
+fn tilt_shift_of_a_part_of_the_frame_is_the_frame_band_cut_out() {
+    let (fw, fh) = (120, 100);
+    let ts = TiltShift {
+        centre_y: 0.3,
+        width: 0.2,
+        angle_deg: 12.0,
+        max_coc_px: 6.0,
+        ramp: 0.2,
+    };
+    let whole = tilt_shift_coc(fw, fh, &ts).unwrap();
+    for (x0, y0, w, h) in [(10, 20, 50, 40), (0, 0, fw, fh), (70, 55, 50, 45)] {
+        let part = tilt_shift_coc_in_frame(w, h, (x0, y0), (fw, fh), &ts).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let (a, b) = (part.get(x, y), whole.get(x + x0 as usize, y + y0 as usize));
+                assert!(
+                    (a - b).abs() < 1e-3,
+                    "({x}, {y}) of the part at ({x0}, {y0}): {a} vs {b}"
+                );
+            }
+        }
+    }
+    // Reaching 10 px past the frame's top-left: the band continues there.
+    let over = tilt_shift_coc_in_frame(fw + 20, fh + 20, (-10, -10), (fw, fh), &ts).unwrap();
+    for (x, y) in [(0usize, 0usize), (60, 40), (119, 99)] {
+        assert!((over.get(x + 10, y + 10) - whole.get(x, y)).abs() < 1e-3);
+    }
 }
 
 #[test]

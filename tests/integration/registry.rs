@@ -237,6 +237,7 @@ fn exr_written_with_every_compression_reads_back_bit_identical() {
         let o = ExrOptions {
             compression,
             half: false,
+            placement: None,
         };
         io::write_color_with(&path, &img, &o).unwrap();
         let back = io::read_color(&path).unwrap();
@@ -245,6 +246,7 @@ fn exr_written_with_every_compression_reads_back_bit_identical() {
         let o = ExrOptions {
             compression,
             half: true,
+            placement: None,
         };
         io::write_color_with(&path, &img, &o).unwrap();
         let back = io::read_color(&path).unwrap();

@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use defocus::autofocus::focus_in_depth;
-use defocus::image::io::{self, DepthRead};
+use defocus::image::io::{self, DepthRead, Placement};
 use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::{Camera, ThinLens};
-use defocus::methods::lowrank::{self, tilt_shift_coc, TiltShift};
+use defocus::methods::lowrank::{self, tilt_shift_coc_in_frame, TiltShift};
 use defocus::methods::registry::{self, Frame, MethodSettings};
 use defocus::methods::MethodOutput;
 use defocus::timing::{self, Timings};
@@ -31,6 +31,8 @@ pub enum DepthKind {
 #[derive(Debug, Args)]
 pub struct BlurArgs {
     /// Colour image: EXR (plain R/G/B/A or a multilayer file's Combined layer), PNG (sRGB) or PFM.
+    /// An EXR's data window keeps its place in the display window: depth is cut to it, an EXR
+    /// output keeps both windows, and autofocus and --tilt-shift measure from the display window.
     #[arg(long, value_name = "FILE")]
     pub color: PathBuf,
     /// Depth image in metres: EXR channel Z / depth / <layer>.Depth.Z (may be the colour file
@@ -228,6 +230,23 @@ impl TryFrom<&BlurArgs> for BlurJob {
             }
         }
         let mut color = read_timings.time(timing::READ, || io::read_color(&a.color))?;
+        // Where an EXR's data window lies in its display window; `None` for other formats.
+        let color_place = io::read_exr_placement(&a.color)?;
+        let (w, h) = (color.width(), color.height());
+        let frame = color_place.unwrap_or_else(|| Placement::full(w, h));
+        if a.verbose && !frame.is_full(w, h) {
+            eprintln!("colour: {}", describe_placement(&a.color, w, h, &frame));
+        }
+        let mut exr = a.exr.options();
+        exr.placement = color_place.filter(|p| !p.is_full(w, h));
+        if exr.placement.is_some() && !has_extension(&a.out, "exr") {
+            eprintln!(
+                "note: {} is not OpenEXR: it holds the colour image's {w}x{h} pixels without \
+                 their place in the frame ({}); write .exr to keep it",
+                a.out.display(),
+                describe_placement(&a.color, w, h, &frame)
+            );
+        }
         if a.sanitize {
             let n = io::sanitize_color(&mut color);
             if n > 0 {
@@ -243,7 +262,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             let mut post = a.post.clone();
             post.max_coc = post.max_coc.max(ts.max_coc_px);
             let settings = post.settings(method, &aperture, a.seed, color.height(), None)?;
-            let coc_px = tilt_shift_coc(color.width(), color.height(), &ts)?;
+            let coc_px = tilt_shift_coc_in_frame(w, h, frame.offset(), frame.display_size, &ts)?;
             if a.verbose {
                 eprintln!(
                     "tilt-shift: band centre {} of the height, width {}, angle {} deg, blur up to {} px over {} of the height",
@@ -255,7 +274,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 input: Input::TiltShift { coc_px },
                 settings,
                 read_timings,
-                exr: a.exr.options(),
+                exr,
                 out: a.out.clone(),
                 coc_out: a.coc_out.clone(),
                 timings: a.timings,
@@ -280,18 +299,12 @@ impl TryFrom<&BlurArgs> for BlurJob {
             scale: a.depth_scale,
             radial: a.depth_kind == DepthKind::Radial,
         };
-        let mut depth = read_timings.time(timing::READ, || io::read_depth(depth_path, &opts))?;
-        if !color.same_size(&depth) {
-            bail!(
-                "size mismatch: colour {} is {}x{} but depth {} is {}x{}",
-                a.color.display(),
-                color.width(),
-                color.height(),
-                depth_path.display(),
-                depth.width(),
-                depth.height()
-            );
-        }
+        let depth = read_timings.time(timing::READ, || io::read_depth(depth_path, &opts))?;
+        let depth_place = io::read_exr_placement(depth_path)?;
+        let mut depth = align_depth(
+            (&a.color, w, h, color_place),
+            (depth_path, depth, depth_place),
+        )?;
         let mut camera = Camera {
             width_px: color.width(),
             height_px: color.height(),
@@ -314,7 +327,8 @@ impl TryFrom<&BlurArgs> for BlurJob {
             io::radial_to_view_depth(&mut depth, f_px);
         }
         camera.focus_m = if a.focus.trim() == "auto" {
-            let pick = focus_in_depth(&depth, color.width() / 2, color.height() / 2)
+            let (cx, cy) = frame.frame_centre_in_image(w, h);
+            let pick = focus_in_depth(&depth, cx, cy)
                 .context("--focus auto: the depth image has no surface (only holes or background); give --focus M")?;
             eprintln!(
                 "focus: {:.4} m (median depth of the {w}x{w} pixels at the image centre)",
@@ -347,7 +361,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             input: Input::Depth { depth, lens },
             settings,
             read_timings,
-            exr: a.exr.options(),
+            exr,
             out: a.out.clone(),
             coc_out: a.coc_out.clone(),
             timings: a.timings,
@@ -396,11 +410,12 @@ impl BlurJob {
                 }
                 Input::TiltShift { coc_px } => coc_px.pixels().to_vec(),
             };
-            io::write_exr_layers(
+            io::write_exr_layers_placed(
                 path,
                 self.color.width(),
                 self.color.height(),
                 &[("CoC", &coc)],
+                self.exr.placement,
             )?;
         }
         set.commit()?;
@@ -414,4 +429,90 @@ impl BlurJob {
         );
         Ok(())
     }
+}
+
+/// Whether `path` ends in `.ext` (any case).
+fn has_extension(path: &Path, ext: &str) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext))
+}
+
+/// An image's pixels as a rectangle of its file's pixel coordinates, in the frame it belongs to.
+fn describe_placement(path: &Path, w: usize, h: usize, p: &Placement) -> String {
+    let (x, y) = p.data_origin;
+    let (fx, fy) = p.display_origin;
+    let (fw, fh) = p.display_size;
+    format!(
+        "{} holds the {w}x{h} pixels from ({x}, {y}) of the {fw}x{fh} frame from ({fx}, {fy})",
+        path.display()
+    )
+}
+
+/// The depth of the colour image's pixels. Same size as the colour image: taken as it is.
+/// Otherwise the two are placed in one frame by their OpenEXR windows (data window inside
+/// display window), an image of another format covering its partner's whole frame, and the
+/// depth is cropped to the colour's pixels, which it must cover.
+fn align_depth(
+    (color_path, w, h, color_place): (&Path, usize, usize, Option<Placement>),
+    (depth_path, depth, depth_place): (&Path, GrayImage, Option<Placement>),
+) -> Result<GrayImage> {
+    let (dw, dh) = (depth.width(), depth.height());
+    // Rectangles (x, y, width, height) in the file's pixel coordinates.
+    let rect = |p: &Placement, w: usize, h: usize| {
+        (i64::from(p.data_origin.0), i64::from(p.data_origin.1), w, h)
+    };
+    let frame_rect = |p: &Placement| {
+        let (x, y) = p.display_origin;
+        (
+            i64::from(x),
+            i64::from(y),
+            p.display_size.0,
+            p.display_size.1,
+        )
+    };
+    let placed = match (color_place, depth_place) {
+        (Some(c), Some(d)) => Some((rect(&c, w, h), rect(&d, dw, dh))),
+        // A depth image without a window the size of the colour's frame is that frame.
+        (Some(c), None) if (dw, dh) != (w, h) && c.display_size == (dw, dh) => {
+            Some((rect(&c, w, h), frame_rect(&c)))
+        }
+        // A colour image without a window the size of the depth's frame is that frame.
+        (None, Some(d)) if (dw, dh) != (w, h) && d.display_size == (w, h) => {
+            Some((frame_rect(&d), rect(&d, dw, dh)))
+        }
+        _ => None,
+    };
+    let Some((c, d)) = placed else {
+        if (dw, dh) != (w, h) {
+            bail!(
+                "size mismatch: colour {} is {w}x{h} but depth {} is {dw}x{dh}",
+                color_path.display(),
+                depth_path.display(),
+            );
+        }
+        return Ok(depth);
+    };
+    if c == d {
+        return Ok(depth);
+    }
+    let (x0, y0) = (c.0 - d.0, c.1 - d.1);
+    let inside = x0 >= 0 && y0 >= 0 && x0 + c.2 as i64 <= dw as i64 && y0 + c.3 as i64 <= dh as i64;
+    if !inside {
+        let describe =
+            |r: (i64, i64, usize, usize)| format!("{}x{} pixels from ({}, {})", r.2, r.3, r.0, r.1);
+        bail!(
+            "depth {} covers {} of the frame but colour {} covers {}: expected depth for every \
+             colour pixel (OpenEXR data windows, or a PNG/PFM the size of the frame)",
+            depth_path.display(),
+            describe(d),
+            color_path.display(),
+            describe(c),
+        );
+    }
+    let (x0, y0) = (x0 as usize, y0 as usize);
+    let mut cropped = Vec::with_capacity(w * h);
+    for row in depth.pixels().chunks_exact(dw).skip(y0).take(h) {
+        cropped.extend_from_slice(&row[x0..x0 + w]);
+    }
+    Ok(GrayImage::from_vec(w, h, cropped)?)
 }

@@ -197,6 +197,7 @@ impl ExrArgs {
         ExrOptions {
             compression,
             half: self.half,
+            placement: None,
         }
     }
 }

@@ -97,7 +97,7 @@ pub mod tiltshift;
 pub use filter::{filter_full_2d, filter_separable};
 pub use kernel::{kernel_image, CustomShape, KernelSpec};
 pub use svd::{decompose, LowRank};
-pub use tiltshift::{tilt_shift_coc, TiltShift};
+pub use tiltshift::{tilt_shift_coc, tilt_shift_coc_in_frame, TiltShift};
 
 use super::coc_map;
 use super::poisson::{self, Taps};

@@ -98,10 +98,29 @@ impl TiltShift {
 
 /// The CoC map (radius in pixels, >= 0) of a `width x height` image for the band `ts`.
 pub fn tilt_shift_coc(width: usize, height: usize, ts: &TiltShift) -> Result<GrayImage> {
+    tilt_shift_coc_in_frame(width, height, (0, 0), (width, height), ts)
+}
+
+/// [`tilt_shift_coc`] for an image that is part of a larger (or smaller) frame, as an OpenEXR
+/// data window inside its display window: the image's pixel (0, 0) is the frame's pixel
+/// `offset`, and the band is placed and sized by the `frame` (width, height), as it is on the
+/// whole picture.
+pub fn tilt_shift_coc_in_frame(
+    width: usize,
+    height: usize,
+    offset: (i64, i64),
+    frame: (usize, usize),
+    ts: &TiltShift,
+) -> Result<GrayImage> {
     check_size(width, height)?;
+    check_size(frame.0, frame.1)?;
     ts.validate()?;
-    let h = height as f32;
-    let (cx, cy) = (width as f32 * 0.5, ts.centre_y * h);
+    let h = frame.1 as f32;
+    // The frame's centre line, in the image's pixel coordinates.
+    let (cx, cy) = (
+        frame.0 as f32 * 0.5 - offset.0 as f32,
+        ts.centre_y * h - offset.1 as f32,
+    );
     let (sin, cos) = ts.angle_deg.to_radians().sin_cos();
     let half_band = 0.5 * ts.width * h;
     let ramp_px = ts.ramp * h;
