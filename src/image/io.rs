@@ -440,6 +440,10 @@ pub struct DepthRead {
     /// [`read_depth`] does not convert (it needs the camera); the caller applies
     /// [`radial_to_view_depth`] when this is set. Default false.
     pub radial: bool,
+    /// True when the file holds inverse depth, 1 / depth, with 0 for infinitely far, as Nuke's
+    /// ScanlineRender writes its depth channel. [`read_depth`] inverts it (before the scale, so
+    /// depth = scale / value). Default false.
+    pub inverse: bool,
 }
 
 impl Default for DepthRead {
@@ -448,6 +452,7 @@ impl Default for DepthRead {
             channel: None,
             scale: 1.0,
             radial: false,
+            inverse: false,
         }
     }
 }
@@ -514,6 +519,9 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
             )
         }
     };
+    if opts.inverse {
+        invert_depth(path, &what, width, &mut values)?;
+    }
     if opts.scale != 1.0 {
         values.iter_mut().for_each(|v| *v *= opts.scale);
     }
@@ -1354,6 +1362,33 @@ fn write_pfm(path: &Path, img: &ColorImage) -> Result<()> {
 
 /// Checks depth values in metres: `+inf` becomes `f32::MAX`; NaN, zero, negative values and
 /// `-inf` are an error naming the first such pixel (x, y), its value and their count.
+/// Inverse depth (1 / depth, 0 for infinitely far) to depth, in place. NaN, negative and
+/// infinite values (an inverse of infinity would be a depth of 0) are an error naming the first.
+fn invert_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Result<()> {
+    let mut bad = 0usize;
+    let mut first = None;
+    for (i, v) in values.iter_mut().enumerate() {
+        if *v == 0.0 {
+            *v = f32::INFINITY;
+        } else if *v > 0.0 && v.is_finite() {
+            *v = 1.0 / *v;
+        } else {
+            bad += 1;
+            first.get_or_insert((i % width, i / width, *v));
+        }
+    }
+    match first {
+        None => Ok(()),
+        Some((x, y, v)) => Err(Error::format(
+            path,
+            format!(
+                "inverse depth {what}: {bad} pixel(s) are not inverse depths, the first at \
+                 (x {x}, y {y}) = {v}; expected 1 / depth >= 0 and finite (0 means far)"
+            ),
+        )),
+    }
+}
+
 fn validate_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Result<()> {
     let mut bad = 0usize;
     let mut first = None;

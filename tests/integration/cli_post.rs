@@ -777,3 +777,57 @@ fn blur_keeps_an_exr_data_window_in_its_frame_and_cuts_depth_to_it() {
     assert!(!refused.exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `--depth-kind inverse` reads 1 / depth (Nuke's ScanlineRender depth, 0 for infinitely far):
+/// the same image as the depth itself.
+#[test]
+fn blur_reads_inverse_depth_as_nuke_writes_it() {
+    let dir = temp_dir("inverse");
+    let frame = dir.join("frame.exr");
+    let (_, depth) = write_frame(&frame);
+    // The right half is the sky: no surface, 0 in inverse depth and +inf in depth.
+    let sky = |x: usize| x >= W - 4;
+    let inverse: Vec<f32> = (0..W * H)
+        .map(|i| {
+            if sky(i % W) {
+                0.0
+            } else {
+                1.0 / depth.pixels()[i]
+            }
+        })
+        .collect();
+    let direct: Vec<f32> = inverse
+        .iter()
+        .map(|&v| if v == 0.0 { f32::INFINITY } else { 1.0 / v })
+        .collect();
+    let (inv_path, direct_path) = (dir.join("inverse.exr"), dir.join("direct.exr"));
+    io::write_exr_layers(&inv_path, W, H, &[("depth.Z", &inverse)]).unwrap();
+    io::write_exr_layers(&direct_path, W, H, &[("depth.Z", &direct)]).unwrap();
+    let mut outputs = Vec::new();
+    for (depth, kind) in [(&inv_path, "inverse"), (&direct_path, "view")] {
+        let out = dir.join(format!("{kind}-out.exr"));
+        let o = defocus(&[
+            "blur",
+            "--color",
+            s(&frame),
+            "--depth",
+            s(depth),
+            "--depth-kind",
+            kind,
+            "--method",
+            "lowrank",
+            "--focus",
+            "2",
+            "--fstop",
+            "1",
+            "--focal-length",
+            "200",
+            "--out",
+            s(&out),
+        ]);
+        assert!(o.status.success(), "{kind}: {}", stderr(&o));
+        outputs.push(io::read_color(&out).unwrap());
+    }
+    assert_eq!(outputs[0], outputs[1]);
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -739,3 +739,40 @@ fn placement_gives_the_offset_and_the_frame_centre_in_image_pixels() {
     assert_eq!(over.offset(), (-8, -8));
     assert_eq!(over.frame_centre_in_image(64, 48), (32, 24));
 }
+
+/// Inverse depth (Nuke's ScanlineRender: 1 / depth, 0 for infinitely far) is inverted before
+/// the scale; NaN, negative and infinite inverse depths are refused with the first pixel.
+#[test]
+fn inverse_depth_is_inverted_before_the_scale_and_zero_is_far() {
+    let dir = TempDir::new("inverse");
+    let path = dir.join("inv.exr");
+    write_exr_layers(&path, 4, 1, &[("Z", &[0.5, 0.0, 0.25, 2.0])]).unwrap();
+    for (scale, expect) in [
+        (1.0, [2.0, f32::MAX, 4.0, 0.5]),
+        (10.0, [20.0, f32::MAX, 40.0, 5.0]),
+    ] {
+        let opts = DepthRead {
+            scale,
+            inverse: true,
+            ..Default::default()
+        };
+        let depth = read_depth(&path, &opts).unwrap();
+        assert_eq!(depth.pixels(), &expect, "scale {scale}");
+    }
+    for (bad, name) in [(-1.0, "-1"), (f32::NAN, "NaN"), (f32::INFINITY, "inf")] {
+        write_exr_layers(&path, 3, 1, &[("Z", &[0.5, bad, bad])]).unwrap();
+        let opts = DepthRead {
+            inverse: true,
+            ..Default::default()
+        };
+        let err = read_depth(&path, &opts).unwrap_err().to_string();
+        assert!(
+            err.contains("inv.exr")
+                && err.contains("inverse depth")
+                && err.contains("2 pixel(s)")
+                && err.contains("(x 1, y 0)")
+                && err.contains(name),
+            "{err}"
+        );
+    }
+}

@@ -25,6 +25,9 @@ pub enum DepthKind {
     View,
     /// Distance from the eye along each pixel's ray; converted to view depth.
     Radial,
+    /// 1 / view depth, 0 for infinitely far (Nuke's ScanlineRender depth); depth =
+    /// --depth-scale / value.
+    Inverse,
 }
 
 /// Flags of `blur`.
@@ -298,6 +301,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             channel: a.depth_channel.clone(),
             scale: a.depth_scale,
             radial: a.depth_kind == DepthKind::Radial,
+            inverse: a.depth_kind == DepthKind::Inverse,
         };
         let depth = read_timings.time(timing::READ, || io::read_depth(depth_path, &opts))?;
         let depth_place = io::read_exr_placement(depth_path)?;
