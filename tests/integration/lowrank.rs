@@ -1036,6 +1036,9 @@ fn tilt_shift_of_a_part_of_the_frame_is_the_frame_band_cut_out() {
             }
         }
     }
+    // The frame is not allocated: a huge one is fine, an empty one is refused.
+    assert!(tilt_shift_coc_in_frame(8, 8, (0, 0), (200_000, 200_000), &ts).is_ok());
+    assert!(tilt_shift_coc_in_frame(8, 8, (0, 0), (0, 10), &ts).is_err());
     // Reaching 10 px past the frame's top-left: the band continues there.
     let over = tilt_shift_coc_in_frame(fw + 20, fh + 20, (-10, -10), (fw, fh), &ts).unwrap();
     for (x, y) in [(0usize, 0usize), (60, 40), (119, 99)] {

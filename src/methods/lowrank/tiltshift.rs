@@ -113,7 +113,13 @@ pub fn tilt_shift_coc_in_frame(
     ts: &TiltShift,
 ) -> Result<GrayImage> {
     check_size(width, height)?;
-    check_size(frame.0, frame.1)?;
+    // The frame is never allocated: any size will do but an empty one.
+    if frame.0 == 0 || frame.1 == 0 {
+        return Err(Error::invalid(
+            "tilt-shift frame",
+            format!("{}x{}: expected at least one pixel", frame.0, frame.1),
+        ));
+    }
     ts.validate()?;
     let h = frame.1 as f32;
     // The frame's centre line, in the image's pixel coordinates.
