@@ -1362,24 +1362,38 @@ fn write_pfm(path: &Path, img: &ColorImage) -> Result<()> {
 
 /// Checks depth values in metres: `+inf` becomes `f32::MAX`; NaN, zero, negative values and
 /// `-inf` are an error naming the first such pixel (x, y), its value and their count.
-/// Inverse depth (1 / depth, 0 for infinitely far) to depth, in place. NaN, negative and
-/// infinite values (an inverse of infinity would be a depth of 0) are an error naming the first.
-fn invert_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Result<()> {
+/// Replaces each value by `convert(value)`, or counts it as bad where that is `None`. Returns
+/// the count and the first bad pixel `(x, y, value)`, if any.
+fn convert_depth(
+    values: &mut [f32],
+    width: usize,
+    convert: impl Fn(f32) -> Option<f32>,
+) -> Option<(usize, usize, usize, f32)> {
     let mut bad = 0usize;
     let mut first = None;
     for (i, v) in values.iter_mut().enumerate() {
-        if *v == 0.0 {
-            *v = f32::INFINITY;
-        } else if *v > 0.0 && v.is_finite() {
-            *v = 1.0 / *v;
-        } else {
-            bad += 1;
-            first.get_or_insert((i % width, i / width, *v));
+        match convert(*v) {
+            Some(c) => *v = c,
+            None => {
+                bad += 1;
+                first.get_or_insert((i % width, i / width, *v));
+            }
         }
     }
-    match first {
+    first.map(|(x, y, v)| (bad, x, y, v))
+}
+
+/// Inverse depth (1 / depth, 0 for infinitely far) to depth, in place. NaN, negative and
+/// infinite values (an inverse of infinity would be a depth of 0) are an error naming the first.
+fn invert_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Result<()> {
+    let invert = |v: f32| match v {
+        0.0 => Some(f32::INFINITY),
+        v if v > 0.0 && v.is_finite() => Some(1.0 / v),
+        _ => None,
+    };
+    match convert_depth(values, width, invert) {
         None => Ok(()),
-        Some((x, y, v)) => Err(Error::format(
+        Some((bad, x, y, v)) => Err(Error::format(
             path,
             format!(
                 "inverse depth {what}: {bad} pixel(s) are not inverse depths, the first at \
@@ -1389,20 +1403,17 @@ fn invert_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Re
     }
 }
 
+/// Every depth must be > 0 and finite, or +inf ("far"), which becomes `f32::MAX`; the others are
+/// an error naming the first and how many there are.
 fn validate_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Result<()> {
-    let mut bad = 0usize;
-    let mut first = None;
-    for (i, v) in values.iter_mut().enumerate() {
-        if *v == f32::INFINITY {
-            *v = f32::MAX;
-        } else if !(*v > 0.0 && v.is_finite()) {
-            bad += 1;
-            first.get_or_insert((i % width, i / width, *v));
-        }
-    }
-    match first {
+    let positive = |v: f32| match v {
+        f32::INFINITY => Some(f32::MAX),
+        v if v > 0.0 && v.is_finite() => Some(v),
+        _ => None,
+    };
+    match convert_depth(values, width, positive) {
         None => Ok(()),
-        Some((x, y, v)) => Err(Error::format(
+        Some((bad, x, y, v)) => Err(Error::format(
             path,
             format!(
                 "depth {what}: {bad} pixel(s) are not positive depths, the first at (x {x}, y {y}) \
