@@ -12,6 +12,10 @@ use crate::cli::{defocus, s, stderr, temp_dir};
 const W: usize = 48;
 const H: usize = 32;
 
+/// The lens flags of the frame tests: f_px = 200/36*48 = 267 px, lens radius 0.1 m, focus at
+/// 2 m: C(10 m) = 10.7 px.
+const LENS: [&str; 6] = ["--focus", "2", "--fstop", "1", "--focal-length", "200"];
+
 /// A frame with a bright square on a dark far wall (depth 10 m) and an in-focus left half
 /// (depth 2 m): colour and depth written as a Blender-style multilayer EXR.
 fn write_frame(path: &Path) -> (ColorImage, GrayImage) {
@@ -451,7 +455,6 @@ fn blur_takes_png_colour_with_16_bit_png_or_pfm_depth_and_a_depth_scale() {
         }
     }
     std::fs::write(&zpfm, pfm).unwrap();
-    let lens = ["--focus", "2", "--fstop", "1", "--focal-length", "200"];
     let mut outputs = Vec::new();
     for (z, scale) in [(&z16, "20"), (&zpfm, "0.01")] {
         let out = dir.join(format!("{}.exr", z.file_stem().unwrap().to_str().unwrap()));
@@ -464,7 +467,7 @@ fn blur_takes_png_colour_with_16_bit_png_or_pfm_depth_and_a_depth_scale() {
             "--depth-scale",
             scale,
         ];
-        args.extend(lens);
+        args.extend(LENS);
         args.extend(["--method", "gaussian", "--out", s(&out)]);
         let o = defocus(&args);
         assert!(o.status.success(), "{}", stderr(&o));
@@ -702,23 +705,9 @@ fn blur_keeps_an_exr_data_window_in_its_frame_and_cuts_depth_to_it() {
     write_depth_pfm(&depth_part, &crop(&depth, part));
 
     let run = |depth: &Path, out: &Path, coc_out: Option<&Path>| {
-        let mut args = vec![
-            "blur",
-            "--color",
-            s(&color_part),
-            "--depth",
-            s(depth),
-            "--method",
-            "hammon",
-            "--focus",
-            "2",
-            "--fstop",
-            "1",
-            "--focal-length",
-            "200",
-            "--out",
-            s(out),
-        ];
+        let mut args = vec!["blur", "--color", s(&color_part), "--depth", s(depth)];
+        args.extend(["--method", "hammon", "--out", s(out)]);
+        args.extend(LENS);
         if let Some(c) = coc_out {
             args.extend(["--coc-out", s(c)]);
         }
@@ -806,25 +795,17 @@ fn blur_reads_inverse_depth_as_nuke_writes_it() {
     let mut outputs = Vec::new();
     for (depth, kind) in [(&inv_path, "inverse"), (&direct_path, "view")] {
         let out = dir.join(format!("{kind}-out.exr"));
-        let o = defocus(&[
-            "blur",
-            "--color",
-            s(&frame),
-            "--depth",
-            s(depth),
+        let mut args = vec!["blur", "--color", s(&frame), "--depth", s(depth)];
+        args.extend([
             "--depth-kind",
             kind,
             "--method",
             "lowrank",
-            "--focus",
-            "2",
-            "--fstop",
-            "1",
-            "--focal-length",
-            "200",
             "--out",
             s(&out),
         ]);
+        args.extend(LENS);
+        let o = defocus(&args);
         assert!(o.status.success(), "{kind}: {}", stderr(&o));
         outputs.push(io::read_color(&out).unwrap());
     }
