@@ -812,3 +812,69 @@ fn blur_reads_inverse_depth_as_nuke_writes_it() {
     assert_eq!(outputs[0], outputs[1]);
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A stereo disparity map (Middlebury 2006 Aloe: 8-bit disparity in pixels at this size, larger
+/// = nearer, 0 = unknown) is inverse depth up to a constant disparity offset, which cancels in
+/// the CoC. With `--depth-kind inverse` and `--depth-scale` = f B / 255, every pixel's CoC is
+/// the thin lens's `f E (1/focus - 1/z)` with `1/z = d / (f B)`, that is `E (d_focus - d) / B`
+/// pixels; unknown pixels (0) are far: `E d_focus / B`.
+#[test]
+fn a_stereo_disparity_map_read_as_inverse_depth_gives_the_thin_lens_coc() {
+    let Some(assets) = crate::shared_assets() else {
+        return;
+    };
+    let aloe = assets.join("rgbd/middlebury2006_aloe");
+    let (photo, disparity) = (aloe.join("aloeL.jpg"), aloe.join("aloeGT.png"));
+    let d = image::open(&disparity).unwrap().to_luma8();
+    let width = d.width() as f32;
+    // Middlebury 2006, full size: focal length 3740 px, baseline 0.16 m.
+    let (f_px, baseline_m) = (3740.0f32, 0.16f32);
+    let (d_focus, fstop) = (100.0f32, 2.0f32);
+    // A lens of the camera's focal length in pixels on a 36 mm sensor.
+    let focal_mm = 36.0 * f_px / width;
+    let lens_radius_m = focal_mm / 1000.0 / (2.0 * fstop);
+    let dir = temp_dir("disparity");
+    let (out, coc) = (dir.join("o.png"), dir.join("coc.exr"));
+    let arg = |v: f32| v.to_string();
+    let (scale, focus, focal) = (
+        arg(f_px * baseline_m / 255.0),
+        arg(f_px * baseline_m / d_focus),
+        arg(focal_mm),
+    );
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&photo),
+        "--depth",
+        s(&disparity),
+        "--depth-kind",
+        "inverse",
+        "--depth-scale",
+        &scale,
+        "--focal-length",
+        &focal,
+        "--sensor-width",
+        "36",
+        "--fstop",
+        "2",
+        "--focus",
+        &focus,
+        "--out",
+        s(&out),
+        "--coc-out",
+        s(&coc),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ch = io::read_exr_channels(&coc).unwrap();
+    let c = ch.find("CoC").expect("channel CoC");
+    let per_disparity_px = lens_radius_m / baseline_m;
+    for (i, (&got, p)) in c.iter().zip(d.pixels()).enumerate() {
+        let d = f32::from(p.0[0]);
+        let expected = per_disparity_px * (d_focus - d);
+        assert!(
+            (got - expected).abs() < 1e-3 + 1e-4 * expected.abs(),
+            "pixel {i}, disparity {d}: CoC {got} px, expected {expected}"
+        );
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
