@@ -878,3 +878,89 @@ fn a_stereo_disparity_map_read_as_inverse_depth_gives_the_thin_lens_coc() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `--focus-pixel X,Y` focuses on the depth around that pixel of the frame: for an EXR whose
+/// data window is part of its display window, X,Y count from the display window's corner.
+#[test]
+fn blur_focus_pixel_focuses_on_the_depth_there_in_frame_coordinates() {
+    let dir = temp_dir("focuspixel");
+    let frame = dir.join("frame.exr");
+    let (color, depth) = write_frame(&frame);
+    let focus = |color: &Path, depth: &Path, pixel: &str| {
+        let out = dir.join("o.exr");
+        defocus(&[
+            "blur",
+            "--color",
+            s(color),
+            "--depth",
+            s(depth),
+            "--focus-pixel",
+            pixel,
+            "--out",
+            s(&out),
+        ])
+    };
+    // The left half is at 2 m, the right half at 10 m.
+    for (pixel, metres) in [("5,5", "2.0000"), ("40,20", "10.0000")] {
+        let o = focus(&frame, &frame, pixel);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(
+            stderr(&o).contains(&format!("focus: {metres} m")),
+            "{}",
+            stderr(&o)
+        );
+    }
+    let o = focus(&frame, &frame, "48,5");
+    assert!(!o.status.success() && stderr(&o).contains("--focus-pixel 48,5: outside the image"));
+    // The colour's 36x24 pixels from (6, 4) of the frame, with the depth of those pixels.
+    let part = (6, 4, 36, 24);
+    let frame_place = Placement {
+        data_origin: (100, 50),
+        display_origin: (100, 50),
+        display_size: (W, H),
+    };
+    let color_part = dir.join("color_part.exr");
+    let options = ExrOptions {
+        placement: Some(Placement {
+            data_origin: (106, 54),
+            ..frame_place
+        }),
+        ..ExrOptions::default()
+    };
+    io::write_color_with(&color_part, &crop(&color, part), &options).unwrap();
+    let depth_part = dir.join("depth_part.pfm");
+    write_depth_pfm(&depth_part, &crop(&depth, part));
+    // Frame column 20 is in the 2 m half, 30 in the 10 m half; (5, 5) is outside the part.
+    for (pixel, metres) in [("20,10", "2.0000"), ("30,10", "10.0000")] {
+        let o = focus(&color_part, &depth_part, pixel);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(
+            stderr(&o).contains(&format!("focus: {metres} m")),
+            "{pixel}: {}",
+            stderr(&o)
+        );
+    }
+    let o = focus(&color_part, &depth_part, "5,5");
+    assert!(
+        !o.status.success() && stderr(&o).contains("outside the image"),
+        "{}",
+        stderr(&o)
+    );
+    // Not with --focus.
+    let out = dir.join("both.exr");
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&frame),
+        "--focus",
+        "3",
+        "--focus-pixel",
+        "5,5",
+        "--out",
+        s(&out),
+    ]);
+    assert!(!o.status.success() && !out.exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -279,7 +279,7 @@ fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
 }
 
 /// Parses `X,Y` (two pixel indices).
-fn parse_pixel(s: &str) -> Result<(usize, usize), String> {
+pub(crate) fn parse_pixel(s: &str) -> Result<(usize, usize), String> {
     let (x, y) = s
         .split_once(',')
         .ok_or_else(|| format!("'{s}': expected a pixel column and row X,Y"))?;

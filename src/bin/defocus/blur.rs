@@ -69,6 +69,11 @@ pub struct BlurArgs {
         allow_negative_numbers = true
     )]
     pub focus: String,
+    /// Focus on the depth at pixel X,Y (column, row from the top left of the frame: for an EXR,
+    /// of its display window), the median of a small window around it, as --focus auto does at
+    /// the centre.
+    #[arg(long, value_name = "X,Y", value_parser = crate::args::parse_pixel, conflicts_with = "focus")]
+    pub focus_pixel: Option<(usize, usize)>,
     /// f-number N; the lens radius is focal length / (2 N).
     #[arg(
         long,
@@ -330,7 +335,26 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 defocus::lens::focal_length_px(a.focal_length, a.sensor_width, color.width());
             io::radial_to_view_depth(&mut depth, f_px);
         }
-        camera.focus_m = if a.focus.trim() == "auto" {
+        camera.focus_m = if let Some((fx, fy)) = a.focus_pixel {
+            // The frame's pixel as a pixel of the image.
+            let (ox, oy) = frame.offset();
+            let (x, y) = (fx as i64 - ox, fy as i64 - oy);
+            if !(0..w as i64).contains(&x) || !(0..h as i64).contains(&y) {
+                bail!(
+                    "--focus-pixel {fx},{fy}: outside the image ({})",
+                    describe_placement(&a.color, w, h, &frame)
+                );
+            }
+            let pick = focus_in_depth(&depth, x as usize, y as usize).with_context(|| {
+                format!("--focus-pixel {fx},{fy}: no surface around it (only holes or background); give --focus M")
+            })?;
+            eprintln!(
+                "focus: {:.4} m (median depth of the {w}x{w} pixels around ({fx}, {fy}))",
+                pick.depth_m,
+                w = pick.window_px
+            );
+            pick.depth_m
+        } else if a.focus.trim() == "auto" {
             let (cx, cy) = frame.frame_centre_in_image(w, h);
             let pick = focus_in_depth(&depth, cx, cy)
                 .context("--focus auto: the depth image has no surface (only holes or background); give --focus M")?;

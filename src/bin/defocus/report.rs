@@ -246,6 +246,7 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
             Some(crate::args::Focus::Metres(m)) => m.to_string(),
             _ => "auto".to_string(),
         },
+        focus_pixel: a.view.focus_pixel,
         fstop: a.fstop.unwrap_or(2.8),
         focal_length: a.focal_length.unwrap_or(50.0),
         sensor_width: a.sensor_width.unwrap_or(36.0),
