@@ -529,6 +529,54 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
     GrayImage::from_vec(width, height, values)
 }
 
+/// Reads a map of signed CoC radii in pixels (negative in front of the focal plane), as
+/// `blur --coc-out` writes it: from an OpenEXR file, the channel `channel` (a full name or a
+/// unique suffix), else the one channel named `CoC` or ending in `.CoC`; from a PFM, the grey
+/// (or red) channel. Every value must be finite; other formats are refused (a PNG holds no
+/// signed values).
+pub fn read_coc(path: &Path, channel: Option<&str>) -> Result<GrayImage> {
+    let (width, height, mut values, what) =
+        match input_format(path, "CoC path")? {
+            FileFormat::Exr => {
+                let channels = read_exr_channels(path)?;
+                let want = channel.unwrap_or("CoC");
+                let found = channels.find_by_suffix(want);
+                let [(name, samples)] = found.as_slice() else {
+                    return Err(Error::format(
+                        path,
+                        format!(
+                            "expected one CoC channel '{want}' (a full name or a unique suffix); \
+                         available channels: {}",
+                            channels.name_list()
+                        ),
+                    ));
+                };
+                let what = format!("channel '{name}'");
+                (channels.width, channels.height, samples.to_vec(), what)
+            }
+            FileFormat::Pfm => {
+                let pfm = read_pfm(path)?;
+                let values = pfm.data.iter().step_by(pfm.channels).copied().collect();
+                (pfm.width, pfm.height, values, "PFM".to_string())
+            }
+            FileFormat::Png | FileFormat::Jpeg => return Err(Error::format(
+                path,
+                "a CoC map holds signed radii in pixels: expected OpenEXR or PFM, not PNG or JPEG",
+            )),
+        };
+    let finite = |v: f32| v.is_finite().then_some(v);
+    if let Some((bad, x, y, v)) = convert_values(&mut values, width, finite) {
+        return Err(Error::format(
+            path,
+            format!(
+                "CoC {what}: {bad} pixel(s) are not finite, the first at (x {x}, y {y}) = {v}; \
+                 expected signed radii in pixels"
+            ),
+        ));
+    }
+    GrayImage::from_vec(width, height, values)
+}
+
 /// Converts radial distance from the eye (what some renderers store as depth) to view-axis depth,
 /// in place: z = d / sqrt(1 + ((x+0.5-cx)^2 + (y+0.5-cy)^2) / f_px^2) with the principal point
 /// (cx, cy) = (width/2, height/2) and `f_px` the focal length in pixels.
@@ -1364,7 +1412,7 @@ fn write_pfm(path: &Path, img: &ColorImage) -> Result<()> {
 /// `-inf` are an error naming the first such pixel (x, y), its value and their count.
 /// Replaces each value by `convert(value)`, or counts it as bad where that is `None`. Returns
 /// the count and the first bad pixel `(x, y, value)`, if any.
-fn convert_depth(
+fn convert_values(
     values: &mut [f32],
     width: usize,
     convert: impl Fn(f32) -> Option<f32>,
@@ -1391,7 +1439,7 @@ fn invert_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Re
         v if v > 0.0 && v.is_finite() => Some(1.0 / v),
         _ => None,
     };
-    match convert_depth(values, width, invert) {
+    match convert_values(values, width, invert) {
         None => Ok(()),
         Some((bad, x, y, v)) => Err(Error::format(
             path,
@@ -1411,7 +1459,7 @@ fn validate_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> 
         v if v > 0.0 && v.is_finite() => Some(v),
         _ => None,
     };
-    match convert_depth(values, width, positive) {
+    match convert_values(values, width, positive) {
         None => Ok(()),
         Some((bad, x, y, v)) => Err(Error::format(
             path,

@@ -201,6 +201,12 @@ impl ThinLens {
         super::coc_px(self.f_px, self.lens_radius_m, self.focus_m, z_m)
     }
 
+    /// The view depth in metres whose signed CoC is `coc_px` (see [`super::depth_for_coc_px`]).
+    #[inline]
+    pub fn depth_for_coc_px(&self, coc_px: f32) -> f32 {
+        super::depth_for_coc_px(self.f_px, self.lens_radius_m, self.focus_m, coc_px)
+    }
+
     /// The CoC radius in pixels of a point at infinite depth, the largest far-field blur.
     pub fn coc_at_infinity_px(&self) -> f32 {
         self.f_px * self.lens_radius_m / self.focus_m

@@ -32,6 +32,19 @@ pub fn coc_px(f_px: f32, lens_radius_m: f32, focus_m: f32, z_m: f32) -> f32 {
     f_px * lens_radius_m * (1.0 / focus_m - 1.0 / z_m)
 }
 
+/// The view depth in metres whose CoC is `coc_px` ([`coc_px`] solved for `z`):
+/// `z = 1 / (1/z_f - C / (f_px E))`. `+inf` where `coc_px` is at or beyond the CoC of infinite
+/// depth, `f_px * E / z_f`, which no finite depth reaches.
+#[inline]
+pub fn depth_for_coc_px(f_px: f32, lens_radius_m: f32, focus_m: f32, coc_px: f32) -> f32 {
+    let inv_z = 1.0 / focus_m - coc_px / (f_px * lens_radius_m);
+    if inv_z > 0.0 {
+        1.0 / inv_z
+    } else {
+        f32::INFINITY
+    }
+}
+
 /// Focal length in pixels with the sensor fit horizontal: `F / sensor_width * width`.
 #[inline]
 pub fn focal_length_px(focal_length_mm: f32, sensor_width_mm: f32, width_px: usize) -> f32 {

@@ -964,3 +964,123 @@ fn blur_focus_pixel_focuses_on_the_depth_there_in_frame_coordinates() {
     assert!(!o.status.success() && !out.exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `--depth-kind coc` takes the signed CoC map that `--coc-out` writes as the blur itself: the
+/// same image as from the depth it came from, for a gather and the low-rank filter; its
+/// `--depth-scale` scales the radii; `--focus` and a PNG map are refused.
+#[test]
+fn blur_takes_a_coc_map_as_the_blur_itself() {
+    let dir = temp_dir("cocmap");
+    let frame = dir.join("frame.exr");
+    write_frame(&frame);
+    let coc = dir.join("coc.exr");
+    for method in ["hammon", "lowrank"] {
+        let from_depth = dir.join(format!("{method}-depth.exr"));
+        let mut args = vec!["blur", "--color", s(&frame), "--depth", s(&frame)];
+        args.extend([
+            "--method",
+            method,
+            "--out",
+            s(&from_depth),
+            "--coc-out",
+            s(&coc),
+        ]);
+        args.extend(LENS);
+        let o = defocus(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let from_coc = dir.join(format!("{method}-coc.exr"));
+        let o = defocus(&[
+            "blur",
+            "--color",
+            s(&frame),
+            "--depth",
+            s(&coc),
+            "--depth-kind",
+            "coc",
+            "--method",
+            method,
+            "--out",
+            s(&from_coc),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let (a, b) = (
+            io::read_color(&from_depth).unwrap(),
+            io::read_color(&from_coc).unwrap(),
+        );
+        for (i, (p, q)) in a.pixels().iter().zip(b.pixels()).enumerate() {
+            for c in 0..4 {
+                assert!(
+                    (p[c] - q[c]).abs() < 1e-4 * (1.0 + p[c].abs()),
+                    "{method}, pixel {i}: {p:?} from depth, {q:?} from the CoC map"
+                );
+            }
+        }
+    }
+    // Twice the radii: the CoC written back is twice the map.
+    let (out, coc2) = (dir.join("twice.exr"), dir.join("coc2.exr"));
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&coc),
+        "--depth-kind",
+        "coc",
+        "--depth-scale",
+        "2",
+        "--out",
+        s(&out),
+        "--coc-out",
+        s(&coc2),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let once = io::read_exr_channels(&coc).unwrap();
+    let twice = io::read_exr_channels(&coc2).unwrap();
+    for (a, b) in once
+        .find("CoC")
+        .unwrap()
+        .iter()
+        .zip(twice.find("CoC").unwrap())
+    {
+        assert!((2.0 * a - b).abs() < 1e-3 * (1.0 + b.abs()), "{a} -> {b}");
+    }
+    // The map sets the focus: --focus is refused; a PNG cannot hold signed radii.
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&coc),
+        "--depth-kind",
+        "coc",
+        "--focus",
+        "3",
+        "--out",
+        s(&dir.join("no.exr")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("--depth-kind coc"),
+        "{}",
+        stderr(&o)
+    );
+    let png = dir.join("coc.png");
+    io::write_color(&png, &ColorImage::new(W, H, [0.5, 0.5, 0.5, 1.0])).unwrap();
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&png),
+        "--depth-kind",
+        "coc",
+        "--out",
+        s(&dir.join("no.exr")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("signed radii"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("no.exr").exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}

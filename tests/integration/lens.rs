@@ -1,6 +1,6 @@
 //! Tests: the thin-lens model, apertures and samplers.
 
-use defocus::lens::{coc_px, Aperture, Camera, SampleSet, SamplerKind};
+use defocus::lens::{coc_px, depth_for_coc_px, Aperture, Camera, SampleSet, SamplerKind};
 use glam::{Affine3A, Vec2};
 
 fn cycles_camera() -> Camera {
@@ -34,6 +34,32 @@ fn coc_has_analytic_values_sign_zero_at_focus_and_limit_at_infinity() {
         "behind focus is positive"
     );
     assert!((coc_px(1000.0, 0.01, 2.0, 1e12) - 5.0).abs() < 1e-5);
+}
+
+/// The depth of a CoC solves the CoC formula: analytic values, the round trip over near and far
+/// radii, and +inf at and beyond the CoC of infinite depth.
+#[test]
+fn depth_for_coc_inverts_the_coc_and_is_infinite_from_the_far_limit_on() {
+    // f_px = 1000, E = 1 cm, z_f = 2 m: C(z) = 10 (1/2 - 1/z), C(inf) = 5.
+    assert!((depth_for_coc_px(1000.0, 0.01, 2.0, 2.5) - 4.0).abs() < 1e-5);
+    assert!((depth_for_coc_px(1000.0, 0.01, 2.0, -5.0) - 1.0).abs() < 1e-6);
+    assert_eq!(depth_for_coc_px(1000.0, 0.01, 2.0, 0.0), 2.0);
+    for c in [-300.0f32, -20.0, -1.0, -0.01, 0.01, 1.0, 4.0, 4.99] {
+        let z = depth_for_coc_px(1000.0, 0.01, 2.0, c);
+        assert!(z > 0.0 && z.is_finite(), "{c} px: {z} m");
+        let back = coc_px(1000.0, 0.01, 2.0, z);
+        assert!(
+            (back - c).abs() < 1e-4 * (1.0 + c.abs()),
+            "{c} px -> {z} m -> {back} px"
+        );
+    }
+    for c in [5.0f32, 6.0, 1e6] {
+        assert_eq!(
+            depth_for_coc_px(1000.0, 0.01, 2.0, c),
+            f32::INFINITY,
+            "{c} px"
+        );
+    }
 }
 
 #[test]

@@ -28,6 +28,10 @@ pub enum DepthKind {
     /// 1 / view depth, 0 for infinitely far (Nuke's ScanlineRender depth); depth =
     /// --depth-scale / value.
     Inverse,
+    /// The signed CoC radius in pixels (negative in front of the focus), as --coc-out writes it
+    /// (EXR channel CoC, or PFM), times --depth-scale: the map gives every pixel's blur, and
+    /// --focus is not used.
+    Coc,
 }
 
 /// Flags of `blur`.
@@ -293,6 +297,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             .as_ref()
             .context("--depth FILE is needed (or --tilt-shift)")?;
         if a.verbose
+            && a.depth_kind != DepthKind::Coc
             && depth_path
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
@@ -308,7 +313,19 @@ impl TryFrom<&BlurArgs> for BlurJob {
             radial: a.depth_kind == DepthKind::Radial,
             inverse: a.depth_kind == DepthKind::Inverse,
         };
-        let depth = read_timings.time(timing::READ, || io::read_depth(depth_path, &opts))?;
+        let depth = read_timings.time(timing::READ, || -> Result<GrayImage> {
+            if a.depth_kind != DepthKind::Coc {
+                return Ok(io::read_depth(depth_path, &opts)?);
+            }
+            if !(a.depth_scale.is_finite() && a.depth_scale > 0.0) {
+                bail!(
+                    "--depth-scale {}: expected a finite number > 0",
+                    a.depth_scale
+                );
+            }
+            let coc = io::read_coc(depth_path, a.depth_channel.as_deref())?;
+            Ok(coc.map(|c| c * a.depth_scale))
+        })?;
         let depth_place = io::read_exr_placement(depth_path)?;
         let mut depth = align_depth(
             (&a.color, w, h, color_place),
@@ -335,43 +352,36 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 defocus::lens::focal_length_px(a.focal_length, a.sensor_width, color.width());
             io::radial_to_view_depth(&mut depth, f_px);
         }
-        camera.focus_m = if let Some((fx, fy)) = a.focus_pixel {
-            // The frame's pixel as a pixel of the image.
-            let (ox, oy) = frame.offset();
-            let (x, y) = (fx as i64 - ox, fy as i64 - oy);
-            if !(0..w as i64).contains(&x) || !(0..h as i64).contains(&y) {
+        let lens = if a.depth_kind == DepthKind::Coc {
+            if a.focus.trim() != "auto" || a.focus_pixel.is_some() {
                 bail!(
-                    "--focus-pixel {fx},{fy}: outside the image ({})",
-                    describe_placement(&a.color, w, h, &frame)
+                    "--focus and --focus-pixel have no meaning with --depth-kind coc: the CoC map \
+                     gives every pixel's blur"
                 );
             }
-            let pick = focus_in_depth(&depth, x as usize, y as usize).with_context(|| {
-                format!("--focus-pixel {fx},{fy}: no surface around it (only holes or background); give --focus M")
-            })?;
-            eprintln!(
-                "focus: {:.4} m (median depth of the {w}x{w} pixels around ({fx}, {fy}))",
-                pick.depth_m,
-                w = pick.window_px
-            );
-            pick.depth_m
-        } else if a.focus.trim() == "auto" {
-            let (cx, cy) = frame.frame_centre_in_image(w, h);
-            let pick = focus_in_depth(&depth, cx, cy)
-                .context("--focus auto: the depth image has no surface (only holes or background); give --focus M")?;
-            eprintln!(
-                "focus: {:.4} m (median depth of the {w}x{w} pixels at the image centre)",
-                pick.depth_m,
-                w = pick.window_px
-            );
-            pick.depth_m
+            // A lens focused at 1 m whose CoC at infinity is twice the largest far radius, so
+            // that every radius of the map is that of some depth, which the methods turn back
+            // into it. Only the CoC function of this lens means anything: it is built directly,
+            // not from the lens flags (it may focus closer than any real focal length).
+            let f_px = defocus::lens::focal_length_px(a.focal_length, a.sensor_width, w);
+            let max_far_px = depth.pixels().iter().fold(1.0f32, |m, &c| m.max(c));
+            let lens = ThinLens {
+                width_px: w,
+                height_px: h,
+                f_px,
+                lens_radius_m: 2.0 * max_far_px / f_px,
+                focus_m: 1.0,
+                near_m: 1e-6,
+                far_m: f32::MAX,
+            };
+            depth = depth.map(|c| lens.depth_for_coc_px(c));
+            lens
         } else {
-            a.focus.trim().parse::<f32>().map_err(|_| {
-                anyhow::anyhow!("invalid --focus '{}': expected metres or auto", a.focus)
-            })?
+            camera.focus_m = choose_focus(a, &depth, &frame)?;
+            camera.thin_lens().context(
+                "invalid camera (check --focus, --fstop, --focal-length, --sensor-width)",
+            )?
         };
-        let lens = camera
-            .thin_lens()
-            .context("invalid camera (check --focus, --fstop, --focal-length, --sensor-width)")?;
         let settings = a
             .post
             .settings(method, &aperture, a.seed, color.height(), Some(&lens))?;
@@ -543,4 +553,44 @@ fn align_depth(
         cropped.extend_from_slice(&row[x0..x0 + w]);
     }
     Ok(GrayImage::from_vec(w, h, cropped)?)
+}
+
+/// The focus distance in metres from the flags: `--focus-pixel` (a pixel of the frame), `--focus
+/// auto` (the frame's centre) or `--focus M`.
+fn choose_focus(a: &BlurArgs, depth: &GrayImage, frame: &Placement) -> Result<f32> {
+    let (w, h) = (depth.width(), depth.height());
+    Ok(if let Some((fx, fy)) = a.focus_pixel {
+        // The frame's pixel as a pixel of the image.
+        let (ox, oy) = frame.offset();
+        let (x, y) = (fx as i64 - ox, fy as i64 - oy);
+        if !(0..w as i64).contains(&x) || !(0..h as i64).contains(&y) {
+            bail!(
+                "--focus-pixel {fx},{fy}: outside the image ({})",
+                describe_placement(&a.color, w, h, frame)
+            );
+        }
+        let pick = focus_in_depth(depth, x as usize, y as usize).with_context(|| {
+            format!("--focus-pixel {fx},{fy}: no surface around it (only holes or background); give --focus M")
+        })?;
+        eprintln!(
+            "focus: {:.4} m (median depth of the {w}x{w} pixels around ({fx}, {fy}))",
+            pick.depth_m,
+            w = pick.window_px
+        );
+        pick.depth_m
+    } else if a.focus.trim() == "auto" {
+        let (cx, cy) = frame.frame_centre_in_image(w, h);
+        let pick = focus_in_depth(depth, cx, cy)
+            .context("--focus auto: the depth image has no surface (only holes or background); give --focus M")?;
+        eprintln!(
+            "focus: {:.4} m (median depth of the {w}x{w} pixels at the image centre)",
+            pick.depth_m,
+            w = pick.window_px
+        );
+        pick.depth_m
+    } else {
+        a.focus.trim().parse::<f32>().map_err(|_| {
+            anyhow::anyhow!("invalid --focus '{}': expected metres or auto", a.focus)
+        })?
+    })
 }
