@@ -584,11 +584,19 @@ pub fn read_coc(path: &Path, channel: Option<&str>) -> Result<GrayImage> {
 /// `f_px` must be finite and positive (it comes from a validated camera); any other value leaves
 /// the image unchanged.
 pub fn radial_to_view_depth(depth: &mut GrayImage, f_px: f32) {
+    let centre = (depth.width() as f64 / 2.0, depth.height() as f64 / 2.0);
+    radial_to_view_depth_about(depth, f_px, centre);
+}
+
+/// [`radial_to_view_depth`] with the principal point at `centre` (x, y) in the image's pixel
+/// coordinates: for an image that is part of a frame (an OpenEXR data window), the frame's
+/// centre, which may lie outside the image.
+pub fn radial_to_view_depth_about(depth: &mut GrayImage, f_px: f32, centre: (f64, f64)) {
     if !(f_px.is_finite() && f_px > 0.0) {
         return;
     }
     let (w, h) = (depth.width(), depth.height());
-    let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+    let (cx, cy) = centre;
     let inv_f2 = 1.0 / (f_px as f64 * f_px as f64);
     for y in 0..h {
         let dy = y as f64 + 0.5 - cy;

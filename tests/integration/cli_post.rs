@@ -677,7 +677,8 @@ fn crop<P: Copy + Send + Sync>(
 #[test]
 fn blur_keeps_an_exr_data_window_in_its_frame_and_cuts_depth_to_it() {
     let dir = temp_dir("window");
-    let (color, depth) = write_frame(&dir.join("frame.exr"));
+    let frame_exr = dir.join("frame.exr");
+    let (color, depth) = write_frame(&frame_exr);
     // The frame starts at (100, 50) in the file's coordinates; the colour holds its part from
     // (6, 4), 36x24 pixels.
     let part = (6, 4, 36, 24);
@@ -713,6 +714,18 @@ fn blur_keeps_an_exr_data_window_in_its_frame_and_cuts_depth_to_it() {
         }
         defocus(&args)
     };
+    // The whole frame's CoC: the part's must be its crop (the focal length in pixels is the
+    // frame's, not the part's).
+    let (full_out, full_coc) = (dir.join("full.exr"), dir.join("full_coc.exr"));
+    let mut args = vec!["blur", "--color", s(&frame_exr), "--depth", s(&frame_exr)];
+    args.extend(["--method", "hammon", "--out", s(&full_out)]);
+    args.extend(["--coc-out", s(&full_coc)]);
+    args.extend(LENS);
+    let o = defocus(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let full = io::read_exr_channels(&full_coc).unwrap();
+    let full = GrayImage::from_vec(W, H, full.find("CoC").unwrap().to_vec()).unwrap();
+    let full_part = crop(&full, part);
     let by_hand = dir.join("by_hand.exr");
     let o = run(&depth_part, &by_hand, None);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -731,6 +744,13 @@ fn blur_keeps_an_exr_data_window_in_its_frame_and_cuts_depth_to_it() {
         );
         assert_eq!(io::read_exr_placement(&out).unwrap(), Some(placed));
         assert_eq!(io::read_exr_placement(&coc).unwrap(), Some(placed));
+        let part_coc = io::read_exr_channels(&coc).unwrap();
+        for (a, b) in part_coc.find("CoC").unwrap().iter().zip(full_part.pixels()) {
+            assert!(
+                (a - b).abs() < 1e-4 * (1.0 + b.abs()),
+                "CoC {a} px, whole frame {b} px"
+            );
+        }
     }
     // A PNG output cannot hold the place: it says so, and holds the pixels.
     let png = dir.join("out.png");

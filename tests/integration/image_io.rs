@@ -4,8 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use defocus::image::io::{
-    ensure_not_same_file, radial_to_view_depth, read_color, read_depth, read_exr_channels,
-    write_color, write_depth_exr, write_exr_layers, write_png16, DepthRead, Placement,
+    ensure_not_same_file, radial_to_view_depth, radial_to_view_depth_about, read_color, read_depth,
+    read_exr_channels, write_color, write_depth_exr, write_exr_layers, write_png16, DepthRead,
+    Placement,
 };
 use defocus::image::{srgb_encode, ColorImage, GrayImage};
 use defocus::Error;
@@ -485,6 +486,23 @@ fn radial_distance_becomes_view_depth_by_the_pinhole_angle() {
     }
     // Pixels next to the centre (0.5 px off axis) barely change; corners shrink most.
     assert!(depth.get(4, 3) > 9.9 && depth.get(0, 0) < depth.get(1, 1));
+}
+
+/// A part of a frame (an OpenEXR data window) is converted about the frame's centre: the same
+/// values as the whole frame's conversion, cut at the part's place.
+#[test]
+fn radial_distance_of_a_part_of_the_frame_turns_about_the_frame_centre() {
+    let (w, h, f_px) = (8, 6, 5.0f32);
+    let mut whole = GrayImage::new(w, h, 10.0);
+    radial_to_view_depth(&mut whole, f_px);
+    // The part from (5, 2), 3x4 pixels: the frame's centre (4, 3) is at (-1, 1) in it.
+    let mut part = GrayImage::new(3, 4, 10.0);
+    radial_to_view_depth_about(&mut part, f_px, (-1.0, 1.0));
+    for y in 0..4 {
+        for x in 0..3 {
+            assert_eq!(part.get(x, y), whole.get(x + 5, y + 2), "({x}, {y})");
+        }
+    }
 }
 
 #[test]

@@ -347,10 +347,16 @@ impl TryFrom<&BlurArgs> for BlurJob {
         camera
             .thin_lens()
             .context("invalid camera (check --fstop, --focal-length, --sensor-width)")?;
+        // The sensor spans the frame (for an EXR, its display window), so the focal length in
+        // pixels is the frame's, whatever part of it the image holds.
+        let f_px =
+            defocus::lens::focal_length_px(a.focal_length, a.sensor_width, frame.display_size.0);
         if a.depth_kind == DepthKind::Radial {
-            let f_px =
-                defocus::lens::focal_length_px(a.focal_length, a.sensor_width, color.width());
-            io::radial_to_view_depth(&mut depth, f_px);
+            // The principal point is the frame's centre.
+            let (ox, oy) = frame.offset();
+            let (fw, fh) = frame.display_size;
+            let centre = (fw as f64 / 2.0 - ox as f64, fh as f64 / 2.0 - oy as f64);
+            io::radial_to_view_depth_about(&mut depth, f_px, centre);
         }
         let lens = if a.depth_kind == DepthKind::Coc {
             if a.focus.trim() != "auto" || a.focus_pixel.is_some() {
@@ -363,7 +369,6 @@ impl TryFrom<&BlurArgs> for BlurJob {
             // that every radius of the map is that of some depth, which the methods turn back
             // into it. Only the CoC function of this lens means anything: it is built directly,
             // not from the lens flags (it may focus closer than any real focal length).
-            let f_px = defocus::lens::focal_length_px(a.focal_length, a.sensor_width, w);
             let max_far_px = depth.pixels().iter().fold(1.0f32, |m, &c| m.max(c));
             let lens = ThinLens {
                 width_px: w,
@@ -378,9 +383,10 @@ impl TryFrom<&BlurArgs> for BlurJob {
             lens
         } else {
             camera.focus_m = choose_focus(a, &depth, &frame)?;
-            camera.thin_lens().context(
+            let lens = camera.thin_lens().context(
                 "invalid camera (check --focus, --fstop, --focal-length, --sensor-width)",
-            )?
+            )?;
+            ThinLens { f_px, ..lens }
         };
         let settings = a
             .post
