@@ -372,18 +372,19 @@ pub fn read_exr_channels(path: &Path) -> Result<ExrChannels> {
     };
     let size = first.size;
     let mut channels = Vec::new();
-    for layer in image.layer_data.iter().filter(|l| l.size == size) {
+    // The decoded samples are moved out, not copied: at 4K a colour plane set is 133 MB.
+    for layer in image.layer_data.into_iter().filter(|l| l.size == size) {
         let prefix = match layer.attributes.layer_name.as_ref().map(|n| n.to_string()) {
             Some(name) if !name.is_empty() => format!("{name}."),
             _ => String::new(),
         };
-        for channel in &layer.channel_data.list {
+        for channel in layer.channel_data.list {
             if channel.sampling != Vec2(1, 1) {
                 continue;
             }
-            let samples: Vec<f32> = match &channel.sample_data {
+            let samples: Vec<f32> = match channel.sample_data {
                 FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
-                FlatSamples::F32(v) => v.clone(),
+                FlatSamples::F32(v) => v,
                 FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
             };
             if samples.len() != size.0 * size.1 {
