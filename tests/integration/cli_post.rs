@@ -1,7 +1,7 @@
 //! Tests: the post-process commands run as a user would: `blur` on colour + depth files,
 //! `render --method hammon|lowrank|gaussian|poisson`, and `kernel`.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use defocus::image::io::{ExrOptions, Placement};
@@ -661,6 +661,35 @@ fn write_depth_pfm(path: &Path, depth: &GrayImage) {
     std::fs::write(path, pfm).unwrap();
 }
 
+/// The part of the frame the data-window tests cut: 36x24 pixels from (6, 4).
+const PART: (usize, usize, usize, usize) = (6, 4, 36, 24);
+/// The frame of those tests: it starts at (100, 50) in the file's coordinates.
+const PART_FRAME: Placement = Placement {
+    data_origin: (100, 50),
+    display_origin: (100, 50),
+    display_size: (W, H),
+};
+/// The part's place in that frame.
+const PART_PLACED: Placement = Placement {
+    data_origin: (106, 54),
+    display_origin: (100, 50),
+    display_size: (W, H),
+};
+
+/// Writes the [`PART`] of the frame: its colour as an EXR with the part's data window in the
+/// frame's display window, and its depth as a PFM (no window). Returns both paths.
+fn write_part(dir: &Path, color: &ColorImage, depth: &GrayImage) -> (PathBuf, PathBuf) {
+    let color_part = dir.join("color_part.exr");
+    let options = ExrOptions {
+        placement: Some(PART_PLACED),
+        ..ExrOptions::default()
+    };
+    io::write_color_with(&color_part, &crop(color, PART), &options).unwrap();
+    let depth_part = dir.join("depth_part.pfm");
+    write_depth_pfm(&depth_part, &crop(depth, PART));
+    (color_part, depth_part)
+}
+
 /// The `(x0, y0, w, h)` part of `img`.
 fn crop<P: Copy + Send + Sync>(
     img: &defocus::image::Image<P>,
@@ -681,29 +710,13 @@ fn blur_keeps_an_exr_data_window_in_its_frame_and_cuts_depth_to_it() {
     let (color, depth) = write_frame(&frame_exr);
     // The frame starts at (100, 50) in the file's coordinates; the colour holds its part from
     // (6, 4), 36x24 pixels.
-    let part = (6, 4, 36, 24);
-    let frame = Placement {
-        data_origin: (100, 50),
-        display_origin: (100, 50),
-        display_size: (W, H),
-    };
-    let placed = Placement {
-        data_origin: (106, 54),
-        ..frame
-    };
-    let color_part = dir.join("color_part.exr");
-    let options = ExrOptions {
-        placement: Some(placed),
-        ..ExrOptions::default()
-    };
-    io::write_color_with(&color_part, &crop(&color, part), &options).unwrap();
+    let (part, frame, placed) = (PART, PART_FRAME, PART_PLACED);
+    let (color_part, depth_part) = write_part(&dir, &color, &depth);
     assert_eq!(io::read_exr_placement(&color_part).unwrap(), Some(placed));
     let depth_frame = dir.join("depth_frame.exr");
     io::write_exr_layers_placed(&depth_frame, W, H, &[("Z", depth.pixels())], Some(frame)).unwrap();
     let depth_frame_pfm = dir.join("depth_frame.pfm");
     write_depth_pfm(&depth_frame_pfm, &depth);
-    let depth_part = dir.join("depth_part.pfm");
-    write_depth_pfm(&depth_part, &crop(&depth, part));
 
     let run = |depth: &Path, out: &Path, coc_out: Option<&Path>| {
         let mut args = vec!["blur", "--color", s(&color_part), "--depth", s(depth)];
@@ -933,23 +946,7 @@ fn blur_focus_pixel_focuses_on_the_depth_there_in_frame_coordinates() {
     let o = focus(&frame, &frame, "48,5");
     assert!(!o.status.success() && stderr(&o).contains("--focus-pixel 48,5: outside the image"));
     // The colour's 36x24 pixels from (6, 4) of the frame, with the depth of those pixels.
-    let part = (6, 4, 36, 24);
-    let frame_place = Placement {
-        data_origin: (100, 50),
-        display_origin: (100, 50),
-        display_size: (W, H),
-    };
-    let color_part = dir.join("color_part.exr");
-    let options = ExrOptions {
-        placement: Some(Placement {
-            data_origin: (106, 54),
-            ..frame_place
-        }),
-        ..ExrOptions::default()
-    };
-    io::write_color_with(&color_part, &crop(&color, part), &options).unwrap();
-    let depth_part = dir.join("depth_part.pfm");
-    write_depth_pfm(&depth_part, &crop(&depth, part));
+    let (color_part, depth_part) = write_part(&dir, &color, &depth);
     // Frame column 20 is in the 2 m half, 30 in the 10 m half; (5, 5) is outside the part.
     for (pixel, metres) in [("20,10", "2.0000"), ("30,10", "10.0000")] {
         let o = focus(&color_part, &depth_part, pixel);
