@@ -445,6 +445,10 @@ pub struct DepthRead {
     /// ScanlineRender writes its depth channel. [`read_depth`] inverts it (before the scale, so
     /// depth = scale / value). Default false.
     pub inverse: bool,
+    /// True when a depth of exactly 0 means "no surface" (far away), as some renderers write
+    /// the background; otherwise 0 is an error like any depth that is not positive. Default
+    /// false.
+    pub zero_is_far: bool,
 }
 
 impl Default for DepthRead {
@@ -454,6 +458,7 @@ impl Default for DepthRead {
             scale: 1.0,
             radial: false,
             inverse: false,
+            zero_is_far: false,
         }
     }
 }
@@ -522,6 +527,11 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
     };
     if opts.inverse {
         invert_depth(path, &what, width, &mut values)?;
+    } else if opts.zero_is_far {
+        values
+            .iter_mut()
+            .filter(|v| **v == 0.0)
+            .for_each(|v| *v = f32::INFINITY);
     }
     if opts.scale != 1.0 {
         values.iter_mut().for_each(|v| *v *= opts.scale);
@@ -1474,7 +1484,8 @@ fn validate_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> 
             path,
             format!(
                 "depth {what}: {bad} pixel(s) are not positive depths, the first at (x {x}, y {y}) \
-                 = {v}; expected depth > 0 in metres (+inf means far)"
+                 = {v}; expected depth > 0 in metres (+inf means far; if 0 marks the \
+                 background, read 0 as far: `blur --zero-depth-is-far`)"
             ),
         )),
     }

@@ -1101,3 +1101,51 @@ fn blur_takes_a_coc_map_as_the_blur_itself() {
     assert!(!dir.join("no.exr").exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `--zero-depth-is-far`: a background of depth 0 blurs as the far distance it stands for, the
+/// same image as +inf there; without the flag it is refused and nothing is written.
+#[test]
+fn blur_reads_zero_depth_as_far_when_told() {
+    let dir = temp_dir("zerofar");
+    let frame = dir.join("frame.exr");
+    let (_, depth) = write_frame(&frame);
+    let background = |i: usize| i % W >= W - 4;
+    let with = |v: f32| -> Vec<f32> {
+        (0..W * H)
+            .map(|i| if background(i) { v } else { depth.pixels()[i] })
+            .collect()
+    };
+    let (zero, inf) = (dir.join("zero.exr"), dir.join("inf.exr"));
+    io::write_exr_layers(&zero, W, H, &[("Z", &with(0.0))]).unwrap();
+    io::write_exr_layers(&inf, W, H, &[("Z", &with(f32::INFINITY))]).unwrap();
+    let run = |depth: &Path, out: &Path, zero_is_far: bool| {
+        let mut args = vec![
+            "blur",
+            "--color",
+            s(&frame),
+            "--depth",
+            s(depth),
+            "--out",
+            s(out),
+        ];
+        args.extend(LENS);
+        if zero_is_far {
+            args.push("--zero-depth-is-far");
+        }
+        defocus(&args)
+    };
+    let (a, b) = (dir.join("a.exr"), dir.join("b.exr"));
+    let o = run(&zero, &a, false);
+    assert!(
+        !o.status.success() && stderr(&o).contains("--zero-depth-is-far"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!a.exists());
+    for (depth, out) in [(&zero, &a), (&inf, &b)] {
+        let o = run(depth, out, true);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    assert_eq!(io::read_color(&a).unwrap(), io::read_color(&b).unwrap());
+    std::fs::remove_dir_all(dir).unwrap();
+}

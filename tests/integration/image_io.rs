@@ -794,3 +794,33 @@ fn inverse_depth_is_inverted_before_the_scale_and_zero_is_far() {
         );
     }
 }
+
+/// Some renderers write 0 for "no surface": refused by default with a hint, read as far when
+/// asked; negative depth stays an error either way.
+#[test]
+fn zero_depth_is_refused_with_a_hint_or_read_as_far_when_asked() {
+    let dir = TempDir::new("zerofar");
+    let path = dir.join("z.exr");
+    write_exr_layers(&path, 3, 1, &[("Z", &[2.0, 0.0, 5.0])]).unwrap();
+    let err = read_depth(&path, &DepthRead::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("(x 1, y 0)") && err.contains("--zero-depth-is-far"),
+        "{err}"
+    );
+    let far = DepthRead {
+        zero_is_far: true,
+        ..Default::default()
+    };
+    assert_eq!(
+        read_depth(&path, &far).unwrap().pixels(),
+        &[2.0, f32::MAX, 5.0]
+    );
+    write_exr_layers(&path, 3, 1, &[("Z", &[2.0, 0.0, -5.0])]).unwrap();
+    let err = read_depth(&path, &far).unwrap_err().to_string();
+    assert!(
+        err.contains("(x 2, y 0)") && err.contains("1 pixel(s)"),
+        "{err}"
+    );
+}

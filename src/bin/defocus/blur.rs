@@ -61,6 +61,10 @@ pub struct BlurArgs {
         allow_negative_numbers = true
     )]
     pub depth_scale: f32,
+    /// A depth of exactly 0 marks "no surface" (the background of some renderers): it is taken
+    /// as infinitely far instead of refused.
+    #[arg(long)]
+    pub zero_depth_is_far: bool,
     /// DoF method [default: hammon; lowrank with --tilt-shift]. Methods that need a 3D scene
     /// (reference, pinhole, and the layered ones) are refused: use `defocus render`.
     #[arg(long, value_parser = method_parser())]
@@ -312,6 +316,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             scale: a.depth_scale,
             radial: a.depth_kind == DepthKind::Radial,
             inverse: a.depth_kind == DepthKind::Inverse,
+            zero_is_far: a.zero_depth_is_far,
         };
         let depth = read_timings.time(timing::READ, || -> Result<GrayImage> {
             if a.depth_kind != DepthKind::Coc {

@@ -241,6 +241,7 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
         depth_channel: None,
         depth_kind: DepthKind::View,
         depth_scale: 1.0,
+        zero_depth_is_far: false,
         method: Some(method.to_string()),
         focus: match a.focus {
             Some(crate::args::Focus::Metres(m)) => m.to_string(),
