@@ -527,16 +527,11 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
     };
     if opts.inverse {
         invert_depth(path, &what, width, &mut values)?;
-    } else if opts.zero_is_far {
-        values
-            .iter_mut()
-            .filter(|v| **v == 0.0)
-            .for_each(|v| *v = f32::INFINITY);
     }
     if opts.scale != 1.0 {
         values.iter_mut().for_each(|v| *v *= opts.scale);
     }
-    validate_depth(path, &what, width, &mut values)?;
+    validate_depth(path, &what, width, &mut values, opts.zero_is_far)?;
     GrayImage::from_vec(width, height, values)
 }
 
@@ -1470,11 +1465,18 @@ fn invert_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Re
     }
 }
 
-/// Every depth must be > 0 and finite, or +inf ("far"), which becomes `f32::MAX`; the others are
-/// an error naming the first and how many there are.
-fn validate_depth(path: &Path, what: &str, width: usize, values: &mut [f32]) -> Result<()> {
+/// Every depth must be > 0 and finite, or +inf ("far"), which becomes `f32::MAX`, as does 0 when
+/// `zero_is_far`; the others are an error naming the first and how many there are.
+fn validate_depth(
+    path: &Path,
+    what: &str,
+    width: usize,
+    values: &mut [f32],
+    zero_is_far: bool,
+) -> Result<()> {
     let positive = |v: f32| match v {
         f32::INFINITY => Some(f32::MAX),
+        0.0 if zero_is_far => Some(f32::MAX),
         v if v > 0.0 && v.is_finite() => Some(v),
         _ => None,
     };
