@@ -1061,6 +1061,25 @@ fn blur_takes_a_coc_map_as_the_blur_itself() {
     {
         assert!((2.0 * a - b).abs() < 1e-3 * (1.0 + b.abs()), "{a} -> {b}");
     }
+    // Radii that the scale makes infinite are refused, with no output.
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&frame),
+        "--depth",
+        s(&coc),
+        "--depth-kind",
+        "coc",
+        "--depth-scale",
+        "1e38",
+        "--out",
+        s(&dir.join("no.exr")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("expected finite radii"),
+        "{}",
+        stderr(&o)
+    );
     // The map sets the focus: --focus is refused; a PNG cannot hold signed radii.
     let o = defocus(&[
         "blur",

@@ -329,7 +329,15 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 );
             }
             let coc = io::read_coc(depth_path, a.depth_channel.as_deref())?;
-            Ok(coc.map(|c| c * a.depth_scale))
+            let coc = coc.map(|c| c * a.depth_scale);
+            if let Some(c) = coc.pixels().iter().find(|c| !c.is_finite()) {
+                bail!(
+                    "{}: a CoC radius times --depth-scale {} is {c}: expected finite radii",
+                    depth_path.display(),
+                    a.depth_scale
+                );
+            }
+            Ok(coc)
         })?;
         let depth_place = io::read_exr_placement(depth_path)?;
         let mut depth = align_depth(
