@@ -1061,62 +1061,27 @@ fn blur_takes_a_coc_map_as_the_blur_itself() {
     {
         assert!((2.0 * a - b).abs() < 1e-3 * (1.0 + b.abs()), "{a} -> {b}");
     }
-    // Radii that the scale makes infinite are refused, with no output.
-    let o = defocus(&[
-        "blur",
-        "--color",
-        s(&frame),
-        "--depth",
-        s(&coc),
-        "--depth-kind",
-        "coc",
-        "--depth-scale",
-        "1e38",
-        "--out",
-        s(&dir.join("no.exr")),
-    ]);
-    assert!(
-        !o.status.success() && stderr(&o).contains("expected finite radii"),
-        "{}",
-        stderr(&o)
-    );
-    // The map sets the focus: --focus is refused; a PNG cannot hold signed radii.
-    let o = defocus(&[
-        "blur",
-        "--color",
-        s(&frame),
-        "--depth",
-        s(&coc),
-        "--depth-kind",
-        "coc",
-        "--focus",
-        "3",
-        "--out",
-        s(&dir.join("no.exr")),
-    ]);
-    assert!(
-        !o.status.success() && stderr(&o).contains("--depth-kind coc"),
-        "{}",
-        stderr(&o)
-    );
+    // Refused, each with its reason and no output: radii that the scale makes infinite, a
+    // --focus (the map sets the blur), a PNG map (it cannot hold signed radii).
     let png = dir.join("coc.png");
     io::write_color(&png, &ColorImage::new(W, H, [0.5, 0.5, 0.5, 1.0])).unwrap();
-    let o = defocus(&[
-        "blur",
-        "--color",
-        s(&frame),
-        "--depth",
-        s(&png),
-        "--depth-kind",
-        "coc",
-        "--out",
-        s(&dir.join("no.exr")),
-    ]);
-    assert!(
-        !o.status.success() && stderr(&o).contains("signed radii"),
-        "{}",
-        stderr(&o)
-    );
+    let no = dir.join("no.exr");
+    let refusals: [(&Path, &[&str], &str); 3] = [
+        (&coc, &["--depth-scale", "1e38"], "expected finite radii"),
+        (&coc, &["--focus", "3"], "--depth-kind coc"),
+        (&png, &[], "signed radii"),
+    ];
+    for (map, extra, reason) in refusals {
+        let mut args = vec!["blur", "--color", s(&frame), "--depth", s(map)];
+        args.extend(["--depth-kind", "coc", "--out", s(&no)]);
+        args.extend(extra);
+        let o = defocus(&args);
+        assert!(
+            !o.status.success() && stderr(&o).contains(reason),
+            "{}",
+            stderr(&o)
+        );
+    }
     assert!(!dir.join("no.exr").exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
