@@ -13,11 +13,89 @@
 //! pixel rejects an opaque fragment behind all N before it is shaded); within a tile fragments
 //! arrive in the rasterizer's fixed order (nearest triangles first), so the lists do not depend
 //! on the thread count.
+//!
+//! Rasterized with coverage masks ([`super::BinnedView::with_coverage`]), a fragment's opacity
+//! is its surface's opacity times the fraction of the pixel it covers, so an in-focus edge
+//! resolves as in an anti-aliased frame. Fragments of one surface in one pixel (the triangles of
+//! a mesh meeting inside it: disjoint masks, depths within [`SAME_SURFACE`]) are merged into one
+//! as they arrive, with their coverages summed: the merge rule of Selgrad et al. section 5.1
+//! for fragments side by side, so that a surface cut by a triangle edge stays opaque.
 
 use half::f16;
 
-use super::{Fragment, Sink, TileRect, TileSink};
+use super::{Fragment, Sink, TileRect, TileSink, FULL_COVERAGE};
 use crate::image::Rgba;
+
+/// Relative depth difference within which two fragments of one pixel with disjoint coverage
+/// masks are taken for one surface (triangles of a mesh meeting inside the pixel) and merged.
+/// A surface seen edge-on changes depth by a few tenths of a percent across a pixel; two
+/// surfaces this close in depth that do not overlap in the pixel look the same merged anyway.
+pub const SAME_SURFACE: f32 = 0.02;
+
+/// A surface held for a pixel while fragments arrive: its depth, its colour premultiplied by
+/// opacity times covered fraction, its coverage mask, and whether it is blended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeldFragment {
+    /// View depth in metres (coverage-weighted mean of the merged fragments).
+    pub depth_m: f32,
+    /// Linear RGBA premultiplied by opacity times the covered fraction of the pixel.
+    pub color: Rgba,
+    /// The coverage samples covered.
+    pub mask: u16,
+    /// From an alpha-blended surface.
+    pub blend: bool,
+}
+
+impl HeldFragment {
+    /// Nothing: at infinite depth, transparent.
+    pub const EMPTY: Self = Self {
+        depth_m: f32::INFINITY,
+        color: [0.0; 4],
+        mask: 0,
+        blend: false,
+    };
+
+    /// A rasterized fragment, premultiplied by its opacity and coverage.
+    #[inline]
+    pub fn of(f: &Fragment) -> Self {
+        let a = f.color[3] * f.coverage_fraction();
+        Self {
+            depth_m: f.depth_m,
+            color: [f.color[0] * a, f.color[1] * a, f.color[2] * a, a],
+            mask: f.coverage,
+            blend: f.blend,
+        }
+    }
+
+    /// True when opaque over the whole pixel: nothing behind it shows through.
+    #[inline]
+    pub fn covers_pixel(&self) -> bool {
+        self.mask == FULL_COVERAGE && !self.blend && self.color[3] >= 1.0
+    }
+
+    /// Merges `other` into `self` when they are one surface (see [`SAME_SURFACE`]): the
+    /// coverages and colours add up, the depth is their coverage-weighted mean. False (and
+    /// nothing changed) otherwise.
+    #[inline]
+    pub fn merge(&mut self, other: &Self) -> bool {
+        if self.blend != other.blend
+            || self.mask & other.mask != 0
+            || (self.depth_m - other.depth_m).abs() > SAME_SURFACE * self.depth_m.min(other.depth_m)
+        {
+            return false;
+        }
+        let (na, nb) = (
+            self.mask.count_ones() as f32,
+            other.mask.count_ones() as f32,
+        );
+        self.depth_m = (self.depth_m * na + other.depth_m * nb) / (na + nb);
+        for (a, b) in self.color.iter_mut().zip(other.color) {
+            *a += b;
+        }
+        self.mask |= other.mask;
+        true
+    }
+}
 
 /// Largest number of fragments kept per pixel.
 pub const MAX_FRAGMENTS_PER_PIXEL: usize = 16;
@@ -213,10 +291,11 @@ pub struct FragmentTile {
     cap: usize,
     /// Fragments held per pixel of the tile.
     counts: Vec<u32>,
-    /// Farthest depth held by each full pixel (+inf while it has fewer than N).
+    /// Farthest depth held by each full pixel, raised by [`SAME_SURFACE`] so that a fragment
+    /// that may still merge with it is not rejected early (+inf while it has fewer than N).
     farthest: Vec<f32>,
-    /// N slots per pixel: depth and premultiplied colour.
-    slots: Vec<(f32, Rgba)>,
+    /// N slots per pixel.
+    slots: Vec<HeldFragment>,
     /// After `finish`: depths, pixel after pixel, nearest first.
     out_depth: Vec<f32>,
     /// After `finish`: colours, pixel after pixel.
@@ -242,26 +321,39 @@ impl TileSink for FragmentTile {
         if f.depth_m >= self.farthest[i] {
             return;
         }
-        let a = f.color[3];
-        let c = [f.color[0] * a, f.color[1] * a, f.color[2] * a, a];
+        let held = HeldFragment::of(f);
         let slots = &mut self.slots[i * self.cap..(i + 1) * self.cap];
         let n = self.counts[i] as usize;
+        let raise = 1.0 + SAME_SURFACE;
+        let far_of = |slots: &[HeldFragment]| {
+            slots.iter().map(|s| s.depth_m).fold(f32::MIN, f32::max) * raise
+        };
+        if slots[..n].iter_mut().any(|s| s.merge(&held)) {
+            if n == self.cap {
+                self.farthest[i] = far_of(slots);
+            }
+            return;
+        }
         if n < self.cap {
-            slots[n] = (f.depth_m, c);
+            slots[n] = held;
             self.counts[i] += 1;
             if n + 1 == self.cap {
-                self.farthest[i] = slots.iter().map(|s| s.0).fold(f32::MIN, f32::max);
+                self.farthest[i] = far_of(slots);
             }
         } else {
-            // Replace the farthest (the last of equals, so the earlier fragment wins ties).
+            // Replace the farthest (the last of equals, so the earlier fragment wins ties),
+            // when this one is nearer.
             let mut far = 0;
             for (k, s) in slots.iter().enumerate() {
-                if s.0 >= slots[far].0 {
+                if s.depth_m >= slots[far].depth_m {
                     far = k;
                 }
             }
-            slots[far] = (f.depth_m, c);
-            self.farthest[i] = slots.iter().map(|s| s.0).fold(f32::MIN, f32::max);
+            if f.depth_m >= slots[far].depth_m {
+                return;
+            }
+            slots[far] = held;
+            self.farthest[i] = far_of(slots);
         }
     }
 
@@ -271,10 +363,10 @@ impl TileSink for FragmentTile {
             let count = self.counts[i] as usize;
             let slots = &mut self.slots[i * self.cap..i * self.cap + count];
             // Near to far; stable, so equal depths keep their order.
-            slots.sort_by(|a, b| a.0.total_cmp(&b.0));
-            for &(z, c) in slots.iter() {
-                self.out_depth.push(z);
-                self.out_color.push(to_half(c));
+            slots.sort_by(|a, b| a.depth_m.total_cmp(&b.depth_m));
+            for s in slots.iter() {
+                self.out_depth.push(s.depth_m);
+                self.out_color.push(to_half(s.color));
             }
         }
         self.slots = Vec::new();
@@ -292,7 +384,7 @@ impl Sink for FragmentLists {
             cap: self.cap,
             counts: vec![0; n],
             farthest: vec![f32::INFINITY; n],
-            slots: vec![(0.0, [0.0; 4]); n * self.cap],
+            slots: vec![HeldFragment::EMPTY; n * self.cap],
             out_depth: Vec::new(),
             out_color: Vec::new(),
         }

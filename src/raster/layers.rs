@@ -11,12 +11,18 @@
 //! approximates. Neighbouring layers overlap by a fraction of `delta` (10% by default, as the
 //! paper): a fragment that close to a boundary is also written to the layer on the other side.
 //!
-//! Layers store opaque surfaces: a blended fragment is taken when its opacity is at least 0.5
-//! (a renderer's Z pass with the usual alpha threshold) and ignored otherwise.
+//! Layers see through (not in the paper, which has no transparency): each layer keeps, per
+//! pixel, its two nearest surfaces (fragments of one surface merged as in
+//! [`super::FragmentLists`]) and stores the nearer composited over the farther as premultiplied
+//! colour, its alpha the coverage a ray meets there; the height field is the nearer one's CoC.
+//! A blended pane, or an edge covering part of a pixel, then shows what lies behind it within
+//! the layer, and the trace goes on behind it into the next layers with the rest of its weight.
+//! Only surfaces that cover their pixel opaquely are also written to the overlapping
+//! neighbour layer: a partly transparent one written twice would be met twice by one ray.
 
 use half::f16;
 
-use super::{to_half, Fragment, HalfRgba, Sink, TileRect, TileSink};
+use super::{to_half, Fragment, HalfRgba, HeldFragment, Sink, TileRect, TileSink};
 use crate::lens::ThinLens;
 
 /// How depths are cut into layers.
@@ -122,9 +128,8 @@ impl DepthLayers {
 pub struct LayersTile {
     rect: TileRect,
     spacing: LayerSpacing,
-    /// Per layer, per pixel: view depth in metres (the depth test) and colour.
-    depth: Vec<f32>,
-    color: Vec<[f32; 4]>,
+    /// Per layer, per pixel: the two nearest surfaces, nearest first.
+    held: Vec<[HeldFragment; 2]>,
 }
 
 impl LayersTile {
@@ -133,12 +138,28 @@ impl LayersTile {
         l * self.rect.width() * self.rect.height() + i
     }
 
+    /// Whether an opaque fragment at `z` in layer `l` is hidden by what the layer holds.
     #[inline]
-    fn write(&mut self, l: usize, i: usize, z: f32, c: [f32; 4]) {
+    fn hidden(&self, l: usize, i: usize, z: f32) -> bool {
+        let [a, b] = &self.held[self.slot(l, i)];
+        (a.covers_pixel() && z >= a.depth_m) || z >= b.depth_m * (1.0 + super::SAME_SURFACE)
+    }
+
+    #[inline]
+    fn write(&mut self, l: usize, i: usize, f: &HeldFragment) {
         let s = self.slot(l, i);
-        if z < self.depth[s] {
-            self.depth[s] = z;
-            self.color[s] = c;
+        let held = &mut self.held[s];
+        if held.iter_mut().any(|h| h.merge(f)) {
+            if held[1].depth_m < held[0].depth_m {
+                held.swap(0, 1);
+            }
+            return;
+        }
+        if f.depth_m < held[0].depth_m {
+            held[1] = held[0];
+            held[0] = *f;
+        } else if f.depth_m < held[1].depth_m {
+            held[1] = *f;
         }
     }
 }
@@ -148,23 +169,20 @@ impl TileSink for LayersTile {
     fn occluded(&self, x: u32, y: u32, depth_m: f32) -> bool {
         let i = (y as usize - self.rect.y0) * self.rect.width() + (x as usize - self.rect.x0);
         let (l, other) = self.spacing.targets(self.spacing.lens.coc_px(depth_m));
-        depth_m >= self.depth[self.slot(l, i)]
-            && other.map_or(true, |o| depth_m >= self.depth[self.slot(o, i)])
+        self.hidden(l, i, depth_m) && other.map_or(true, |o| self.hidden(o, i, depth_m))
     }
 
     #[inline]
     fn fragment(&mut self, f: &Fragment) {
-        let a = f.color[3];
-        if f.blend && a < 0.5 {
+        let held = HeldFragment::of(f);
+        if held.color[3] <= 0.0 {
             return;
         }
         let i = (f.y as usize - self.rect.y0) * self.rect.width() + (f.x as usize - self.rect.x0);
-        // Opaque in the layer: straight colour with alpha 1.
-        let c = [f.color[0], f.color[1], f.color[2], 1.0];
         let (l, other) = self.spacing.targets(self.spacing.lens.coc_px(f.depth_m));
-        self.write(l, i, f.depth_m, c);
-        if let Some(o) = other {
-            self.write(o, i, f.depth_m, c);
+        self.write(l, i, &held);
+        if let Some(o) = other.filter(|_| held.covers_pixel()) {
+            self.write(o, i, &held);
         }
     }
 }
@@ -177,8 +195,7 @@ impl Sink for DepthLayers {
         LayersTile {
             rect,
             spacing: self.spacing,
-            depth: vec![f32::INFINITY; n],
-            color: vec![[0.0; 4]; n],
+            held: vec![[HeldFragment::EMPTY; 2]; n],
         }
     }
 
@@ -188,12 +205,14 @@ impl Sink for DepthLayers {
         for l in 0..self.spacing.layers {
             for (row, y) in (rect.y0..rect.y1).enumerate() {
                 for (col, x) in (rect.x0..rect.x1).enumerate() {
-                    let s = l * n + row * rect.width() + col;
-                    let z = tile.depth[s];
-                    if z.is_finite() {
+                    let [a, b] = &tile.held[l * n + row * rect.width() + col];
+                    if a.depth_m.is_finite() {
                         let d = self.index(l, x, y);
-                        self.coc_px[d] = lens.coc_px(z);
-                        self.color[d] = to_half(tile.color[s]);
+                        self.coc_px[d] = lens.coc_px(a.depth_m);
+                        // The nearer surface over the farther, premultiplied.
+                        let t = 1.0 - a.color[3].min(1.0);
+                        let c: [f32; 4] = std::array::from_fn(|k| a.color[k] + t * b.color[k]);
+                        self.color[d] = to_half(c);
                     }
                 }
             }

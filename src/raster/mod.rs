@@ -36,12 +36,12 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 pub use fragments::{
-    from_half, nearest_depths, to_half, FragmentLists, FragmentTile, HalfRgba,
-    MAX_FRAGMENTS_PER_PIXEL,
+    from_half, nearest_depths, to_half, FragmentLists, FragmentTile, HalfRgba, HeldFragment,
+    MAX_FRAGMENTS_PER_PIXEL, SAME_SURFACE,
 };
 pub use gbuffer::{GBuffer, GBufferTile};
 pub use layers::{DepthLayers, LayerSpacing, LayersTile};
-pub use setup::SetupTriangle;
+pub use setup::{SetupTriangle, COVERAGE_PATTERN, COVERAGE_SAMPLES, FULL_COVERAGE};
 pub use views::{accumulate_views, render_view, sample_view, ViewPassLabels};
 
 use crate::image::Rgba;
@@ -87,6 +87,18 @@ pub struct Fragment {
     pub color: Rgba,
     /// True for alpha-blended (transparent) surfaces.
     pub blend: bool,
+    /// Which of the pixel's [`COVERAGE_SAMPLES`] coverage samples the surface covers, one bit
+    /// each ([`FULL_COVERAGE`] for views rasterized at pixel centres, where a fragment is emitted
+    /// only when the centre is covered).
+    pub coverage: u16,
+}
+
+impl Fragment {
+    /// The fraction of the pixel covered, from 1/16 to 1.
+    #[inline]
+    pub fn coverage_fraction(&self) -> f32 {
+        self.coverage.count_ones() as f32 / COVERAGE_SAMPLES as f32
+    }
 }
 
 /// A rectangle of pixels: `[x0, x1) x [y0, y1)`.
@@ -284,12 +296,22 @@ pub struct BinnedView {
     width: usize,
     height: usize,
     lod_bias: f32,
+    coverage: bool,
 }
 
 impl BinnedView {
     /// Sets up and bins every triangle of `prepared` for `view` (passes `setup` and `bin`).
     pub fn new(prepared: &PreparedScene, view: &View) -> Self {
-        Self::bin(Self::setup(prepared, view), view)
+        Self::bin(Self::setup(prepared, view, false), view, false)
+    }
+
+    /// [`BinnedView::new`] for rasterizing with coverage masks: every pixel a triangle touches
+    /// gets a fragment whose [`Fragment::coverage`] says which of the pixel's
+    /// [`COVERAGE_SAMPLES`] samples it covers (shaded once, at the covered samples' centroid),
+    /// as an A-buffer does (Carpenter 1984). For sinks that keep several fragments per pixel:
+    /// a surface's edge then covers its share of a pixel instead of all or nothing.
+    pub fn with_coverage(prepared: &PreparedScene, view: &View) -> Self {
+        Self::bin(Self::setup(prepared, view, true), view, true)
     }
 
     /// [`BinnedView::new`], timing `setup` and `bin` under the labels given.
@@ -299,12 +321,13 @@ impl BinnedView {
         labels: &views::ViewPassLabels,
         timings: &mut crate::timing::Timings,
     ) -> Self {
-        let triangles = timings.time(labels.setup, || Self::setup(prepared, view));
-        timings.time(labels.bin, || Self::bin(triangles, view))
+        let triangles = timings.time(labels.setup, || Self::setup(prepared, view, false));
+        timings.time(labels.bin, || Self::bin(triangles, view, false))
     }
 
-    /// Pass `setup`: project, clip and cull every triangle for `view`.
-    fn setup(prepared: &PreparedScene, view: &View) -> Vec<SetupTriangle> {
+    /// Pass `setup`: project, clip and cull every triangle for `view` (keeping those that touch
+    /// a pixel without covering its centre when `coverage`).
+    fn setup(prepared: &PreparedScene, view: &View, coverage: bool) -> Vec<SetupTriangle> {
         let materials = &prepared.scene.materials;
         prepared
             .triangles
@@ -325,6 +348,7 @@ impl BinnedView {
                         material.double_sided,
                         matches!(material.alpha_mode, AlphaMode::Blend),
                         &view.lens,
+                        coverage,
                         &mut out,
                     );
                 }
@@ -341,7 +365,7 @@ impl BinnedView {
     /// pre-pass cannot know without their texture. The nearest surface of each pixel is the
     /// same in any order; only which of two surfaces at exactly the same depth wins can differ
     /// from scene order.
-    fn bin(triangles: Vec<SetupTriangle>, view: &View) -> Self {
+    fn bin(triangles: Vec<SetupTriangle>, view: &View, coverage: bool) -> Self {
         let width = view.lens.width_px;
         let height = view.lens.height_px;
         let tiles_x = width.div_ceil(TILE);
@@ -400,6 +424,7 @@ impl BinnedView {
             width,
             height,
             lod_bias: view.lod_bias,
+            coverage,
         }
     }
 
@@ -436,7 +461,15 @@ impl BinnedView {
         let mut scratch = setup::RasterScratch::new();
         for &ti in &self.bins[index] {
             let tri = &self.triangles[ti as usize];
-            setup::raster_triangle(tri, rect, scene, self.lod_bias, tile, &mut scratch);
+            setup::raster_triangle(
+                tri,
+                rect,
+                scene,
+                self.lod_bias,
+                self.coverage,
+                tile,
+                &mut scratch,
+            );
         }
     }
 
@@ -458,9 +491,19 @@ impl BinnedView {
     }
 }
 
-/// Collects the fragment lists of one view of `prepared`, at most `cap` per pixel.
-pub fn render_fragment_lists(prepared: &PreparedScene, view: &View, cap: usize) -> FragmentLists {
-    let binned = BinnedView::new(prepared, view);
+/// Collects the fragment lists of one view of `prepared`, at most `cap` per pixel, sampled at
+/// pixel centres, or with coverage masks when `coverage` (see [`BinnedView::with_coverage`]).
+pub fn render_fragment_lists(
+    prepared: &PreparedScene,
+    view: &View,
+    cap: usize,
+    coverage: bool,
+) -> FragmentLists {
+    let binned = if coverage {
+        BinnedView::with_coverage(prepared, view)
+    } else {
+        BinnedView::new(prepared, view)
+    };
     let mut lists = FragmentLists::new(view.lens.width_px, view.lens.height_px, cap);
     binned.rasterize(prepared, &mut lists);
     lists.compact();

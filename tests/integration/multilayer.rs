@@ -17,7 +17,12 @@ const HALF_TOLERANCE: f32 = 2e-3;
 
 fn lists_of(scene: &Scene, camera: &Camera, cap: usize) -> defocus::raster::FragmentLists {
     let prepared = PreparedScene::new(scene, &camera.camera_from_world).unwrap();
-    render_fragment_lists(&prepared, &View::pinhole(camera.thin_lens().unwrap()), cap)
+    render_fragment_lists(
+        &prepared,
+        &View::pinhole(camera.thin_lens().unwrap()),
+        cap,
+        false,
+    )
 }
 
 fn settings(steps: FilterSteps, truncation: bool) -> MultilayerSettings {

@@ -271,7 +271,7 @@ pub fn collect(
     big.width_px *= k;
     big.height_px *= k;
     big.f_px *= k as f32;
-    render_fragment_lists(prepared, &View::pinhole(big), settings.fragments)
+    render_fragment_lists(prepared, &View::pinhole(big), settings.fragments, true)
 }
 
 /// The filter steps for a frame whose largest CoC diameter is `max_diameter_px`.

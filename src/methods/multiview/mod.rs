@@ -222,7 +222,7 @@ pub fn decompose(
         "--layers, raise --layer-spacing, or lower the resolution",
     )?;
     let view = View::pinhole(lens);
-    let binned = BinnedView::new(prepared, &view);
+    let binned = BinnedView::with_coverage(prepared, &view);
     let mut layers = DepthLayers::new(spacing, lens.width_px, lens.height_px);
     binned.rasterize(prepared, &mut layers);
     Ok(layers)

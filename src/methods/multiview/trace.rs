@@ -14,6 +14,10 @@
 //! cannot hit (the N-buffer minimum over the region they can reach lies beyond the layer) is
 //! skipped.
 //!
+//! A hit meets the layer's premultiplied colour with its coverage in alpha (partly covered
+//! pixels and see-through surfaces: [`crate::raster::DepthLayers`]); the ray takes that share
+//! and goes on behind with the rest of its weight, as under cone tracing.
+//!
 //! Cone tracing (section 4.4): at a hit at CoC `C`, the cone around the ray has diameter
 //! `lambda |C|` (lambda: the mean distance between neighbouring lens samples); the layer's
 //! mipmap at that footprint gives a coverage `v1` and a colour `c1`; the ray contributes
@@ -307,10 +311,10 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
                     let m: Rgba = std::array::from_fn(|k| a[k] + t * (b[k] - a[k]));
                     (m[3].clamp(0.0, 1.0), m)
                 } else {
-                    (1.0, color)
+                    (color[3].clamp(0.0, 1.0), color)
                 }
             }
-            None => (1.0, color),
+            None => (color[3].clamp(0.0, 1.0), color),
         };
         // v1 c1 is the premultiplied mip colour itself.
         for k in 0..3 {

@@ -294,7 +294,7 @@ pub fn render_scene(
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
     let lists = timings.time(pass::COLLECT, || {
-        render_fragment_lists(&prepared, &View::pinhole(lens), settings.layers)
+        render_fragment_lists(&prepared, &View::pinhole(lens), settings.layers, true)
     });
     let max = settings.max_coc_px;
     let mut layers = build::from_lists(&lists, &lens, settings.group_px);
