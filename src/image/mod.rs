@@ -76,6 +76,22 @@ impl<P: Copy> Image<P> {
         })
     }
 
+    /// The `width x height` part whose top-left pixel is `(x0, y0)`. Panics when it does not
+    /// lie inside the image.
+    pub fn crop(&self, x0: usize, y0: usize, width: usize, height: usize) -> Self {
+        assert!(x0 + width <= self.width && y0 + height <= self.height);
+        let mut data = Vec::with_capacity(width * height);
+        for y in y0..y0 + height {
+            let row = y * self.width + x0;
+            data.extend_from_slice(&self.data[row..row + width]);
+        }
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
     /// Width in pixels.
     pub fn width(&self) -> usize {
         self.width

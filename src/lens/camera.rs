@@ -232,6 +232,17 @@ impl ThinLens {
         ))
     }
 
+    /// The same lens seeing `guard_px` more pixels on every side of the frame: the frame grows
+    /// by `2 guard_px` each way around the same principal point, so pixel `(x, y)` of this
+    /// frame is pixel `(x - guard_px, y - guard_px)` of the original.
+    pub fn with_guard_band(&self, guard_px: usize) -> Self {
+        Self {
+            width_px: self.width_px + 2 * guard_px,
+            height_px: self.height_px + 2 * guard_px,
+            ..*self
+        }
+    }
+
     /// The same lens with the aperture closed: a pinhole camera.
     pub fn pinhole(&self) -> Self {
         Self {

@@ -285,7 +285,48 @@ impl<'a> PreparedScene<'a> {
     pub fn positions(&self) -> &[Vec3] {
         &self.positions
     }
+
+    /// The signed CoC range, in pixels, of the geometry in view of `lens`: from its nearest to
+    /// its farthest vertex between the near and far planes that projects near the image (a
+    /// generous frustum test: within one frame's size of it). `(0, 1)` when there is none.
+    pub fn coc_range(&self, lens: &ThinLens) -> (f32, f32) {
+        let (w, h) = (lens.width_px as f32, lens.height_px as f32);
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for p in &self.positions {
+            let z = -p.z;
+            if !(z >= lens.near_m && z <= lens.far_m) {
+                continue;
+            }
+            if let Some((x, y, _)) = lens.project(*p) {
+                if x < -w || x > 2.0 * w || y < -h || y > 2.0 * h {
+                    continue;
+                }
+            }
+            let c = lens.coc_px(z);
+            lo = lo.min(c);
+            hi = hi.max(c);
+        }
+        if !(lo.is_finite() && hi.is_finite()) {
+            return (0.0, 1.0);
+        }
+        (lo, hi.max(lo + 1e-3))
+    }
+
+    /// The guard band, in pixels on each side, that the layered methods rasterize around the
+    /// frame of `lens` (DESIGN.md, evaluation protocol): the largest CoC radius of the
+    /// geometry in view ([`Self::coc_range`]), so a blur at the border gathers what lies just
+    /// outside the frame as `reference`'s views see it; capped at
+    /// [`GUARD_BAND_MAX_FRACTION`] of the frame's longer side, which bounds its cost.
+    pub fn guard_band_px(&self, lens: &ThinLens) -> usize {
+        let (lo, hi) = self.coc_range(lens);
+        let cap = (GUARD_BAND_MAX_FRACTION * lens.width_px.max(lens.height_px) as f32).ceil();
+        lo.abs().max(hi.abs()).ceil().clamp(0.0, cap) as usize
+    }
 }
+
+/// Largest guard band as a fraction of the frame's longer side: at 1/8 the frame grows to at
+/// most 1.25 x 1.44 (16:9) of its pixels.
+pub const GUARD_BAND_MAX_FRACTION: f32 = 0.125;
 
 /// Triangles of a view after setup and binning, ready to rasterize into any sink.
 pub struct BinnedView {

@@ -20,27 +20,28 @@ const GUARD_PX: f32 = 8192.0;
 /// of [`super::Fragment::coverage`]).
 pub const COVERAGE_SAMPLES: u32 = 16;
 
-/// The sample positions of coverage rasterization, in 1/16 pixel from the pixel centre: 16
-/// points, one in each row and each column of a 16x16 grid (n-rooks) spread over the pixel, so
-/// that an edge of any slope splits them about in proportion to the area it cuts: the 16-sample
-/// pattern that graphics APIs fix for multisampling.
+/// The sample positions of coverage rasterization, in 1/32 pixel from the pixel centre (odd
+/// numbers: the centres of the cells of a 16x16 grid over the pixel): 16 points, one in each
+/// row and each column of the grid (n-rooks), so that an edge of any slope splits them about in
+/// proportion to the area it cuts. The arrangement is the 16-sample pattern that graphics APIs
+/// fix for multisampling, moved by half a cell so that its mean is the pixel centre.
 pub const COVERAGE_PATTERN: [(i8, i8); COVERAGE_SAMPLES as usize] = [
-    (1, 1),
-    (-1, -3),
-    (-3, 2),
-    (4, -1),
-    (-5, -2),
-    (2, 5),
-    (5, 3),
-    (3, -5),
-    (-2, 6),
-    (0, -7),
-    (-4, -6),
-    (-6, 4),
-    (-8, 0),
-    (7, -4),
-    (6, 7),
-    (-7, -8),
+    (3, 3),
+    (-1, -5),
+    (-5, 5),
+    (9, -1),
+    (-9, -3),
+    (5, 11),
+    (11, 7),
+    (7, -9),
+    (-3, 13),
+    (1, -13),
+    (-7, -11),
+    (-11, 9),
+    (-15, 1),
+    (15, -7),
+    (13, 15),
+    (-13, -15),
 ];
 
 /// A triangle ready for rasterization: fixed-point edge functions and perspective-correct
@@ -422,9 +423,9 @@ pub(crate) fn for_each_covered_mask(
 ) {
     let v = &tri.v;
     let edges = [(1usize, 2usize), (2, 0), (0, 1)];
-    // Per edge, its change from the pixel centre to each sample (fixed point: 1/16 pixel is
-    // 16 steps of 1/256).
-    let unit = ONE / 16;
+    // Per edge, its change from the pixel centre to each sample (fixed point: 1/32 pixel is
+    // 8 steps of 1/256).
+    let unit = ONE / 32;
     let deltas: [[i64; COVERAGE_SAMPLES as usize]; 3] = edges.map(|(a, b)| {
         let (ex, ey) = (v[b].0 - v[a].0, v[b].1 - v[a].1);
         COVERAGE_PATTERN.map(|(sx, sy)| ex * i64::from(sy) * unit - ey * i64::from(sx) * unit)
@@ -460,7 +461,7 @@ pub(crate) fn for_each_covered_mask(
                     cy += i32::from(sy);
                 }
             }
-            let n = mask.count_ones() as f32 * 16.0;
+            let n = mask.count_ones() as f32 * 32.0;
             f(x, y, mask, Vec2::new(cx as f32 / n, cy as f32 / n));
         }
     });
@@ -669,7 +670,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
                     if mask & (1 << s) == 0 {
                         continue;
                     }
-                    let e = plane(x, fy + f32::from(sy) / 16.0) + p1 * (f32::from(sx) / 16.0);
+                    let e = plane(x, fy + f32::from(sy) / 32.0) + p1 * (f32::from(sx) / 32.0);
                     let (q, uq, vq) = (e.x, e.y, e.z);
                     let (u, v) = (uq / q, vq / q);
                     let (qx, qy) = (q + pq[1], q + pq[2]);
@@ -910,8 +911,8 @@ mod tests {
                 let mut mask = 0u16;
                 for (s, &(sx, sy)) in COVERAGE_PATTERN.iter().enumerate() {
                     let p = (
-                        x as i64 * ONE + HALF + i64::from(sx) * ONE / 16,
-                        y as i64 * ONE + HALF + i64::from(sy) * ONE / 16,
+                        x as i64 * ONE + HALF + i64::from(sx) * ONE / 32,
+                        y as i64 * ONE + HALF + i64::from(sy) * ONE / 32,
                     );
                     if (0..3)
                         .all(|k| edge(tri.v[edges[k].0], tri.v[edges[k].1], p) + tri.bias[k] >= 0)
@@ -992,8 +993,8 @@ mod tests {
                 let mut inside = 0u16;
                 for (s, &(sx, sy)) in COVERAGE_PATTERN.iter().enumerate() {
                     let (px, py) = (
-                        x as f32 + 0.5 + f32::from(sx) / 16.0,
-                        y as f32 + 0.5 + f32::from(sy) / 16.0,
+                        x as f32 + 0.5 + f32::from(sx) / 32.0,
+                        y as f32 + 0.5 + f32::from(sy) / 32.0,
                     );
                     if px >= a.x && px < b.x && py >= a.y && py < d.y {
                         inside |= 1 << s;
@@ -1024,7 +1025,7 @@ mod tests {
             let covered = COVERAGE_PATTERN
                 .iter()
                 .filter(|&&(sx, sy)| {
-                    let (px, py) = (0.5 + f32::from(sx) / 16.0, 0.5 + f32::from(sy) / 16.0);
+                    let (px, py) = (0.5 + f32::from(sx) / 32.0, 0.5 + f32::from(sy) / 32.0);
                     (px - x0) * c - (py - 0.5) * s < 0.0
                 })
                 .count() as f32

@@ -378,12 +378,17 @@ fn render_with(
     step_fn: StepFn,
 ) -> Result<MethodOutput> {
     settings.validate()?;
-    let lens = camera.thin_lens()?;
-    check_memory(&lens, settings)?;
+    let frame = camera.thin_lens()?;
+    check_memory(&frame, settings)?;
     let mut timings = Timings::default();
     let prepared = timings.time(pass::PREPARE, || {
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
+    // The lists cover the frame and its guard band, so the blur at the border gathers what
+    // lies just outside; the image is cut back to the frame at the end.
+    let guard = prepared.guard_band_px(&frame);
+    let lens = frame.with_guard_band(guard);
+    check_memory(&lens, settings)?;
     let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, settings));
     let borders = Borders::new(lens);
     let (levels, bytes) = timings.time(pass::FILTER, || {
@@ -398,7 +403,9 @@ fn render_with(
             lens.height_px,
         )
     });
-    let depth = pinhole_depth(&levels[0]);
+    let (w, h) = (frame.width_px, frame.height_px);
+    let image = image.crop(guard, guard, w, h);
+    let depth = pinhole_depth(&levels[0]).crop(guard, guard, w, h);
     Ok(MethodOutput {
         image,
         depth: Some(depth),

@@ -154,29 +154,9 @@ impl MultiviewSettings {
     }
 }
 
-/// The signed CoC range of the scene's geometry in view: from its nearest to its farthest
-/// vertex in front of the near plane that projects near the image (a generous frustum test).
+/// The signed CoC range of the scene's geometry in view (see [`PreparedScene::coc_range`]).
 pub fn coc_range(prepared: &PreparedScene, lens: &ThinLens) -> (f32, f32) {
-    let (w, h) = (lens.width_px as f32, lens.height_px as f32);
-    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-    for p in prepared.positions() {
-        let z = -p.z;
-        if !(z >= lens.near_m && z <= lens.far_m) {
-            continue;
-        }
-        if let Some((x, y, _)) = lens.project(*p) {
-            if x < -w || x > 2.0 * w || y < -h || y > 2.0 * h {
-                continue;
-            }
-        }
-        let c = lens.coc_px(z);
-        lo = lo.min(c);
-        hi = hi.max(c);
-    }
-    if !(lo.is_finite() && hi.is_finite()) {
-        return (0.0, 1.0);
-    }
-    (lo, hi.max(lo + 1e-3))
+    prepared.coc_range(lens)
 }
 
 /// The layer spacing of `settings` for CoCs in `[lo, hi]`.
@@ -287,11 +267,15 @@ fn render_with(
     trace_fn: fn(&TraceInput) -> ColorImage,
 ) -> Result<MethodOutput> {
     settings.validate()?;
-    let lens = camera.thin_lens()?;
+    let frame = camera.thin_lens()?;
     let mut timings = Timings::default();
     let prepared = timings.time(pass::PREPARE, || {
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
+    // The layers cover the frame and its guard band, so rays near the border reach what lies
+    // just outside it; only the frame is traced.
+    let guard = prepared.guard_band_px(&frame);
+    let lens = frame.with_guard_band(guard);
     let layers = timings.time(pass::DECOMPOSE, || decompose(&prepared, lens, settings))?;
     let (sets, noise) = sample_sets(settings)?;
     let lambda = trace::mean_spacing(&sets[0]);
@@ -339,6 +323,7 @@ fn render_with(
         sets: &sets,
         noise: &noise,
         lambda,
+        region: (guard, guard, frame.width_px, frame.height_px),
     };
     let image = timings.time(pass::TRACE, || trace_fn(&input));
     let bytes = layers.bytes()
@@ -350,7 +335,12 @@ fn render_with(
             .sum::<usize>()
         + mips.iter().flatten().map(LayerMip::bytes).sum::<usize>();
     // The pinhole depth: the nearest layer's surface at each pixel, back from CoC to depth.
-    let depth = GrayImage::from_vec(w, h, pinhole_depth(&layers))?;
+    let depth = GrayImage::from_vec(w, h, pinhole_depth(&layers))?.crop(
+        guard,
+        guard,
+        frame.width_px,
+        frame.height_px,
+    );
     Ok(MethodOutput {
         image,
         depth: Some(depth),

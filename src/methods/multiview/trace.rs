@@ -149,6 +149,9 @@ pub struct TraceInput<'a> {
     pub noise: &'a [u8],
     /// Mean distance between neighbouring lens samples (cone diameter per pixel of CoC).
     pub lambda: f32,
+    /// The part of the layers traced: `(x0, y0, width, height)` in layer pixels (the frame
+    /// inside the layers' guard band). The image has this size.
+    pub region: (usize, usize, usize, usize),
 }
 
 /// Where a ray went.
@@ -174,8 +177,7 @@ fn trace_with(
     input: &TraceInput,
     row_fn: impl Fn(&TraceInput, f32, usize, &mut [Rgba]) + Sync,
 ) -> ColorImage {
-    let layers = input.layers;
-    let (w, h) = (layers.width, layers.height);
+    let (_, _, w, h) = input.region;
     let rmax = input
         .sets
         .iter()
@@ -206,7 +208,10 @@ fn trace_row_inner(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
     let layers = input.layers;
     let m = layers.spacing.layers;
     let mut open = vec![false; m];
-    for (x, out) in row.iter_mut().enumerate() {
+    let (x0, y0, _, _) = input.region;
+    let (fy, y) = (y, y + y0);
+    for (fx, out) in row.iter_mut().enumerate() {
+        let x = fx + x0;
         let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
         // Early layer culling for all rays of the pixel.
         for (l, o) in open.iter_mut().enumerate() {
@@ -224,7 +229,8 @@ fn trace_row_inner(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
                 }
             }
         }
-        let set = &input.sets[input.noise[(y % NOISE_TILE) * NOISE_TILE + x % NOISE_TILE] as usize
+        let set = &input.sets[input.noise[(fy % NOISE_TILE) * NOISE_TILE + fx % NOISE_TILE]
+            as usize
             % input.sets.len()];
         let mut acc = [0.0f32; 4];
         let mut count = 0u32;

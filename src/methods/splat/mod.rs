@@ -279,20 +279,27 @@ pub fn render_scene(
     settings: &SplatSettings,
 ) -> Result<(MethodOutput, SplatStats)> {
     settings.validate()?;
-    let lens = camera.thin_lens()?;
-    let px = (lens.width_px * lens.height_px) as u64;
-    crate::budget::check(
-        px * settings.layers as u64 * (12 + 16 + 4) + px * 32,
-        &format!(
-            "splat at {}x{} with {} layers",
-            lens.width_px, lens.height_px, settings.layers
-        ),
-        "--layers or the resolution",
-    )?;
+    let frame = camera.thin_lens()?;
+    let check = |lens: &ThinLens| {
+        let px = (lens.width_px * lens.height_px) as u64;
+        crate::budget::check(
+            px * settings.layers as u64 * (12 + 16 + 4) + px * 32,
+            &format!(
+                "splat at {}x{} with {} layers",
+                frame.width_px, frame.height_px, settings.layers
+            ),
+            "--layers or the resolution",
+        )
+    };
+    check(&frame)?;
     let mut timings = Timings::default();
     let prepared = timings.time(pass::PREPARE, || {
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
+    // Fragments of the guard band around the frame splat into it too (cut back at the end).
+    let guard = prepared.guard_band_px(&frame);
+    let lens = frame.with_guard_band(guard);
+    check(&lens)?;
     let lists = timings.time(pass::COLLECT, || {
         render_fragment_lists(&prepared, &View::pinhole(lens), settings.layers, true)
     });
@@ -309,7 +316,10 @@ pub fn render_scene(
         &mut timings,
         blend::blend,
     )?;
-    let depth = GrayImage::from_vec(lens.width_px, lens.height_px, lists.nearest_depth())?;
+    let (w, h) = (frame.width_px, frame.height_px);
+    let image = image.crop(guard, guard, w, h);
+    let depth = GrayImage::from_vec(lens.width_px, lens.height_px, lists.nearest_depth())?
+        .crop(guard, guard, w, h);
     Ok((
         MethodOutput {
             image,
