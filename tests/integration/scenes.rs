@@ -51,7 +51,7 @@ fn named(scene: &Scene, name: &str) -> Vec<Vec3> {
 
 #[test]
 fn every_built_in_scene_loads_validates_and_has_a_usable_default_camera() {
-    assert_eq!(NAMES, ["railing", "lights", "grass", "glass"]);
+    assert_eq!(NAMES, ["railing", "lights", "grass", "glass", "traps"]);
     for &name in NAMES {
         let scene = builtin::load(name).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(scene.name, name);
@@ -268,4 +268,231 @@ fn glass_panes_are_blended_between_the_near_post_and_the_wall_in_focus() {
     for p in named(&scene, "chart poster") {
         assert!(lens.coc_px(depth(&cam, p)).abs() < 0.01);
     }
+}
+
+/// The `traps` scene's pinhole frame at 160x90 (pixel centres, with depth), its thin lens at
+/// that size and the thin lens of its default 1280x720 camera; rendered once per test run.
+struct TrapsFrame {
+    scene: Scene,
+    camera: Camera,
+    lens: ThinLens,
+    full_lens: ThinLens,
+    colour: defocus::image::ColorImage,
+    depth: defocus::image::GrayImage,
+}
+
+fn traps_frame() -> &'static TrapsFrame {
+    use std::sync::OnceLock;
+    static FRAME: OnceLock<TrapsFrame> = OnceLock::new();
+    FRAME.get_or_init(|| {
+        let scene = builtin::load("traps").unwrap();
+        let full = camera(&scene);
+        let mut small = full.clone();
+        (small.width_px, small.height_px) = (160, 90);
+        let out = defocus::methods::pinhole::render(&scene, &small, 1, 0, true).unwrap();
+        TrapsFrame {
+            lens: small.thin_lens().unwrap(),
+            full_lens: full.thin_lens().unwrap(),
+            camera: small,
+            colour: out.image,
+            depth: out.depth.unwrap(),
+            scene,
+        }
+    })
+}
+
+/// Raster bounding box (x0, y0, x1, y1) of a set of world points in `frame`'s pinhole view.
+fn raster_box(frame: &TrapsFrame, points: &[Vec3]) -> (f32, f32, f32, f32) {
+    points.iter().fold(
+        (f32::MAX, f32::MAX, f32::MIN, f32::MIN),
+        |(x0, y0, x1, y1), &p| {
+            let (x, y, _) = project(&frame.camera, &frame.lens, p);
+            (x0.min(x), y0.min(y), x1.max(x), y1.max(y))
+        },
+    )
+}
+
+/// Railing depth: the bars' and rails' axes are at 0.7 m (their fronts 6 mm nearer).
+fn is_railing_depth(z: f32) -> bool {
+    (0.68..0.71).contains(&z)
+}
+
+#[test]
+fn traps_default_camera_is_the_cycles_railing_lens() {
+    let cam = camera(&builtin::traps());
+    assert_eq!(
+        (
+            cam.focal_length_mm,
+            cam.sensor_width_mm,
+            cam.fstop,
+            cam.focus_m
+        ),
+        (85.0, 36.0, 1.4, 2.5)
+    );
+    assert_eq!((cam.width_px, cam.height_px), (1280, 720));
+}
+
+#[test]
+fn traps_chart_is_at_the_focus_distance_in_the_middle_of_the_frame() {
+    let f = traps_frame();
+    let (w, h) = (f.depth.width(), f.depth.height());
+    let z = f.depth.get(w / 2, h / 2);
+    assert!((z / 2.5 - 1.0).abs() < 0.02, "depth {z} m at the centre");
+    let coc = f.full_lens.coc_px(z);
+    assert!(coc.abs() < 0.5, "CoC {coc} px at 1280x720 at the centre");
+    // Every printed mark is in focus too.
+    for p in named(&f.scene, "chart ink") {
+        let coc = f.full_lens.coc_px(depth(&f.camera, p));
+        assert!(coc.abs() < 0.5, "chart mark {p}: CoC {coc} px");
+    }
+}
+
+#[test]
+fn traps_railing_crosses_every_border_of_the_frame_by_more_than_its_blur() {
+    let f = traps_frame();
+    let metal = named(&f.scene, "railing metal");
+    let (w, h) = (f.lens.width_px as f32, f.lens.height_px as f32);
+    // The largest blur radius of the railing (its nearest point) in this frame's pixels.
+    let nearest = metal
+        .iter()
+        .map(|&p| depth(&f.camera, p))
+        .fold(f32::MAX, f32::min);
+    assert!(
+        (0.68..0.7).contains(&nearest),
+        "railing front at {nearest} m"
+    );
+    let blur = f.lens.coc_px(nearest).abs();
+    assert!(blur > 10.0, "railing blur {blur} px at 160x90");
+    let (x0, y0, x1, y1) = raster_box(f, &metal);
+    assert!(
+        x0 < -blur && y0 < -blur && x1 > w + blur && y1 > h + blur,
+        "railing spans {x0}..{x1} x {y0}..{y1}, blur {blur} px"
+    );
+    // A bar stands wholly outside the frame but within its blur of the right edge: only a
+    // method that sees beyond the frame blurs it in.
+    let outside: Vec<f32> = metal
+        .iter()
+        .map(|&p| project(&f.camera, &f.lens, p).0)
+        .filter(|&x| x > w)
+        .collect();
+    let closest = outside.iter().copied().fold(f32::MAX, f32::min);
+    assert!(
+        closest < w + blur,
+        "nothing outside the frame within the blur: closest at {closest}"
+    );
+
+    // In the pinhole frame the rail meets the left and right edges on the same rows...
+    let rail_rows = |x: usize| -> Vec<usize> {
+        (0..h as usize)
+            .filter(|&y| is_railing_depth(f.depth.get(x, y)))
+            .collect()
+    };
+    let (left, right) = (rail_rows(0), rail_rows(w as usize - 1));
+    assert!(left.len() >= 3, "rail rows at the left edge: {left:?}");
+    assert_eq!(left, right);
+    // ...and four bars meet the top and bottom edges on the same columns.
+    let bar_runs = |y: usize| -> Vec<usize> {
+        (0..w as usize)
+            .filter(|&x| {
+                is_railing_depth(f.depth.get(x, y))
+                    && (x == 0 || !is_railing_depth(f.depth.get(x - 1, y)))
+            })
+            .collect()
+    };
+    let (top, bottom) = (bar_runs(0), bar_runs(h as usize - 1));
+    assert_eq!(
+        top.len(),
+        4,
+        "bars at the top edge start at columns {top:?}"
+    );
+    assert_eq!(top, bottom);
+}
+
+#[test]
+fn traps_pane_blends_forty_percent_of_its_tint_over_the_chart_seen_through_it() {
+    let f = traps_frame();
+    let pane = f
+        .scene
+        .materials
+        .iter()
+        .find(|m| m.alpha_mode == AlphaMode::Blend)
+        .expect("a blended material");
+    let alpha = pane.base_color[3];
+    assert!((0.35..=0.45).contains(&alpha), "pane alpha {alpha}");
+    // Between the railing and the chart.
+    for p in vertices_where(&f.scene, |m| m.alpha_mode == AlphaMode::Blend) {
+        let z = depth(&f.camera, p);
+        assert!((1.5..=2.0).contains(&z), "pane vertex at {z} m");
+    }
+
+    // The pane's lower edge crosses the red colour bar: its top is seen through the pane, its
+    // bottom directly.
+    let (px0, py0, px1, py1) = raster_box(
+        f,
+        &vertices_where(&f.scene, |m| m.alpha_mode == AlphaMode::Blend),
+    );
+    let (bx0, by0, bx1, by1) = raster_box(f, &named(&f.scene, "colour bar red"));
+    let x = (0.5 * (bx0 + bx1)) as usize;
+    assert!(
+        (px0..px1).contains(&(x as f32)),
+        "bar column {x} not under the pane"
+    );
+    assert!(
+        by0 < py1 && py1 < by1,
+        "pane bottom {py1} outside the bar {by0}..{by1}"
+    );
+    let through_y = (0.5 * (by0.max(py0) + py1)) as usize;
+    let direct_y = (0.5 * (py1 + by1)) as usize;
+    let through = f.colour.get(x, through_y);
+    let direct = f.colour.get(x, direct_y);
+    for c in 0..3 {
+        let expected = alpha * pane.base_color[c] + (1.0 - alpha) * direct[c];
+        assert!(
+            (through[c] - expected).abs() < 0.01,
+            "channel {c}: {through:?} through the pane, {direct:?} directly, pane {:?}",
+            pane.base_color
+        );
+    }
+    let differs = |a: [f32; 4], b: [f32; 4]| (0..3).any(|c| (a[c] - b[c]).abs() > 0.1);
+    assert!(differs(through, direct) && differs(through, pane.base_color));
+}
+
+#[test]
+fn traps_lights_are_hdr_far_behind_focus_and_two_hide_behind_the_railing() {
+    let f = traps_frame();
+    let (w, h) = (f.depth.width(), f.depth.height());
+    let mut bright_far = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let c = f.colour.get(x, y);
+            let z = f.depth.get(x, y);
+            if c[..3].iter().any(|&v| v > 1.0) && z > 10.0 {
+                assert!(f.full_lens.coc_px(z) > 20.0, "light at {z} m");
+                bright_far += 1;
+            }
+        }
+    }
+    assert!(bright_far >= 5, "{bright_far} HDR pixels");
+
+    // Two lights' centres are covered by the railing in the pinhole view (one behind a bar, one
+    // behind the rail): only rays through the lens see them.
+    let mut hidden = 0;
+    for mesh in &f.scene.meshes {
+        let m = &f.scene.materials[mesh.material];
+        assert!(
+            m.emissive == [0.0; 3] || m.emissive_strength >= 20.0,
+            "{}",
+            m.name
+        );
+        if m.emissive == [0.0; 3] {
+            continue;
+        }
+        // Each light has its own material, so a mesh's mean vertex is its light's centre.
+        let centre = mesh.positions.iter().sum::<Vec3>() / mesh.positions.len() as f32;
+        let (x, y, _) = project(&f.camera, &f.lens, centre);
+        if (0.0..w as f32).contains(&x) && (0.0..h as f32).contains(&y) {
+            hidden += usize::from(f.depth.get(x as usize, y as usize) < 1.0);
+        }
+    }
+    assert!(hidden >= 2, "{hidden} lights hidden behind the railing");
 }

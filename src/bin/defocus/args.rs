@@ -46,7 +46,8 @@ pub enum Command {
 /// Flags of `render`.
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// Built-in scene name (railing, lights, grass, glass) or a scene file (.gltf, .glb, .obj).
+    /// Built-in scene name (railing, lights, grass, glass, traps) or a scene file (.gltf, .glb,
+    /// .obj).
     #[arg(long, default_value = "railing", value_name = "NAME|PATH")]
     pub scene: String,
     /// DoF method (the library's registry).

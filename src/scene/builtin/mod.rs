@@ -6,11 +6,13 @@
 //! | [`lights`] | bokeh shape, HDR highlights | card at 1.5 m | 2 lights at 0.72-0.8 m, about 40 lights at 10.4-13.9 m, wall at 14.5 m | 50 mm f/1.8, 6 blades |
 //! | [`grass`] | depth complexity, alpha-tested cut-outs | grass at 2 m | about 4800 tufts from 0.35 to 16 m, sky at 60 m | 50 mm f/2, disc |
 //! | [`glass`] | semi-transparent surfaces between near and far | chart wall at 4 m | post at 0.6 m, panes at 1.2 and 1.5 m | 50 mm f/2, disc |
+//! | [`traps`] | what breaks layered methods: near bars crossing the frame border, a 40% pane, an aliasing-prone geometric chart, HDR bokeh | geometric chart at 2.5 m | railing at 0.7 m, pane at 1.8 m, 9 lights at 11.98 m, wall at 12 m | 85 mm f/1.4, disc |
 //!
 //! Every scene is a function of nothing: no file, no clock, randomness only from a seeded
 //! SplitMix64, so it is identical on every run. Cameras look down -Z from near the origin (world
 //! Y up), at 1280x720 on a 36 mm wide sensor; fine detail (text, grass blades) is in textures,
-//! painted in linear light, and every surface extends past the frame by more than its blur.
+//! painted in linear light (`traps` draws its chart's marks as geometry, so their edges are
+//! exact), and every surface extends past the frame by more than its blur.
 
 mod glass;
 mod grass;
@@ -19,17 +21,19 @@ mod railing;
 mod random;
 mod shapes;
 mod textures;
+mod traps;
 
 pub use glass::glass;
 pub use grass::grass;
 pub use lights::lights;
 pub use railing::railing;
+pub use traps::traps;
 
 use super::{AlphaMode, Material, Mesh, Scene, TextureBinding};
 use crate::{Error, Result};
 
 /// Names of the built-in scenes; the first is the default.
-pub const NAMES: &[&str] = &["railing", "lights", "grass", "glass"];
+pub const NAMES: &[&str] = &["railing", "lights", "grass", "glass", "traps"];
 
 /// Builds the built-in scene `name`, with its suggested camera in [`Scene::defaults`].
 pub fn load(name: &str) -> Result<Scene> {
@@ -38,6 +42,7 @@ pub fn load(name: &str) -> Result<Scene> {
         "lights" => Ok(lights()),
         "grass" => Ok(grass()),
         "glass" => Ok(glass()),
+        "traps" => Ok(traps()),
         _ => Err(Error::Unknown {
             kind: "scene",
             name: name.to_string(),

@@ -98,6 +98,18 @@ pub(crate) fn push_disc(
     }
 }
 
+/// Appends the convex polygon `corners` (in order, at least 3) as a fan of triangles from the
+/// first corner, front face towards the side from which the corners run counter-clockwise; UVs
+/// are all zero (for untextured materials).
+pub(crate) fn push_convex_polygon(mesh: &mut Mesh, corners: &[Vec3]) {
+    let base = fill_uvs(mesh);
+    mesh.positions.extend_from_slice(corners);
+    mesh.uvs.resize(mesh.positions.len(), Vec2::ZERO);
+    for k in 1..corners.len().saturating_sub(1) as u32 {
+        mesh.indices.push([base, base + k, base + k + 1]);
+    }
+}
+
 /// Appends the side of a cylinder of radius `radius_m` from `a` to `b` with `sides` facets and
 /// no caps. Its shading is baked into `u` for a ramp texture ([`super::textures::ramp_texture`],
 /// dark at 0, highlight at 1): `u` is a diffuse-plus-specular term at each vertex normal for
