@@ -546,3 +546,85 @@ fn control_characters_in_file_names_and_uris_are_escaped_in_errors() {
     assert!(!err.chars().any(|c| c.is_control()), "{err:?}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+// ---------------------------------------------------------------------------------------------
+// Interrupts
+// ---------------------------------------------------------------------------------------------
+
+/// Interrupts per signal, spread over the second half of a run and a little after, where the
+/// outputs are written and committed: 120 such interrupts of today's main left one new output
+/// beside an old one twice (and staged files twice).
+const INTERRUPTS: usize = 45;
+
+#[test]
+fn an_interrupt_leaves_both_outputs_old_or_both_new_and_no_staged_file() {
+    let dir = temp_dir("interrupt");
+    let (out, depth) = (dir.join("r.exr"), dir.join("z.exr"));
+    let old = |dir: &Path| {
+        io::write_color(&dir.join("r.exr"), &ColorImage::new(4, 4, [0.5; 4])).unwrap();
+        io::write_depth_exr(
+            &dir.join("z.exr"),
+            &defocus::image::GrayImage::new(4, 4, 2.0),
+        )
+        .unwrap();
+    };
+    let size = "512";
+    let args = [
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        size,
+        "--height",
+        size,
+        "--out",
+        s(&out),
+        "--depth-out",
+        s(&depth),
+        "--quiet",
+    ];
+    let start = Instant::now();
+    let o = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let run = start.elapsed();
+    let mut outcomes = [0usize; 2];
+    for i in 0..2 * INTERRUPTS {
+        old(&dir);
+        let signal = if i % 2 == 0 { "-TERM" } else { "-INT" };
+        let mut child = Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .args(args)
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(run.mul_f64(0.5 + 0.7 * (i / 2) as f64 / INTERRUPTS as f64));
+        let killed = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status();
+        if !matches!(killed, Ok(s) if s.success()) {
+            // The run had already ended: nothing was interrupted.
+            let _ = child.wait();
+        }
+        let _ = child.wait().unwrap();
+        let width_r = io::read_color(&out).unwrap().width();
+        let width_z = io::read_depth(&depth, &Default::default()).unwrap().width();
+        assert_eq!(
+            width_r, width_z,
+            "interrupt {i}: one output old, the other new"
+        );
+        outcomes[usize::from(width_r == 512)] += 1;
+        let left: Vec<String> = files_in(&dir)
+            .into_iter()
+            .filter(|f| f.starts_with(".defocus-"))
+            .collect();
+        assert!(left.is_empty(), "interrupt {i} left {left:?}");
+    }
+    eprintln!(
+        "interrupted runs: {} kept the old outputs, {} wrote new ones",
+        outcomes[0], outcomes[1]
+    );
+    assert!(outcomes[0] > 0, "no run was interrupted before its commit");
+    std::fs::remove_dir_all(dir).unwrap();
+}
