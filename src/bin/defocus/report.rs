@@ -504,6 +504,22 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     files.text("index.html", &html)?;
     files.set.commit()?;
     eprintln!("report: {}", shown(&dir.join("index.html")));
+    // The report is written either way; a failed run still makes the command fail, so that a
+    // script does not take a report of errors for results.
+    let failed: Vec<&str> = report
+        .runs
+        .iter()
+        .filter(|r| r.status == "failed")
+        .map(|r| r.label.as_str())
+        .collect();
+    if !failed.is_empty() {
+        bail!(
+            "{} of {} runs failed: {} (their errors are in the report)",
+            failed.len(),
+            report.runs.len(),
+            failed.join(", ")
+        );
+    }
     Ok(())
 }
 
