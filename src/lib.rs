@@ -13,6 +13,7 @@ pub mod image;
 pub mod lens;
 pub mod methods;
 pub mod metrics;
+pub mod output;
 pub mod random;
 pub mod raster;
 pub mod scene;

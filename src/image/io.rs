@@ -11,14 +11,14 @@
 //!    any pixel memory is allocated.
 //! 4. Every error names the file; format errors also name the field or channel and what was
 //!    expected. Nothing here panics on a bad file.
-//! 5. Every write is atomic: the data goes to a temporary file in the target's directory, which is
-//!    renamed over the target only when complete. On any error the temporary file is removed, so
-//!    a failed write leaves neither partial output nor litter.
+//! 5. Every write is atomic and goes through [`crate::output`]: the data goes to a staged file
+//!    in the target's folder, renamed over the target only when complete (with the other outputs
+//!    of an [`OutputSet`]). On any error the staged file is removed, so a failed write leaves
+//!    neither partial output nor litter, and errors name the target.
 
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use exr::prelude::{
     AnyChannel, AnyChannels, Encoding, FlatSamples, Image as ExrImage, LayerAttributes,
@@ -27,6 +27,8 @@ use exr::prelude::{
 use image::{ColorType, ExtendedColorType, ImageDecoder, ImageEncoder};
 
 use super::{check_size, srgb_decode, srgb_encode, ColorImage, GrayImage, Rgba};
+use crate::error::shown;
+pub use crate::output::OutputSet;
 use crate::{Error, Result};
 
 /// Compression of written OpenEXR files: the lossless ones Blender and Nuke read.
@@ -193,7 +195,7 @@ fn file_format(path: &Path, role: &'static str) -> Result<FileFormat> {
             role,
             format!(
                 "{}: {}; expected one of .exr, .png, .pfm",
-                path.display(),
+                shown(&path),
                 match other {
                     Some(e) => format!("unsupported extension '.{e}'"),
                     None => "no file extension".to_string(),
@@ -482,7 +484,7 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
             format!(
                 "{} for {}: expected a finite number > 0",
                 opts.scale,
-                path.display()
+                shown(&path)
             ),
         ));
     }
@@ -642,8 +644,8 @@ pub fn ensure_not_same_file(input: &Path, output: &Path) -> Result<()> {
             "output path",
             format!(
                 "{} is the input file {}: choose another output path",
-                output.display(),
-                input.display()
+                shown(&output),
+                shown(&input)
             ),
         ));
     }
@@ -706,78 +708,26 @@ pub fn sanitize_color(img: &mut ColorImage) -> usize {
 /// - `.png`: 8-bit RGBA with straight alpha: alpha clamped to [0, 1], colour divided by it
 ///   (0 where alpha is 0), clamped to [0, 1] and sRGB-encoded;
 /// - `.pfm`: colour PFM (`PF`, little-endian), alpha dropped.
+///
+/// A file of its own transaction; [`OutputSet::write_color`] writes one of several.
 pub fn write_color(path: &Path, img: &ColorImage) -> Result<()> {
     write_color_with(path, img, &ExrOptions::default())
 }
 
 /// [`write_color`] with the EXR compression and sample type of `exr`.
 pub fn write_color_with(path: &Path, img: &ColorImage, exr: &ExrOptions) -> Result<()> {
-    let format = file_format(path, "output image path")?;
-    check_output_size(path, img.width(), img.height())?;
-    match format {
-        FileFormat::Exr => {
-            let mut planes: [Vec<f32>; 4] =
-                std::array::from_fn(|_| Vec::with_capacity(img.pixels().len()));
-            for p in img.pixels() {
-                for (plane, &v) in planes.iter_mut().zip(p) {
-                    plane.push(v);
-                }
-            }
-            let [r, g, b, a] = planes;
-            let channels = vec![
-                ("R".to_string(), r),
-                ("G".to_string(), g),
-                ("B".to_string(), b),
-                ("A".to_string(), a),
-            ];
-            write_exr(path, img.width(), img.height(), channels, exr)
-        }
-        FileFormat::Png => {
-            let mut bytes = Vec::with_capacity(img.pixels().len() * 4);
-            for p in img.pixels() {
-                bytes.extend(straight_srgb(*p).map(|v| quantize(v, 255.0) as u8));
-            }
-            write_png(path, img, &bytes, ExtendedColorType::Rgba8)
-        }
-        FileFormat::Pfm => write_pfm(path, img),
-        FileFormat::Jpeg => Err(Error::invalid(
-            "output image path",
-            format!(
-                "{}: JPEG output is not supported (lossy); expected one of .exr, .png, .pfm",
-                path.display()
-            ),
-        )),
-    }
+    write_one(|set| set.write_color(path, img, exr))
 }
 
 /// Writes a 16-bit RGBA PNG, atomically, converted as [`write_color`] does for 8-bit PNG.
 /// The extension is not checked.
 pub fn write_png16(path: &Path, img: &ColorImage) -> Result<()> {
-    check_output_size(path, img.width(), img.height())?;
-    let mut bytes = Vec::with_capacity(img.pixels().len() * 8);
-    for p in img.pixels() {
-        for v in straight_srgb(*p) {
-            // PngEncoder takes 16-bit samples in native byte order.
-            bytes.extend((quantize(v, 65535.0) as u16).to_ne_bytes());
-        }
-    }
-    write_png(path, img, &bytes, ExtendedColorType::Rgba16)
+    write_one(|set| set.write_png16(path, img))
 }
 
 /// Writes a depth image as an OpenEXR file with one float32 channel `Z`, atomically.
 pub fn write_depth_exr(path: &Path, depth: &GrayImage) -> Result<()> {
-    check_output_size(path, depth.width(), depth.height())?;
-    let channels = vec![("Z".to_string(), depth.pixels().to_vec())];
-    write_exr(
-        path,
-        depth.width(),
-        depth.height(),
-        channels,
-        &ExrOptions {
-            half: false,
-            ..ExrOptions::default()
-        },
-    )
+    write_one(|set| set.write_depth_exr(path, depth))
 }
 
 /// Writes float32 channels of one size to an OpenEXR file (one part, ZIP), atomically.
@@ -802,22 +752,127 @@ pub fn write_exr_layers_placed(
     channels: &[(&str, &[f32])],
     placement: Option<Placement>,
 ) -> Result<()> {
-    check_output_size(path, width, height)?;
-    let owned = channels
-        .iter()
-        .map(|(name, data)| (name.to_string(), data.to_vec()))
-        .collect();
-    write_exr(
-        path,
-        width,
-        height,
-        owned,
-        &ExrOptions {
-            half: false,
-            placement,
-            ..ExrOptions::default()
-        },
+    write_one(|set| set.write_exr_layers(path, width, height, channels, placement))
+}
+
+/// The 8-bit PNG that [`write_color`] writes for `img`, as bytes (for a page that embeds it).
+pub fn encode_png(img: &ColorImage) -> Result<Vec<u8>> {
+    check_size(img.width(), img.height())?;
+    let mut bytes = Vec::new();
+    png_encode(
+        &mut bytes,
+        img,
+        &png8_samples(img),
+        ExtendedColorType::Rgba8,
     )
+    .map_err(|e| Error::invalid("PNG image", format!("could not encode it: {e}")))?;
+    Ok(bytes)
+}
+
+/// One file as a transaction of its own.
+fn write_one(write: impl FnOnce(&mut OutputSet) -> Result<()>) -> Result<()> {
+    let mut set = OutputSet::new();
+    write(&mut set)?;
+    set.commit()
+}
+
+/// The image writers, for outputs written together (see [`OutputSet`]): each stages its file,
+/// and errors name the target path.
+impl OutputSet {
+    /// Stages a colour image for `path`, by its extension, as [`write_color_with`] writes it.
+    pub fn write_color(&mut self, path: &Path, img: &ColorImage, exr: &ExrOptions) -> Result<()> {
+        let format = file_format(path, "output image path")?;
+        check_output_size(path, img.width(), img.height())?;
+        match format {
+            FileFormat::Exr => {
+                let mut planes: [Vec<f32>; 4] =
+                    std::array::from_fn(|_| Vec::with_capacity(img.pixels().len()));
+                for p in img.pixels() {
+                    for (plane, &v) in planes.iter_mut().zip(p) {
+                        plane.push(v);
+                    }
+                }
+                let [r, g, b, a] = planes;
+                let channels = vec![
+                    ("R".to_string(), r),
+                    ("G".to_string(), g),
+                    ("B".to_string(), b),
+                    ("A".to_string(), a),
+                ];
+                write_exr(self, path, img.width(), img.height(), channels, exr)
+            }
+            FileFormat::Png => {
+                let bytes = png8_samples(img);
+                write_png(self, path, img, &bytes, ExtendedColorType::Rgba8)
+            }
+            FileFormat::Pfm => write_pfm(self, path, img),
+            FileFormat::Jpeg => Err(Error::invalid(
+                "output image path",
+                format!(
+                    "{}: JPEG output is not supported (lossy); expected one of .exr, .png, .pfm",
+                    shown(path)
+                ),
+            )),
+        }
+    }
+
+    /// Stages a 16-bit RGBA PNG for `path`, as [`write_png16`] writes it.
+    pub fn write_png16(&mut self, path: &Path, img: &ColorImage) -> Result<()> {
+        check_output_size(path, img.width(), img.height())?;
+        let mut bytes = Vec::with_capacity(img.pixels().len() * 8);
+        for p in img.pixels() {
+            for v in straight_srgb(*p) {
+                // PngEncoder takes 16-bit samples in native byte order.
+                bytes.extend((quantize(v, 65535.0) as u16).to_ne_bytes());
+            }
+        }
+        write_png(self, path, img, &bytes, ExtendedColorType::Rgba16)
+    }
+
+    /// Stages a depth image for `path`, as [`write_depth_exr`] writes it.
+    pub fn write_depth_exr(&mut self, path: &Path, depth: &GrayImage) -> Result<()> {
+        check_output_size(path, depth.width(), depth.height())?;
+        let channels = vec![("Z".to_string(), depth.pixels().to_vec())];
+        write_exr(
+            self,
+            path,
+            depth.width(),
+            depth.height(),
+            channels,
+            &ExrOptions {
+                half: false,
+                ..ExrOptions::default()
+            },
+        )
+    }
+
+    /// Stages named float32 channels for `path`, as [`write_exr_layers_placed`] writes them.
+    pub fn write_exr_layers(
+        &mut self,
+        path: &Path,
+        width: usize,
+        height: usize,
+        channels: &[(&str, &[f32])],
+        placement: Option<Placement>,
+    ) -> Result<()> {
+        check_output_size(path, width, height)?;
+        let owned = channels
+            .iter()
+            .map(|(name, data)| (name.to_string(), data.to_vec()))
+            .collect();
+        write_exr(
+            self,
+            path,
+            width,
+            height,
+            owned,
+            &ExrOptions {
+                half: false,
+                placement,
+                ..ExrOptions::default()
+            },
+        )
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -997,6 +1052,7 @@ fn depth_channel<'a>(
 /// Writes named float channels as a one-part scanline EXR, atomically, compressed as `options`
 /// says (blocks are compressed in parallel), as 16-bit halves with `options.half`.
 fn write_exr(
+    set: &mut OutputSet,
     path: &Path,
     width: usize,
     height: usize,
@@ -1006,7 +1062,7 @@ fn write_exr(
     if channels.is_empty() {
         return Err(Error::invalid(
             "EXR channels",
-            format!("{}: at least one channel is needed", path.display()),
+            format!("{}: at least one channel is needed", shown(&path)),
         ));
     }
     let mut list = SmallVec::new();
@@ -1014,7 +1070,7 @@ fn write_exr(
         if data.len() != width * height {
             return Err(Error::Mismatch(format!(
                 "{}: channel '{name}' has {} samples, expected {} for {width}x{height} pixels",
-                path.display(),
+                shown(&path),
                 data.len(),
                 width * height
             )));
@@ -1025,7 +1081,7 @@ fn write_exr(
                 "EXR channel name",
                 format!(
                     "{}: channel {i} is named '{name}': expected a non-empty Latin-1 name",
-                    path.display()
+                    shown(&path)
                 ),
             ));
         };
@@ -1042,7 +1098,7 @@ fn write_exr(
             "EXR channel name",
             format!(
                 "{}: channel '{}' is given twice: expected unique names",
-                path.display(),
+                shown(&path),
                 pair[0].name
             ),
         ));
@@ -1063,7 +1119,7 @@ fn write_exr(
     let display =
         exr::meta::attribute::IntegerBounds::new(placement.display_origin, placement.display_size);
     let image = ExrImage::new(exr::meta::header::ImageAttributes::new(display), layer);
-    write_atomic(path, |out| {
+    set.write(path, |out| {
         image.write().to_buffered(out).map_err(|e| match e {
             exr::error::Error::Io(e) => Error::io(path, e),
             other => Error::format(path, format!("could not write OpenEXR: {other}")),
@@ -1223,16 +1279,39 @@ fn depth_from_png(path: &Path, png: &Png) -> Result<Vec<f32>> {
     Ok(png.samples.iter().step_by(png.channels).copied().collect())
 }
 
-/// Writes already-quantised PNG bytes of `img`'s size, atomically.
-fn write_png(path: &Path, img: &ColorImage, bytes: &[u8], color: ExtendedColorType) -> Result<()> {
+/// 8-bit straight sRGB RGBA samples of `img`, as [`write_color`] writes PNG.
+fn png8_samples(img: &ColorImage) -> Vec<u8> {
+    let mut bytes = Vec::with_capacity(img.pixels().len() * 4);
+    for p in img.pixels() {
+        bytes.extend(straight_srgb(*p).map(|v| quantize(v, 255.0) as u8));
+    }
+    bytes
+}
+
+/// Encodes already-quantised PNG samples of `img`'s size to `out`.
+fn png_encode(
+    out: impl Write,
+    img: &ColorImage,
+    bytes: &[u8],
+    color: ExtendedColorType,
+) -> std::result::Result<(), image::ImageError> {
     let (w, h) = (img.width() as u32, img.height() as u32);
-    write_atomic(path, |out| {
-        image::codecs::png::PngEncoder::new(out)
-            .write_image(bytes, w, h, color)
-            .map_err(|e| match e {
-                image::ImageError::IoError(e) => Error::io(path, e),
-                other => Error::format(path, format!("could not write PNG: {other}")),
-            })
+    image::codecs::png::PngEncoder::new(out).write_image(bytes, w, h, color)
+}
+
+/// Stages already-quantised PNG samples of `img`'s size for `path`.
+fn write_png(
+    set: &mut OutputSet,
+    path: &Path,
+    img: &ColorImage,
+    bytes: &[u8],
+    color: ExtendedColorType,
+) -> Result<()> {
+    set.write(path, |out| {
+        png_encode(out, img, bytes, color).map_err(|e| match e {
+            image::ImageError::IoError(e) => Error::io(path, e),
+            other => Error::format(path, format!("could not write PNG: {other}")),
+        })
     })
 }
 
@@ -1401,8 +1480,8 @@ fn color_from_pfm(pfm: Pfm) -> Result<ColorImage> {
     ColorImage::from_vec(pfm.width, pfm.height, pixels)
 }
 
-/// Writes a colour PFM (`PF`, little-endian, rows bottom to top), atomically.
-fn write_pfm(path: &Path, img: &ColorImage) -> Result<()> {
+/// Stages a colour PFM (`PF`, little-endian, rows bottom to top) for `path`.
+fn write_pfm(set: &mut OutputSet, path: &Path, img: &ColorImage) -> Result<()> {
     let (w, h) = (img.width(), img.height());
     let mut bytes = Vec::with_capacity(32 + w * h * 12);
     bytes.extend(format!("PF\n{w} {h}\n-1.0\n").into_bytes());
@@ -1413,9 +1492,7 @@ fn write_pfm(path: &Path, img: &ColorImage) -> Result<()> {
             }
         }
     }
-    write_atomic(path, |out| {
-        out.write_all(&bytes).map_err(|e| Error::io(path, e))
-    })
+    set.write_bytes(path, &bytes)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1500,132 +1577,8 @@ fn check_output_size(path: &Path, width: usize, height: usize) -> Result<()> {
             Error::Invalid { message, .. } => message,
             other => other.to_string(),
         };
-        Error::invalid("output image size", format!("{}: {reason}", path.display()))
+        Error::invalid("output image size", format!("{}: {reason}", shown(&path)))
     })
-}
-
-/// Distinguishes temporary files of concurrent writes within one process.
-static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
-
-/// A temporary file that is deleted when dropped, unless it was renamed into place.
-struct TempFile {
-    path: PathBuf,
-    committed: bool,
-}
-
-impl Drop for TempFile {
-    fn drop(&mut self) {
-        if !self.committed {
-            // Best effort: the write already failed, and that error is the one to report.
-            let _ = std::fs::remove_file(&self.path);
-        }
-        unregister_temporary(&self.path);
-    }
-}
-
-/// Temporary files being written or staged, so that an interrupted process can remove them
-/// ([`remove_pending_temporaries`]).
-static PENDING: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
-
-fn register_temporary(path: &Path) {
-    if let Ok(mut p) = PENDING.lock() {
-        p.push(path.to_path_buf());
-    }
-}
-
-fn unregister_temporary(path: &Path) {
-    if let Ok(mut p) = PENDING.lock() {
-        p.retain(|q| q != path);
-    }
-}
-
-/// Removes every temporary file this process is writing or has staged and not committed: for a
-/// Ctrl-C or SIGTERM handler, so that an interrupted command leaves no litter.
-pub fn remove_pending_temporaries() {
-    if let Ok(mut p) = PENDING.lock() {
-        for path in p.drain(..) {
-            let _ = std::fs::remove_file(path);
-        }
-    }
-}
-
-/// The outputs of one command as one transaction: each output is written to a staged
-/// temporary file beside it (same extension, so the writers pick the same format), and all are
-/// renamed over their targets only by [`OutputSet::commit`], after every write succeeded. If the
-/// set is dropped without a commit (an error, a panic), the staged files are removed and no
-/// target is touched.
-#[derive(Debug, Default)]
-pub struct OutputSet {
-    staged: Vec<(PathBuf, PathBuf)>,
-}
-
-impl OutputSet {
-    /// An empty set.
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// The path to write `target`'s content to: `.<stem>.defocus-<pid>-<n>.<ext>` in the same
-    /// folder.
-    pub fn stage(&mut self, target: &Path) -> Result<PathBuf> {
-        let Some(name) = target.file_name() else {
-            return Err(Error::invalid(
-                "output path",
-                format!(
-                    "{}: expected a path ending in a file name",
-                    target.display()
-                ),
-            ));
-        };
-        let dir = match target.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        let mut temp_name = std::ffi::OsString::from(".staged-");
-        temp_name.push(format!(
-            "{}-{}-",
-            std::process::id(),
-            TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
-        ));
-        temp_name.push(name);
-        let temp = dir.join(temp_name);
-        register_temporary(&temp);
-        self.staged.push((temp.clone(), target.to_path_buf()));
-        Ok(temp)
-    }
-
-    /// Renames every staged file over its target. Every target is checked first (a folder in
-    /// the way fails before anything is renamed); a rename that still fails leaves the staged
-    /// files of the later targets to be removed.
-    pub fn commit(mut self) -> Result<()> {
-        for (_, target) in &self.staged {
-            if target.is_dir() {
-                return Err(Error::invalid(
-                    "output path",
-                    format!("{} is a folder: expected a file name", target.display()),
-                ));
-            }
-        }
-        while !self.staged.is_empty() {
-            let (temp, target) = self.staged.remove(0);
-            let renamed = std::fs::rename(&temp, &target).map_err(|e| Error::io(&target, e));
-            if renamed.is_err() {
-                let _ = std::fs::remove_file(&temp);
-            }
-            unregister_temporary(&temp);
-            renamed?;
-        }
-        Ok(())
-    }
-}
-
-impl Drop for OutputSet {
-    fn drop(&mut self) {
-        for (temp, _) in self.staged.drain(..) {
-            let _ = std::fs::remove_file(&temp);
-            unregister_temporary(&temp);
-        }
-    }
 }
 
 /// Fails when two of the named outputs are one file (the same path, however written, or one
@@ -1649,51 +1602,11 @@ pub fn check_distinct_outputs(outputs: &[(&str, &Path)]) -> Result<()> {
                     "output path",
                     format!(
                         "{fa} and {fb} both name {}: give each output its own file",
-                        pb.display()
+                        shown(&pb)
                     ),
                 ));
             }
         }
     }
-    Ok(())
-}
-
-/// Writes `path` atomically: `write` fills a temporary file `.<name>.tmp-<pid>-<n>` in the same
-/// directory, which is flushed, synced and renamed over `path`. On any error (including a panic
-/// in `write`) the temporary file is removed and `path` is left as it was.
-fn write_atomic(path: &Path, write: impl FnOnce(&mut BufWriter<File>) -> Result<()>) -> Result<()> {
-    let Some(name) = path.file_name() else {
-        return Err(Error::invalid(
-            "output path",
-            format!("{}: expected a path ending in a file name", path.display()),
-        ));
-    };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut temp_name = std::ffi::OsString::from(".");
-    temp_name.push(name);
-    temp_name.push(format!(
-        ".tmp-{}-{}",
-        std::process::id(),
-        TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let temp_path = dir.join(temp_name);
-    let file = File::create_new(&temp_path).map_err(|e| Error::io(path, e))?;
-    register_temporary(&temp_path);
-    let mut temp = TempFile {
-        path: temp_path,
-        committed: false,
-    };
-    let mut out = BufWriter::new(file);
-    write(&mut out)?;
-    let file = out
-        .into_inner()
-        .map_err(|e| Error::io(path, e.into_error()))?;
-    file.sync_all().map_err(|e| Error::io(path, e))?;
-    drop(file);
-    std::fs::rename(&temp.path, path).map_err(|e| Error::io(path, e))?;
-    temp.committed = true;
     Ok(())
 }

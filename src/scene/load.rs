@@ -11,12 +11,19 @@
 //! 4. Cameras: each glTF perspective camera becomes a [`Camera`] (see [`FileCamera`]); the first
 //!    one, or without any a [`frame_all`] view, goes into [`Scene::defaults`].
 //!
+//! Files the scene refers to are read only from its own folder, only if they are regular files,
+//! and no more than the scene declares, unless [`LoadOptions`] allows external files (see
+//! DESIGN.md, "Untrusted input").
+//!
 //! Rendering is unlit, so only base colour, emission and alpha are read; normals and PBR
 //! parameters are ignored.
 
+mod external;
 mod gltf;
 mod image_file;
 mod obj;
+
+pub use external::{MAX_IMAGE_FILE_BYTES, MAX_SCENE_FILE_BYTES};
 
 use std::path::Path;
 
@@ -120,17 +127,36 @@ impl SceneFile {
     }
 }
 
-/// Reads a scene file with its cameras; the format follows the extension (`.gltf`, `.glb`,
-/// `.obj`, any case). A `.gltf` may also hold binary glTF and the reverse.
+/// How a scene file is read.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// Let the scene read files outside its own folder: glTF buffer and image URIs, OBJ
+    /// `mtllib` and MTL maps that are absolute, climb out with `../` or lead out through a link.
+    /// Off by default: a scene file from elsewhere could otherwise read any file its user can
+    /// (`/etc/shadow`, `~/.ssh/id_ed25519`) and show it in the image or in error messages.
+    /// Either way only regular files are read (never a device or a FIFO), and no more of them
+    /// than the scene declares.
+    pub allow_external_files: bool,
+}
+
+/// Reads a scene file with its cameras (see [`read_scene_file_with`]), with the default
+/// [`LoadOptions`]: no file outside the scene's folder is read.
 pub fn read_scene_file(path: &Path) -> Result<SceneFile> {
+    read_scene_file_with(path, &LoadOptions::default())
+}
+
+/// Reads a scene file with its cameras; the format follows the extension (`.gltf`, `.glb`,
+/// `.obj`, any case). A `.gltf` may also hold binary glTF and the reverse. The files the scene
+/// refers to are read as `options` allow.
+pub fn read_scene_file_with(path: &Path, options: &LoadOptions) -> Result<SceneFile> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     let mut file = match ext.as_str() {
-        "gltf" | "glb" => gltf::load(path)?,
-        "obj" => obj::load(path)?,
+        "gltf" | "glb" => gltf::load(path, &external::SceneFolder::new(path, options)?)?,
+        "obj" => obj::load(path, &external::SceneFolder::new(path, options)?)?,
         "" => {
             return Err(Error::format(
                 path,

@@ -19,6 +19,7 @@ mod report;
 mod scene_files;
 mod scenes;
 mod splat;
+mod untrusted;
 
 /// Path of the shared assets folder, or `None` (with a printed reason) when it is absent.
 pub fn shared_assets() -> Option<std::path::PathBuf> {

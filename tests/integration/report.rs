@@ -80,7 +80,13 @@ fn report_sweeps_settings_and_reports_a_failing_setting_while_the_others_run() {
         "--out",
         s(&out),
     ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    // The report is written, and the command fails naming the failed run.
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("1 of 4 runs failed: poisson-taps0"),
+        "{}",
+        stderr(&o)
+    );
     let r = results(&out);
     let runs = r["runs"].as_array().unwrap();
     let labels: Vec<&str> = runs.iter().map(|r| r["label"].as_str().unwrap()).collect();

@@ -801,11 +801,11 @@ fn malformed_gltf_files_are_errors_that_name_the_file_and_the_problem() {
 
     let missing_bin = valid_textured().write(&dir, "nobin");
     std::fs::remove_file(dir.join("nobin.bin")).unwrap();
-    assert_error(&missing_bin, &["buffer 0", "nobin.bin"]);
+    assert_error(&missing_bin, &["buffers[0].uri", "nobin.bin"]);
 
     let mut g = valid_textured();
     g.json["images"][0] = json!({"uri": "textures/missing.png"});
-    assert_error(&g.write(&dir, "notex"), &["image 0", "missing.png"]);
+    assert_error(&g.write(&dir, "notex"), &["images[0].uri", "missing.png"]);
 
     let mut g = valid_textured();
     g.json["images"][0] = json!({"uri": "data:image/png;base64,iVBORw0KGgoAAAANSUhE"});

@@ -95,6 +95,11 @@ pub struct RenderArgs {
     /// Seed of the lens/pixel sampler.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Let a scene file read files outside its own folder (glTF URIs, OBJ mtllib, MTL maps
+    /// that are absolute, use ../ or a link out). Off by default, so that a downloaded scene
+    /// cannot read other files of yours and show them in the image or in errors.
+    #[arg(long)]
+    pub allow_external_files: bool,
     /// Output image: .exr (linear float RGBA), .png (8-bit sRGB) or .pfm.
     #[arg(long, default_value = "render.png", value_name = "FILE")]
     pub out: PathBuf,
@@ -162,6 +167,11 @@ pub struct CompareArgs {
     /// `filter-steps=1/3,2/2,4/0`, `layer-spacing=2,4,8` (repeatable).
     #[arg(long, value_name = "KEY=V1,V2,...", help_heading = "Report")]
     pub sweep: Vec<String>,
+    /// Report: let a scene file read files outside its own folder (glTF URIs, OBJ mtllib, MTL maps
+    /// that are absolute, use ../ or a link out). Off by default, so that a downloaded scene
+    /// cannot read other files of yours and show them in the image or in errors.
+    #[arg(long, help_heading = "Report")]
+    pub allow_external_files: bool,
     /// Report: the output folder (created if absent).
     #[arg(long, value_name = "DIR", help_heading = "Report")]
     pub out: Option<PathBuf>,

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use defocus::autofocus::focus_in_depth;
+use defocus::error::shown;
 use defocus::image::io::{self, DepthRead, Placement};
 use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::{Camera, ThinLens};
@@ -238,11 +239,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
         {
             let (color, _) = io::exr_channel_choice(&a.color, None)?;
             if let Ok(names) = color {
-                eprintln!(
-                    "colour: {} channels {}",
-                    a.color.display(),
-                    names.join(", ")
-                );
+                eprintln!("colour: {} channels {}", shown(&a.color), names.join(", "));
             }
         }
         let mut color = read_timings.time(timing::READ, || io::read_color(&a.color))?;
@@ -259,7 +256,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             eprintln!(
                 "note: {} is not OpenEXR: it holds the colour image's {w}x{h} pixels without \
                  their place in the frame ({}); write .exr to keep it",
-                a.out.display(),
+                shown(&a.out),
                 describe_placement(&a.color, w, h, &frame)
             );
         }
@@ -268,7 +265,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             if n > 0 {
                 eprintln!(
                     "--sanitize: {n} pixel(s) of {} had NaN or infinite values, set to 0",
-                    a.color.display()
+                    shown(&a.color)
                 );
             }
         } else {
@@ -308,7 +305,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
         {
             let (_, depth) = io::exr_channel_choice(depth_path, a.depth_channel.as_deref())?;
             if let Ok(name) = depth {
-                eprintln!("depth: {} channel {name}", depth_path.display());
+                eprintln!("depth: {} channel {name}", shown(&depth_path));
             }
         }
         let opts = DepthRead {
@@ -333,7 +330,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             if let Some(c) = coc.pixels().iter().find(|c| !c.is_finite()) {
                 bail!(
                     "{}: a CoC radius times --depth-scale {} is {c}: expected finite radii",
-                    depth_path.display(),
+                    shown(&depth_path),
                     a.depth_scale
                 );
             }
@@ -457,17 +454,16 @@ impl BlurJob {
         // Both outputs or neither: staged, renamed when both are written.
         let mut set = io::OutputSet::new();
         timings.time(timing::WRITE, || {
-            io::write_color_with(&set.stage(&self.out)?, &output.image, &self.exr)
+            set.write_color(&self.out, &output.image, &self.exr)
         })?;
         if let Some(path) = &self.coc_out {
-            let path = &set.stage(path)?;
             let coc: Vec<f32> = match &self.input {
                 Input::Depth { depth, lens } => {
                     depth.pixels().iter().map(|&z| lens.coc_px(z)).collect()
                 }
                 Input::TiltShift { coc_px } => coc_px.pixels().to_vec(),
             };
-            io::write_exr_layers_placed(
+            set.write_exr_layers(
                 path,
                 self.color.width(),
                 self.color.height(),
@@ -501,7 +497,7 @@ fn describe_placement(path: &Path, w: usize, h: usize, p: &Placement) -> String 
     let (fw, fh) = p.display_size;
     format!(
         "{} holds the {w}x{h} pixels from ({x}, {y}) of the {fw}x{fh} frame from ({fx}, {fy})",
-        path.display()
+        shown(&path)
     )
 }
 
@@ -543,8 +539,8 @@ fn align_depth(
         if (dw, dh) != (w, h) {
             bail!(
                 "size mismatch: colour {} is {w}x{h} but depth {} is {dw}x{dh}",
-                color_path.display(),
-                depth_path.display(),
+                shown(&color_path),
+                shown(&depth_path),
             );
         }
         return Ok(depth);
@@ -560,9 +556,9 @@ fn align_depth(
         bail!(
             "depth {} covers {} of the frame but colour {} covers {}: expected depth for every \
              colour pixel (OpenEXR data windows, or a PNG/PFM the size of the frame)",
-            depth_path.display(),
+            shown(&depth_path),
             describe(d),
-            color_path.display(),
+            shown(&color_path),
             describe(c),
         );
     }

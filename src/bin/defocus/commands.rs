@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use defocus::autofocus;
+use defocus::error::shown;
 use defocus::image::io;
 use defocus::lens::{Camera, SamplerKind};
 use defocus::methods::multiview::MultiviewSettings;
@@ -82,7 +83,7 @@ struct TwoImages {
     json: bool,
 }
 
-fn load_scene(spec: &str, camera: Option<&str>) -> Result<Scene> {
+fn load_scene(spec: &str, camera: Option<&str>, options: &load::LoadOptions) -> Result<Scene> {
     if builtin::NAMES.contains(&spec) {
         if camera.is_some() {
             bail!("invalid --camera: the built-in scene '{spec}' has one camera; --camera picks a camera of a scene file");
@@ -91,11 +92,11 @@ fn load_scene(spec: &str, camera: Option<&str>) -> Result<Scene> {
     }
     let path = Path::new(spec);
     if path.exists() {
-        let mut file = load::read_scene_file(path)?;
+        let mut file = load::read_scene_file_with(path, options)?;
         if !file.skipped_cameras.is_empty() {
             eprintln!(
                 "note: {}: {} skipped: the thin-lens model is perspective{}",
-                path.display(),
+                shown(&path),
                 file.skipped_cameras.join(", "),
                 if file.cameras.is_empty() && camera.is_none() {
                     " (the default view frames the whole scene; --look-from and --fov place a camera)"
@@ -124,7 +125,10 @@ impl TryFrom<RenderArgs> for RenderJob {
             check_output(d, "--depth-out", &["exr"])?;
             io::check_distinct_outputs(&[("--out", &a.out), ("--depth-out", d)])?;
         }
-        let scene = load_scene(&a.scene, a.view.camera.as_deref())?;
+        let options = load::LoadOptions {
+            allow_external_files: a.allow_external_files,
+        };
+        let scene = load_scene(&a.scene, a.view.camera.as_deref(), &options)?;
         let defaults = scene
             .defaults
             .clone()
@@ -296,11 +300,11 @@ impl RenderJob {
         timings.time(timing::WRITE, || {
             // Both outputs or neither: staged, renamed when both are written.
             let mut set = io::OutputSet::new();
-            io::write_color_with(&set.stage(&self.out)?, &output.image, &self.exr)?;
+            set.write_color(&self.out, &output.image, &self.exr)?;
             if let (Some(path), Some(depth)) = (&self.depth_out, &output.depth) {
                 // Renderers write a large finite value where nothing was hit (Blender: 1e10).
                 let depth = depth.map(|z| if z.is_finite() { z } else { 1e10 });
-                io::write_depth_exr(&set.stage(path)?, &depth)?;
+                set.write_depth_exr(path, &depth)?;
             }
             set.commit()?;
             anyhow::Ok(())
@@ -362,10 +366,10 @@ fn compare(args: &CompareArgs) -> Result<()> {
     if !a.same_size(&b) {
         bail!(
             "size mismatch: {} is {}x{} but {} is {}x{}",
-            args.a.display(),
+            shown(&args.a),
             a.width(),
             a.height(),
-            args.b.display(),
+            shown(&args.b),
             b.width(),
             b.height()
         );

@@ -8,6 +8,7 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Args, ValueEnum};
+use defocus::error::shown;
 use defocus::image::io::{self, ExrCompression, ExrOptions};
 use defocus::image::GrayImage;
 use defocus::lens::{Aperture, ApertureImage, CustomShape};
@@ -52,22 +53,27 @@ pub fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> 
     if !extensions.contains(&ext.as_str()) {
         bail!(
             "invalid {flag} {}: expected a file ending in .{}",
-            path.display(),
+            shown(&path),
             extensions.join(", .")
         );
     }
     if path.is_dir() {
         bail!(
             "invalid {flag} {}: it is a folder, expected a file name",
-            path.display()
+            shown(&path)
         );
+    }
+    // A device, a FIFO or a link to one: refused before the work, not at the write.
+    match defocus::output::check_target(path) {
+        Err(defocus::Error::Invalid { message, .. }) => bail!("invalid {flag}: {message}"),
+        other => other?,
     }
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         if !parent.is_dir() {
             bail!(
                 "invalid {flag} {}: folder {} does not exist",
-                path.display(),
-                parent.display()
+                shown(&path),
+                shown(&parent)
             );
         }
     }

@@ -153,10 +153,14 @@ pub fn run(a: &KernelArgs) -> Result<()> {
     // Every output is staged and renamed only when all are written.
     let mut set = io::OutputSet::new();
     if let Some(p) = &a.out {
-        io::write_color(&set.stage(p)?, &to_color(&kernel, scale))?;
+        set.write_color(p, &to_color(&kernel, scale), &Default::default())?;
     }
     if let Some(p) = &a.approx_out {
-        io::write_color(&set.stage(p)?, &to_color(&lr.approximation(r1), scale))?;
+        set.write_color(
+            p,
+            &to_color(&lr.approximation(r1), scale),
+            &Default::default(),
+        )?;
     }
     let filtered = match (&a.filter, &a.filter_out) {
         (Some(input), Some(out)) => Some(filter_image(input, out, a, &kernel, &lr, r1, &mut set)?),
@@ -250,13 +254,13 @@ fn filter_image(
     };
     let low = filter_separable_with(&img, lr, rank, Channels::Auto, schedule);
     let separable_ms = start.elapsed().as_secs_f64() * 1e3;
-    io::write_color(&set.stage(out)?, &low)?;
+    set.write_color(out, &low, &Default::default())?;
     let (full_2d_ms, against_2d) = match &a.full_2d_out {
         Some(p) => {
             let start = std::time::Instant::now();
             let full = filter_full_2d(&img, kernel);
             let ms = start.elapsed().as_secs_f64() * 1e3;
-            io::write_color(&set.stage(p)?, &full)?;
+            set.write_color(p, &full, &Default::default())?;
             (Some(ms), Some(metrics::compare(&low, &full)?))
         }
         None => (None, None),

@@ -16,7 +16,7 @@ use clap::Parser;
 fn main() -> ExitCode {
     // Ctrl-C or SIGTERM: remove the temporary files of unfinished outputs, then stop.
     let _ = ctrlc::set_handler(|| {
-        defocus::image::io::remove_pending_temporaries();
+        defocus::output::interrupt();
         std::process::exit(130);
     });
     let cli = args::Cli::parse();
@@ -24,7 +24,9 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();
-            eprintln!("error: {}", chain.join(": "));
+            // Paths are escaped where they are formatted; this also catches names read from
+            // files (materials, objects), so nothing reaches the terminal raw.
+            eprintln!("error: {}", defocus::error::shown(&chain.join(": ")));
             ExitCode::FAILURE
         }
     }

@@ -7,11 +7,13 @@
 //! image those commands write with the same flags. A method that fails is reported in the page
 //! with its error; the others still run.
 
+use std::collections::HashMap;
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use base64::Engine as _;
+use defocus::error::shown;
 use defocus::image::{io, ColorImage};
 use defocus::methods::registry::{self, MethodInfo, METHODS};
 use defocus::methods::MethodOutput;
@@ -220,6 +222,7 @@ fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> Render
         aperture: a.aperture.clone(),
         sampler: "halton".to_string(),
         seed: a.seed,
+        allow_external_files: a.allow_external_files,
         out: out.to_path_buf(),
         depth_out: None,
         timings: None,
@@ -275,7 +278,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     if dir.exists() && !dir.is_dir() {
         bail!(
             "invalid --out {}: it exists and is not a folder",
-            dir.display()
+            shown(&dir)
         );
     }
     if !(1..=1 << 20).contains(&a.reference_samples) {
@@ -289,7 +292,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     let sweeps = parse_sweeps(&a.sweep)?;
     let runs = runs(&methods, &sweeps);
     std::fs::create_dir_all(&dir)
-        .with_context(|| format!("could not create the report folder {}", dir.display()))?;
+        .with_context(|| format!("could not create the report folder {}", shown(&dir)))?;
     let bar = progress_bar(quiet, runs.len() as u64 + 1, "methods");
 
     // The reference: rendered, or read.
@@ -301,7 +304,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         let cam = job.camera().clone();
         let lens = cam.thin_lens()?;
         parameters.extend([
-            ("scene".to_string(), scene.clone()),
+            ("scene".to_string(), shown(scene)),
             (
                 "resolution".to_string(),
                 format!("{}x{}", cam.width_px, cam.height_px),
@@ -333,7 +336,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         (
             out.image,
             Some(ms),
-            format!("defocus report: {scene}"),
+            format!("defocus report: {}", shown(scene)),
             format!("reference, {} lens samples", a.reference_samples),
         )
     } else {
@@ -341,15 +344,12 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         let truth = io::read_color(&truth_path)?;
         let color_path = a.color.clone().context("--color")?;
         parameters.extend([
-            ("colour".to_string(), color_path.display().to_string()),
+            ("colour".to_string(), shown(&color_path)),
             (
                 "depth".to_string(),
-                a.depth
-                    .as_ref()
-                    .map(|p| p.display().to_string())
-                    .unwrap_or_default(),
+                a.depth.as_ref().map(|p| shown(&p)).unwrap_or_default(),
             ),
-            ("truth".to_string(), truth_path.display().to_string()),
+            ("truth".to_string(), shown(&truth_path)),
             (
                 "resolution".to_string(),
                 format!("{}x{}", truth.width(), truth.height()),
@@ -373,17 +373,17 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
                     .map(|n| n.to_string_lossy().into_owned())
                     .unwrap_or_default()
             ),
-            format!("ground truth {}", truth_path.display()),
+            format!("ground truth {}", shown(&truth_path)),
         )
     };
     if !a.sweep.is_empty() {
         parameters.push(("sweeps".to_string(), a.sweep.join(" ")));
     }
     bar.inc(1);
-    let reference_exr = dir.join("reference.exr");
-    let reference_png = dir.join("reference.png");
-    io::write_color(&reference_exr, &truth)?;
-    io::write_color(&reference_png, &truth)?;
+    // Every file of the report is staged and renamed into the folder at the end, all together.
+    let mut files = ReportFiles::new(&dir);
+    files.exr("reference.exr", &truth)?;
+    files.png("reference.png", &truth)?;
 
     // Every run.
     let mut outputs: Vec<(usize, MethodOutput)> = Vec::new();
@@ -447,14 +447,14 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
                 r.total_ms = Some(without_io(&o.timings));
                 r.passes = o.timings.passes.clone();
                 r.memory_bytes = o.memory_bytes;
-                io::write_color(&out_path, &o.image)?;
-                io::write_color(&dir.join(format!("{label}.png")), &o.image)?;
+                files.exr(&format!("{label}.exr"), &o.image)?;
+                files.png(&format!("{label}.png"), &o.image)?;
                 r.image_exr = Some(format!("{label}.exr"));
                 r.image_png = Some(format!("{label}.png"));
                 outputs.push((i, o));
             }
             Err(e) => {
-                let text = format!("{e:#}");
+                let text = shown(&format!("{e:#}"));
                 r.status = if text.starts_with("not applicable") {
                     "not applicable".to_string()
                 } else {
@@ -478,11 +478,11 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     for (i, o) in &outputs {
         let map = metrics::error_map_with_top(&o.image, &truth, top)?;
         let name = format!("{}-error.png", results[*i].label);
-        io::write_color(&dir.join(&name), &map)?;
+        files.png(&name, &map)?;
         results[*i].error_map_png = Some(name);
     }
     let legend = legend_image()?;
-    io::write_color(&dir.join("error-legend.png"), &legend)?;
+    files.png("error-legend.png", &legend)?;
 
     let report = Report {
         title,
@@ -499,10 +499,27 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         runs: results,
     };
     let json = serde_json::to_string_pretty(&report)?;
-    write_text(&dir.join("results.json"), &json)?;
-    let html = page(&report, &dir)?;
-    write_text(&dir.join("index.html"), &html)?;
-    eprintln!("report: {}", dir.join("index.html").display());
+    files.text("results.json", &json)?;
+    let html = page(&report, &files)?;
+    files.text("index.html", &html)?;
+    files.set.commit()?;
+    eprintln!("report: {}", shown(&dir.join("index.html")));
+    // The report is written either way; a failed run still makes the command fail, so that a
+    // script does not take a report of errors for results.
+    let failed: Vec<&str> = report
+        .runs
+        .iter()
+        .filter(|r| r.status == "failed")
+        .map(|r| r.label.as_str())
+        .collect();
+    if !failed.is_empty() {
+        bail!(
+            "{} of {} runs failed: {} (their errors are in the report)",
+            failed.len(),
+            report.runs.len(),
+            failed.join(", ")
+        );
+    }
     Ok(())
 }
 
@@ -515,11 +532,57 @@ fn without_io(t: &Timings) -> f64 {
         .sum()
 }
 
-fn write_text(path: &Path, text: &str) -> Result<()> {
-    let tmp = path.with_extension("tmp-write");
-    std::fs::write(&tmp, text).with_context(|| format!("could not write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("could not write {}", path.display()))?;
-    Ok(())
+/// The files of a report: staged in one set (see [`io::OutputSet`]), so that the folder gets
+/// all of them or none; the PNGs are also kept for the page, which embeds them.
+struct ReportFiles {
+    dir: PathBuf,
+    set: io::OutputSet,
+    png: HashMap<String, Vec<u8>>,
+}
+
+impl ReportFiles {
+    fn new(dir: &Path) -> Self {
+        Self {
+            dir: dir.to_path_buf(),
+            set: io::OutputSet::new(),
+            png: HashMap::new(),
+        }
+    }
+
+    /// Stages `img` as the linear EXR `name`.
+    fn exr(&mut self, name: &str, img: &ColorImage) -> Result<()> {
+        let path = self.dir.join(name);
+        self.set
+            .write_color(&path, img, &io::ExrOptions::default())?;
+        Ok(())
+    }
+
+    /// Stages `img` as the 8-bit sRGB PNG `name`, and keeps its bytes for [`Self::data_uri`].
+    fn png(&mut self, name: &str, img: &ColorImage) -> Result<()> {
+        let bytes = io::encode_png(img)?;
+        self.set.write_bytes(&self.dir.join(name), &bytes)?;
+        self.png.insert(name.to_string(), bytes);
+        Ok(())
+    }
+
+    /// Stages `text` as the file `name`.
+    fn text(&mut self, name: &str, text: &str) -> Result<()> {
+        self.set
+            .write_bytes(&self.dir.join(name), text.as_bytes())?;
+        Ok(())
+    }
+
+    /// The PNG `name` staged by [`Self::png`], as a data URI.
+    fn data_uri(&self, name: &str) -> Result<String> {
+        let bytes = self
+            .png
+            .get(name)
+            .with_context(|| format!("the report has no image {}", shown(name)))?;
+        Ok(format!(
+            "data:image/png;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(bytes)
+        ))
+    }
 }
 
 /// The error ramp from no difference (left) to the top (right), 256x16.
@@ -533,15 +596,6 @@ fn legend_image() -> Result<ColorImage> {
         }
     }
     Ok(ColorImage::from_vec(w, h, data)?)
-}
-
-fn data_uri(dir: &Path, name: &str) -> Result<String> {
-    let bytes = std::fs::read(dir.join(name))
-        .with_context(|| format!("could not read {}", dir.join(name).display()))?;
-    Ok(format!(
-        "data:image/png;base64,{}",
-        base64::engine::general_purpose::STANDARD.encode(bytes)
-    ))
 }
 
 fn esc(s: &str) -> String {
@@ -642,7 +696,7 @@ fn plot(report: &Report) -> Result<String> {
     Ok(svg)
 }
 
-fn page(report: &Report, dir: &Path) -> Result<String> {
+fn page(report: &Report, files: &ReportFiles) -> Result<String> {
     let mut h = String::new();
     let _ = write!(
         h,
@@ -725,13 +779,13 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
     let _ = writeln!(
         h,
         "<img id=\"legend\" alt=\"error scale\" src=\"{}\" style=\"vertical-align:middle;width:256px;height:16px\"> 0 to {:.3} (and more).</p>\n<div class=\"grid\">",
-        data_uri(dir, "error-legend.png")?,
+        files.data_uri("error-legend.png")?,
         report.error_map_top
     );
     let _ = writeln!(
         h,
         "<figure><img alt=\"reference\" src=\"{}\"><figcaption>reference ({})</figcaption></figure>",
-        data_uri(dir, &report.reference.image_png)?,
+        files.data_uri(&report.reference.image_png)?,
         esc(&report.reference.source)
     );
     h.push_str("</div>\n");
@@ -748,11 +802,11 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
             h,
             "<div class=\"grid\"><figure><img alt=\"{n}\" src=\"{}\"><figcaption>{n}: {:.2} dB, SSIM {:.3}, {:.0} ms</figcaption></figure>\
 <figure><img alt=\"{n} error\" src=\"{}\"><figcaption>{n}: error</figcaption></figure></div>",
-            data_uri(dir, img)?,
+            files.data_uri(img)?,
             r.psnr_db.unwrap_or(f64::NAN),
             r.ssim.unwrap_or(f64::NAN),
             r.total_ms.unwrap_or(f64::NAN),
-            data_uri(dir, err)?,
+            files.data_uri(err)?,
             n = esc(&name)
         );
     }

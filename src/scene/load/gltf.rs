@@ -7,7 +7,7 @@
 
 use std::borrow::Cow;
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use ::gltf as gl;
@@ -15,11 +15,13 @@ use gl::json::validation::Validate;
 use glam::{Affine3A, Mat4, Quat, Vec2, Vec3};
 use rayon::prelude::*;
 
+use super::external::{self, Limit, SceneFolder, MAX_IMAGE_FILE_BYTES};
 use super::image_file::{self, Encoding};
 use super::{FileCamera, SceneFile};
 use super::{
     DEFAULT_FAR_M, DEFAULT_FSTOP, DEFAULT_HEIGHT_PX, DEFAULT_SENSOR_WIDTH_MM, DEFAULT_WIDTH_PX,
 };
+use crate::error::shown;
 use crate::lens::Camera;
 use crate::scene::{
     AlphaMode, FilterMode, Material, Mesh, Scene, Texture, TextureBinding, TextureSampler,
@@ -43,24 +45,23 @@ const MAX_SPARSE_ONLY_ELEMENTS: usize = 1 << 24;
 const CHUNK_JSON: u32 = 0x4E4F_534A;
 const CHUNK_BIN: u32 = 0x004E_4942;
 
-/// Loads a glTF or GLB file.
-pub(super) fn load(path: &Path) -> Result<SceneFile> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+/// Loads a glTF or GLB file; the files it refers to are read from `folder`.
+pub(super) fn load(path: &Path, folder: &SceneFolder) -> Result<SceneFile> {
+    let bytes = external::read_scene(path)?;
     let (json, bin) = split_container(path, &bytes)?;
     let root = gl::json::Root::from_slice(json)
         .map_err(|e| Error::format(path, format!("not valid glTF JSON: {e}")))?;
     check_required_extensions(path, &root)?;
     validate(path, &root)?;
     let doc = gl::Document::from_json_without_validation(root);
-    let dir = path.parent().unwrap_or(Path::new(""));
-    let buffers = load_buffers(path, dir, &doc, bin)?;
+    let buffers = load_buffers(path, folder, &doc, bin)?;
     let name = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     Loader {
         path,
-        dir,
+        folder,
         doc: &doc,
         buffers,
         scene: Scene {
@@ -207,8 +208,17 @@ fn semantic_name(s: &gl::json::validation::Checked<gl::json::mesh::Semantic>) ->
     }
 }
 
-/// Reads the bytes a URI points to: a `data:` URI or a file relative to `dir`.
-fn read_uri(path: &Path, dir: &Path, uri: &str, what: &str) -> Result<Vec<u8>> {
+/// Reads the bytes a URI points to: a `data:` URI, or a file of the scene's folder (see
+/// [`SceneFolder`]) read as far as `limit` says. `field` is where the URI is (`buffers[0].uri`)
+/// and `what` names the element in other errors.
+fn read_uri(
+    path: &Path,
+    folder: &SceneFolder,
+    uri: &str,
+    field: &str,
+    what: &str,
+    limit: Limit,
+) -> Result<Vec<u8>> {
     let err = |m: String| Error::format(path, format!("{what}: {m}"));
     if let Some(rest) = uri.strip_prefix("data:") {
         let (meta, payload) = rest
@@ -224,16 +234,17 @@ fn read_uri(path: &Path, dir: &Path, uri: &str, what: &str) -> Result<Vec<u8>> {
     }
     if let Some((scheme, _)) = uri.split_once("://") {
         return Err(err(format!(
-            "URI scheme '{scheme}' is not supported: expected a relative file path or a data URI"
+            "URI scheme '{}' is not supported: expected a relative file path or a data URI",
+            shown(scheme)
         )));
     }
-    let file: PathBuf = dir.join(image_file::percent_decode(uri).map_err(err)?);
-    std::fs::read(&file).map_err(|e| err(format!("could not read {}: {e}", file.display())))
+    let file = image_file::percent_decode(uri).map_err(err)?;
+    folder.read(field, Path::new(&file), limit)
 }
 
 fn load_buffers<'a>(
     path: &Path,
-    dir: &Path,
+    folder: &SceneFolder,
     doc: &gl::Document,
     bin: Option<&'a [u8]>,
 ) -> Result<Vec<Cow<'a, [u8]>>> {
@@ -254,11 +265,19 @@ fn load_buffers<'a>(
                 "the GLB binary chunk".into(),
             ),
             gl::buffer::Source::Uri(uri) => (
-                Cow::Owned(read_uri(path, dir, uri, &format!("buffer {i}"))?),
+                Cow::Owned(read_uri(
+                    path,
+                    folder,
+                    uri,
+                    &format!("buffers[{i}].uri"),
+                    &format!("buffer {i}"),
+                    // The declared length and no more: the rest of the file is not the buffer's.
+                    Limit::Prefix(buffer.length() as u64),
+                )?),
                 if uri.starts_with("data:") {
                     "its data URI".into()
                 } else {
-                    format!("'{uri}'")
+                    format!("'{}'", shown(uri))
                 },
             ),
         };
@@ -289,7 +308,7 @@ struct LocalPrimitive {
 
 struct Loader<'a> {
     path: &'a Path,
-    dir: &'a Path,
+    folder: &'a SceneFolder,
     doc: &'a gl::Document,
     buffers: Vec<Cow<'a, [u8]>>,
     scene: Scene,
@@ -922,7 +941,7 @@ impl<'a> Loader<'a> {
             .ok_or_else(|| self.err(format!("image {index} does not exist")))?;
         let named = image
             .name()
-            .map(|n| format!(" ('{n}')"))
+            .map(|n| format!(" ('{}')", shown(n)))
             .unwrap_or_default();
         match image.source() {
             gl::image::Source::View { view, .. } => {
@@ -934,9 +953,16 @@ impl<'a> Loader<'a> {
                 let what = if uri.starts_with("data:") {
                     format!("image {index}{named} (data URI)")
                 } else {
-                    format!("image {index}{named} ('{uri}')")
+                    format!("image {index}{named} ('{}')", shown(uri))
                 };
-                let bytes = read_uri(self.path, self.dir, uri, &what)?;
+                let bytes = read_uri(
+                    self.path,
+                    self.folder,
+                    uri,
+                    &format!("images[{index}].uri"),
+                    &what,
+                    Limit::Cap(MAX_IMAGE_FILE_BYTES),
+                )?;
                 Ok((Cow::Owned(bytes), what))
             }
         }

@@ -15,27 +15,32 @@
 
 use std::cell::RefCell;
 use std::collections::HashMap;
-use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use super::external::{self, Limit, SceneFolder, MAX_IMAGE_FILE_BYTES, MAX_SCENE_FILE_BYTES};
 use super::image_file::{self, Encoding};
 use super::SceneFile;
+use crate::error::shown;
 use crate::image::ColorImage;
 use crate::scene::{
     AlphaMode, Material, Mesh, Scene, Texture, TextureBinding, TextureSampler, UvTransform,
 };
 use crate::{Error, Result};
 
-/// A texture to build: colour from one image, alpha (optionally) from another.
+/// A texture to build: colour from one image, alpha (optionally) from another, each a file of
+/// the scene's folder with links followed.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 struct TextureJob {
     color: Option<PathBuf>,
     alpha: Option<PathBuf>,
 }
+
+/// Where the MTL first names each texture file, for messages: (field, file name as written).
+type MapNames = HashMap<PathBuf, (String, PathBuf)>;
 
 /// Checks the statements the OBJ reader would drop or reject without a line number: vertices
 /// (`v`, `vt`, `vn`) need numbers, faces (`f`) at least three vertex references.
@@ -49,6 +54,7 @@ fn check_lines(path: &Path, bytes: &[u8]) -> Result<()> {
         };
         let rest: Vec<&str> = words.collect();
         let at = |message: String| Error::format(path, format!("line {}: {message}", n + 1));
+        let line = shown(line);
         let numbers = |ws: &[&str]| ws.iter().all(|w| w.parse::<f32>().is_ok());
         match keyword {
             "v" | "vn" if rest.len() < 3 || !numbers(&rest[..3]) => {
@@ -93,24 +99,22 @@ fn check_mtl_lines(bytes: &[u8]) -> std::result::Result<(), String> {
                 "a number"
             };
             return Err(format!(
-                "line {}: '{line}': '{keyword}' needs {want}",
-                n + 1
+                "line {}: '{}': '{keyword}' needs {want}",
+                n + 1,
+                shown(line)
             ));
         }
     }
     Ok(())
 }
 
-/// Loads an OBJ file and the MTL libraries it names.
-pub(super) fn load(path: &Path) -> Result<SceneFile> {
-    let mut bytes = Vec::new();
-    File::open(path)
-        .and_then(|mut f| std::io::Read::read_to_end(&mut f, &mut bytes))
-        .map_err(|e| Error::io(path, e))?;
+/// Loads an OBJ file and the MTL libraries it names; those and the texture maps are read from
+/// `folder`.
+pub(super) fn load(path: &Path, folder: &SceneFolder) -> Result<SceneFile> {
+    let bytes = external::read_scene(path)?;
     check_lines(path, &bytes)?;
     let file = std::io::Cursor::new(bytes);
-    let dir = path.parent().unwrap_or(Path::new(""));
-    let mtl_error: RefCell<Option<String>> = RefCell::new(None);
+    let mtl_error: RefCell<Option<Error>> = RefCell::new(None);
     let options = tobj::LoadOptions {
         single_index: true,
         triangulate: true,
@@ -119,24 +123,24 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
     };
     let (models, materials) =
         tobj::load_obj_buf(&mut BufReader::new(file), &options, |mtl: &Path| {
-            let full = dir.join(mtl);
-            let result = std::fs::read(&full)
-                .map_err(|e| e.to_string())
+            let result = folder
+                .read("mtllib", mtl, Limit::Cap(MAX_SCENE_FILE_BYTES))
                 .and_then(|bytes| {
-                    check_mtl_lines(&bytes)?;
+                    let library = |message: String| {
+                        Error::format(path, format!("material library {}: {message}", shown(mtl)))
+                    };
+                    check_mtl_lines(&bytes).map_err(library)?;
                     tobj::load_mtl_buf(&mut BufReader::new(std::io::Cursor::new(bytes)))
-                        .map_err(|e| e.to_string())
+                        .map_err(|e| library(e.to_string()))
                 });
-            result.map_err(|message| {
-                mtl_error
-                    .borrow_mut()
-                    .get_or_insert(format!("material library {}: {message}", full.display()));
+            result.map_err(|e| {
+                mtl_error.borrow_mut().get_or_insert(e);
                 tobj::LoadError::OpenFileFailed
             })
         })
         .map_err(|e| Error::format(path, format!("not a readable OBJ file: {e}")))?;
-    if let Some(message) = mtl_error.into_inner() {
-        return Err(Error::format(path, message));
+    if let Some(e) = mtl_error.into_inner() {
+        return Err(e);
     }
     let materials = materials.map_err(|e| Error::format(path, format!("material library: {e}")))?;
 
@@ -148,6 +152,7 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
         ..Scene::default()
     };
     let mut jobs: Vec<TextureJob> = Vec::new();
+    let mut map_names = MapNames::new();
     let mut job_index: HashMap<TextureJob, usize> = HashMap::new();
     let mut bind = |job: TextureJob| {
         let next = jobs.len();
@@ -162,10 +167,24 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
         }
     };
     for m in &materials {
-        let what = format!("material '{}'", m.name);
-        let map_kd = m.diffuse_texture.as_deref().map(|s| dir.join(map_file(s)));
-        let map_d = m.dissolve_texture.as_deref().map(|s| dir.join(map_file(s)));
-        let map_ke = m.unknown_param.get("map_Ke").map(|s| dir.join(map_file(s)));
+        let what = format!("material '{}'", shown(&m.name));
+        // Each map resolved in the scene's folder now, so that a refused one fails before any
+        // image is read.
+        let mut map = |key: &str, spec: Option<&str>| -> Result<Option<PathBuf>> {
+            let Some(spec) = spec else {
+                return Ok(None);
+            };
+            let field = format!("{what}: {key}");
+            let written = Path::new(map_file(spec));
+            let file = folder.resolve_checked(&field, written)?;
+            map_names
+                .entry(file.clone())
+                .or_insert_with(|| (field, written.to_path_buf()));
+            Ok(Some(file))
+        };
+        let map_kd = map("map_Kd", m.diffuse_texture.as_deref())?;
+        let map_d = map("map_d", m.dissolve_texture.as_deref())?;
+        let map_ke = map("map_Ke", m.unknown_param.get("map_Ke").map(String::as_str))?;
         let kd = m
             .diffuse
             .unwrap_or(if map_kd.is_some() { [1.0; 3] } else { [0.8; 3] });
@@ -173,7 +192,10 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
             (Some(d), _) => d,
             (None, Some(tr)) => {
                 let tr: f32 = tr.trim().parse().map_err(|_| {
-                    Error::format(path, format!("{what}: Tr '{tr}': expected a number"))
+                    Error::format(
+                        path,
+                        format!("{what}: Tr '{}': expected a number", shown(tr)),
+                    )
                 })?;
                 1.0 - tr
             }
@@ -228,7 +250,7 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
             None => *default_material
                 .get_or_insert_with(|| scene.add_material(Material::color("default", [0.8; 3]))),
         };
-        let what = format!("object '{}'", model.name);
+        let what = format!("object '{}'", shown(&model.name));
         let positions: Vec<Vec3> = mesh
             .positions
             .chunks_exact(3)
@@ -280,7 +302,7 @@ pub(super) fn load(path: &Path) -> Result<SceneFile> {
     }
     let textures: Vec<Result<Texture>> = jobs
         .par_iter()
-        .map(|job| build_texture(path, job).map(Texture::new))
+        .map(|job| build_texture(folder, &map_names, job).map(Texture::new))
         .collect();
     for t in textures {
         scene.add_texture(t?);
@@ -318,29 +340,35 @@ fn map_file(spec: &str) -> &str {
     rest
 }
 
-fn read_image(obj: &Path, file: &Path, encoding: Encoding) -> Result<ColorImage> {
-    let bytes = std::fs::read(file).map_err(|e| {
-        Error::format(
-            obj,
-            format!("texture {}: could not read it: {e}", file.display()),
-        )
-    })?;
+/// Reads and decodes the texture file `file` (resolved in `folder`); errors name the MTL field
+/// and the file name as written.
+fn read_image(
+    folder: &SceneFolder,
+    names: &MapNames,
+    file: &Path,
+    encoding: Encoding,
+) -> Result<ColorImage> {
+    let (field, written) = names
+        .get(file)
+        .map(|(f, w)| (f.as_str(), w.as_path()))
+        .unwrap_or(("texture", file));
+    let bytes = folder.read_resolved(field, written, file, Limit::Cap(MAX_IMAGE_FILE_BYTES))?;
     image_file::decode(&bytes, encoding)
-        .map_err(|m| Error::format(obj, format!("texture {}: {m}", file.display())))
+        .map_err(|m| folder.error(format!("{field} '{}': {m}", shown(written))))
 }
 
 /// Builds a straight-alpha linear texture image: colour from `job.color` (sRGB, white if none),
 /// alpha from `job.alpha` (nearest texel when the sizes differ).
-fn build_texture(obj: &Path, job: &TextureJob) -> Result<ColorImage> {
+fn build_texture(folder: &SceneFolder, names: &MapNames, job: &TextureJob) -> Result<ColorImage> {
     let color = job
         .color
         .as_deref()
-        .map(|p| read_image(obj, p, Encoding::Srgb))
+        .map(|p| read_image(folder, names, p, Encoding::Srgb))
         .transpose()?;
     let alpha = job
         .alpha
         .as_deref()
-        .map(|p| read_image(obj, p, Encoding::Linear))
+        .map(|p| read_image(folder, names, p, Encoding::Linear))
         .transpose()?;
     match (color, alpha) {
         (Some(c), None) => Ok(c),

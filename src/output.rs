@@ -1,0 +1,240 @@
+//! Writing files: the one way every output of every command is written.
+//!
+//! 1. An [`OutputSet`] is one transaction: each output is written to a staged file beside its
+//!    target, and all are renamed over their targets only by [`OutputSet::commit`], after every
+//!    write succeeded. Dropped without a commit (an error, a panic), it removes its staged files
+//!    and no target is touched. [`write_file`] is a set of one.
+//! 2. A staged file has a short, hidden, unpredictable name in the target's folder
+//!    (`.defocus-<pid>-<64 random bits>.tmp`: it stays within the file-name limit whatever the
+//!    target's name) and is created with create-new, so it is never opened through an existing
+//!    file or link. A link at the target is replaced by the rename, never written through.
+//! 3. A target that exists and is not a regular file (a folder, a device, a FIFO, a socket, or a
+//!    link to one of those) is refused, naming it.
+//! 4. Every error names the target, never the staged file.
+//! 5. An interrupted process removes its staged files with [`interrupt`], which waits for a
+//!    commit under way to finish its renames, so a set's targets are all replaced or none.
+
+use std::ffi::OsString;
+use std::fs::{File, OpenOptions};
+use std::hash::{BuildHasher, Hasher};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, MutexGuard};
+
+use crate::error::shown;
+use crate::{Error, Result};
+
+/// Staged files of this process not yet committed or removed. Its lock is also held by every
+/// commit while it renames and by the creation of a staged file, so [`interrupt`] never runs
+/// between the two renames of a commit nor misses a file just created.
+static PENDING: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// The pending list, also after a panic elsewhere (the list itself is always consistent).
+fn pending() -> MutexGuard<'static, Vec<PathBuf>> {
+    PENDING.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// For a Ctrl-C or SIGTERM handler: waits for a commit under way to finish, removes every staged
+/// file of this process, and keeps the staging lock, so that no file is staged or committed
+/// afterwards. The caller then ends the process.
+pub fn interrupt() {
+    let mut staged = pending();
+    for path in staged.drain(..) {
+        let _ = std::fs::remove_file(path);
+    }
+    // Held until the process ends: a write or commit of another thread now waits forever.
+    std::mem::forget(staged);
+}
+
+/// The outputs of one command as one transaction (see the module documentation).
+#[derive(Debug, Default)]
+pub struct OutputSet {
+    /// (staged file, target), in the order written.
+    staged: Vec<(PathBuf, PathBuf)>,
+}
+
+impl OutputSet {
+    /// An empty set.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Writes the content of `target`: `fill` writes it to a new staged file, which is then
+    /// flushed and synced. The target is replaced at [`OutputSet::commit`]. Errors name
+    /// `target`; `fill` should name it too.
+    pub fn write(
+        &mut self,
+        target: &Path,
+        fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+    ) -> Result<()> {
+        check_target(target)?;
+        let (temp, file) = create_staged(target)?;
+        // Recorded at once, so that a failure below removes it (on drop).
+        self.staged.push((temp, target.to_path_buf()));
+        let mut out = BufWriter::new(file);
+        fill(&mut out)?;
+        let file = out
+            .into_inner()
+            .map_err(|e| Error::io(target, e.into_error()))?;
+        file.sync_all().map_err(|e| Error::io(target, e))
+    }
+
+    /// Writes `bytes` as the content of `target` (see [`OutputSet::write`]).
+    pub fn write_bytes(&mut self, target: &Path, bytes: &[u8]) -> Result<()> {
+        self.write(target, |out| {
+            out.write_all(bytes).map_err(|e| Error::io(target, e))
+        })
+    }
+
+    /// Renames every staged file over its target. Every target is checked again first (a folder
+    /// or a device in the way fails before anything is renamed). The renames run under the
+    /// staging lock, so an interrupt waits until they are done. A rename that still fails
+    /// leaves the earlier targets replaced and the later staged files removed.
+    pub fn commit(mut self) -> Result<()> {
+        for (_, target) in &self.staged {
+            check_target(target)?;
+        }
+        let mut pending = pending();
+        let mut result = Ok(());
+        for (temp, target) in self.staged.drain(..) {
+            if result.is_ok() {
+                result = std::fs::rename(&temp, &target).map_err(|e| Error::io(&target, e));
+            }
+            if result.is_err() {
+                let _ = std::fs::remove_file(&temp);
+            }
+            pending.retain(|p| *p != temp);
+        }
+        result
+    }
+}
+
+impl Drop for OutputSet {
+    fn drop(&mut self) {
+        if self.staged.is_empty() {
+            return;
+        }
+        let mut pending = pending();
+        for (temp, _) in self.staged.drain(..) {
+            let _ = std::fs::remove_file(&temp);
+            pending.retain(|p| *p != temp);
+        }
+    }
+}
+
+/// Writes one file as a transaction of its own: staged, synced, then renamed over `target`
+/// (see [`OutputSet`]).
+pub fn write_file(
+    target: &Path,
+    fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    let mut set = OutputSet::new();
+    set.write(target, fill)?;
+    set.commit()
+}
+
+/// Refuses a target that exists and is not a regular file, or a link to one; a link to a
+/// regular file, or to nothing, is fine (the rename replaces the link itself).
+pub fn check_target(target: &Path) -> Result<()> {
+    if target.file_name().is_none() {
+        return Err(Error::invalid(
+            "output path",
+            format!("{}: expected a path ending in a file name", shown(target)),
+        ));
+    }
+    let Ok(meta) = std::fs::symlink_metadata(target) else {
+        return Ok(());
+    };
+    let meta = if meta.file_type().is_symlink() {
+        match std::fs::metadata(target) {
+            Ok(m) => m,
+            Err(_) => return Ok(()),
+        }
+    } else {
+        meta
+    };
+    if meta.is_file() {
+        return Ok(());
+    }
+    let kind = if meta.is_dir() {
+        "a folder"
+    } else {
+        "not a regular file (a device, a FIFO or a socket)"
+    };
+    Err(Error::invalid(
+        "output path",
+        format!(
+            "{} is {kind}: expected a new or a regular file",
+            shown(target)
+        ),
+    ))
+}
+
+/// Distinguishes staged files of one process.
+static COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// 64 bits no other process can predict: std's randomly keyed hasher over the clock, the process
+/// id and a counter.
+fn random_u64() -> u64 {
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    h.write_u128(now);
+    h.write_u32(std::process::id());
+    h.write_u64(COUNTER.fetch_add(1, Ordering::Relaxed));
+    h.finish()
+}
+
+/// Creates a new, empty staged file in `target`'s folder, registered as pending.
+fn create_staged(target: &Path) -> Result<(PathBuf, File)> {
+    let dir = match target.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut attempts = 0;
+    loop {
+        let name = OsString::from(format!(
+            ".defocus-{}-{:016x}.tmp",
+            std::process::id(),
+            random_u64()
+        ));
+        let temp = dir.join(name);
+        // Created and registered under the lock: an interrupt sees every file that exists.
+        let mut pending = pending();
+        match OpenOptions::new().write(true).create_new(true).open(&temp) {
+            Ok(file) => {
+                pending.push(temp.clone());
+                return Ok((temp, file));
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && attempts < 8 => {
+                attempts += 1;
+            }
+            Err(e) => return Err(Error::io(target, e)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn staged_names_are_short_and_differ() {
+        let dir = std::env::temp_dir().join(format!("defocus-output-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let target = dir.join("x".repeat(250));
+        let (a, _) = create_staged(&target).unwrap();
+        let (b, _) = create_staged(&target).unwrap();
+        assert_ne!(a, b);
+        for p in [&a, &b] {
+            let name = p.file_name().unwrap().len();
+            assert!(name < 48, "{}", p.display());
+            std::fs::remove_file(p).unwrap();
+        }
+        pending().retain(|p| *p != a && *p != b);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

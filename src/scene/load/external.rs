@@ -1,0 +1,200 @@
+//! The files a scene file refers to (glTF buffer and image URIs, OBJ `mtllib`, MTL maps), read
+//! as an untrusted scene may ask (see DESIGN.md, "Untrusted input"):
+//! 1. The path is resolved against the scene's folder, following links, and refused when it
+//!    leaves that folder (`../`, an absolute path, a link pointing out), unless the user allows
+//!    external files ([`LoadOptions::allow_external_files`]).
+//! 2. Only regular files are read: a device (`/dev/zero`), a FIFO or a folder is refused before
+//!    it is opened, and checked again once open, so nothing blocks or reads without end.
+//! 3. At most a given number of bytes is read (a buffer's declared `byteLength`, an image's cap).
+//! 4. An error about a refused file names the scene file, the field and the path as written, and
+//!    says why: never anything read from the file, nor its size.
+
+use std::io::Read;
+use std::path::{Component, Path, PathBuf};
+
+use super::LoadOptions;
+use crate::error::shown;
+use crate::{Error, Result};
+
+/// Most bytes read from an image file a scene refers to: far more than the largest image
+/// accepted ([`MAX_PIXELS`](crate::image::MAX_PIXELS)) needs compressed, far less than memory.
+pub const MAX_IMAGE_FILE_BYTES: u64 = 512 << 20;
+
+/// Most bytes of a scene file itself (a `.gltf`, `.glb` or `.obj`), and of an MTL library.
+pub const MAX_SCENE_FILE_BYTES: u64 = 4 << 30;
+
+/// How much of a referenced file is read.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Limit {
+    /// The whole file, refused when longer than this many bytes (images, MTL libraries).
+    Cap(u64),
+    /// Only the first this many bytes (a buffer's `byteLength`: what follows is not the
+    /// buffer's, and is not read).
+    Prefix(u64),
+}
+
+/// The folder of one scene file, and whether files outside it may be read.
+#[derive(Debug)]
+pub(super) struct SceneFolder {
+    /// The scene file, as given: what errors name.
+    scene: PathBuf,
+    /// The folder that relative paths are resolved against, as given.
+    dir: PathBuf,
+    /// That folder with every link followed.
+    root: PathBuf,
+    allow_external: bool,
+}
+
+/// Why a referenced file is not read.
+enum Refusal {
+    /// It resolves outside the scene's folder.
+    Leaves,
+    /// It exists but is not a regular file.
+    NotRegular,
+    /// It could not be opened or read (the OS error).
+    Unreadable(std::io::Error),
+    /// It is longer than the cap (only said of files the scene may read).
+    TooLarge(u64),
+}
+
+impl SceneFolder {
+    /// The folder of `scene` (the scene file's path as given).
+    pub(super) fn new(scene: &Path, options: &LoadOptions) -> Result<Self> {
+        let dir = match scene.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let root = dir.canonicalize().map_err(|e| Error::io(scene, e))?;
+        Ok(Self {
+            scene: scene.to_path_buf(),
+            dir,
+            root,
+            allow_external: options.allow_external_files,
+        })
+    }
+
+    /// Reads the file `reference` (a path as the scene wrote it, after URI decoding) names,
+    /// as much as `limit` says. `field` says where the scene names it (`buffers[0].uri`,
+    /// `mtllib`, `material 'wood': map_Kd`); errors name the scene file, the field and the
+    /// reference.
+    pub(super) fn read(&self, field: &str, reference: &Path, limit: Limit) -> Result<Vec<u8>> {
+        self.resolve(reference)
+            .and_then(|path| read_regular(&path, limit))
+            .map_err(|why| self.refused(field, reference, why))
+    }
+
+    /// Like [`Self::read`], for a path already resolved by [`Self::resolve_checked`].
+    pub(super) fn read_resolved(
+        &self,
+        field: &str,
+        reference: &Path,
+        path: &Path,
+        limit: Limit,
+    ) -> Result<Vec<u8>> {
+        read_regular(path, limit).map_err(|why| self.refused(field, reference, why))
+    }
+
+    /// The file `reference` names, with links followed, or the error [`Self::read`] would give.
+    pub(super) fn resolve_checked(&self, field: &str, reference: &Path) -> Result<PathBuf> {
+        self.resolve(reference)
+            .map_err(|why| self.refused(field, reference, why))
+    }
+
+    /// An error about the scene file.
+    pub(super) fn error(&self, message: String) -> Error {
+        Error::format(&self.scene, message)
+    }
+
+    fn refused(&self, field: &str, reference: &Path, why: Refusal) -> Error {
+        let reference = shown(reference);
+        let message = match why {
+            Refusal::Leaves => format!(
+                "{field} '{reference}' leaves the scene's folder: a scene may only read files \
+                 in its own folder (--allow-external-files reads others)"
+            ),
+            Refusal::NotRegular => {
+                format!("{field} '{reference}' is not a regular file: expected a file of data")
+            }
+            Refusal::Unreadable(e) => format!("{field} '{reference}': could not read it: {e}"),
+            Refusal::TooLarge(cap) => format!(
+                "{field} '{reference}' is larger than {} MiB: expected a smaller file",
+                cap >> 20
+            ),
+        };
+        self.error(message)
+    }
+
+    /// `reference` resolved against the folder with links followed, if the scene may read it.
+    fn resolve(&self, given: &Path) -> std::result::Result<PathBuf, Refusal> {
+        if !self.allow_external
+            && given
+                .components()
+                .any(|c| matches!(c, Component::RootDir | Component::Prefix(_)))
+        {
+            return Err(Refusal::Leaves);
+        }
+        let joined = self.dir.join(given);
+        match joined.canonicalize() {
+            Ok(path) if self.allow_external || path.starts_with(&self.root) => Ok(path),
+            Ok(_) => Err(Refusal::Leaves),
+            Err(e) => {
+                // Whether a file outside exists is not the scene's business either: judge by
+                // the nearest folder on the way that does exist.
+                let outside = !self.allow_external
+                    && joined
+                        .ancestors()
+                        .skip(1)
+                        .find_map(|a| a.canonicalize().ok())
+                        .is_some_and(|a| !a.starts_with(&self.root));
+                Err(if outside {
+                    Refusal::Leaves
+                } else {
+                    Refusal::Unreadable(e)
+                })
+            }
+        }
+    }
+}
+
+/// Reads `path`, which must be a regular file, as far as `limit` says. The type is checked
+/// before opening (opening a FIFO would block) and again on the open file.
+fn read_regular(path: &Path, limit: Limit) -> std::result::Result<Vec<u8>, Refusal> {
+    let meta = std::fs::metadata(path).map_err(Refusal::Unreadable)?;
+    if !meta.is_file() {
+        return Err(Refusal::NotRegular);
+    }
+    let file = std::fs::File::open(path).map_err(Refusal::Unreadable)?;
+    if !file.metadata().map_err(Refusal::Unreadable)?.is_file() {
+        return Err(Refusal::NotRegular);
+    }
+    let (take, cap) = match limit {
+        Limit::Cap(cap) => (cap.saturating_add(1), Some(cap)),
+        Limit::Prefix(n) => (n, None),
+    };
+    let mut bytes = Vec::new();
+    file.take(take)
+        .read_to_end(&mut bytes)
+        .map_err(Refusal::Unreadable)?;
+    match cap {
+        Some(cap) if bytes.len() as u64 > cap => Err(Refusal::TooLarge(cap)),
+        _ => Ok(bytes),
+    }
+}
+
+/// Reads the scene file itself: a regular file of at most [`MAX_SCENE_FILE_BYTES`] (a link to
+/// a device or a FIFO given as the scene is refused, not read without end).
+pub(super) fn read_scene(path: &Path) -> Result<Vec<u8>> {
+    read_regular(path, Limit::Cap(MAX_SCENE_FILE_BYTES)).map_err(|why| match why {
+        Refusal::Unreadable(e) => Error::io(path, e),
+        Refusal::NotRegular | Refusal::Leaves => {
+            Error::format(path, "not a regular file: expected a scene file")
+        }
+        Refusal::TooLarge(cap) => Error::format(
+            path,
+            format!(
+                "larger than {} GiB: expected a smaller scene file",
+                cap >> 30
+            ),
+        ),
+    })
+}

@@ -1,0 +1,630 @@
+//! Tests: untrusted scenes and shared folders (DESIGN.md, "Untrusted input"): a scene reads
+//! only regular files of its own folder and no more than it declares; every output is staged
+//! under a fresh name and never written through a planted link; names are printed escaped.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use defocus::image::{io, ColorImage};
+use defocus::scene::load::{read_scene_file, read_scene_file_with, LoadOptions};
+use serde_json::json;
+
+use crate::cli::{defocus, s, stderr, temp_dir};
+
+/// Longest a refused reference may take to be refused (a device read without end, or a FIFO
+/// that blocks, takes forever).
+const REFUSAL_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// Content of the files outside the scene's folder: must never appear in a message.
+const SECRET: &str = "SECRET-LINE-7f3a";
+
+/// Makes a FIFO with the system's `mkfifo`; `false` (with a printed reason) where there is none.
+fn mkfifo(path: &Path) -> bool {
+    match Command::new("mkfifo").arg(path).status() {
+        Ok(s) if s.success() => true,
+        other => {
+            eprintln!(
+                "skipped the FIFO case: mkfifo {} gave {other:?}",
+                path.display()
+            );
+            false
+        }
+    }
+}
+
+fn symlink(target: &Path, link: &Path) {
+    std::os::unix::fs::symlink(target, link).unwrap();
+}
+
+/// Loads `path` on another thread: the error, or `None` when it loaded; fails the test when
+/// loading takes longer than [`REFUSAL_TIMEOUT`] (it blocked or read without end).
+fn load_error(path: &Path, options: LoadOptions) -> Option<String> {
+    let (tx, rx) = mpsc::channel();
+    let p = path.to_path_buf();
+    std::thread::spawn(move || {
+        let _ = tx.send(
+            read_scene_file_with(&p, &options)
+                .err()
+                .map(|e| e.to_string()),
+        );
+    });
+    rx.recv_timeout(REFUSAL_TIMEOUT)
+        .unwrap_or_else(|_| panic!("loading {} blocked or read without end", path.display()))
+}
+
+/// One triangle with uvs: the buffer (36 bytes of positions, 24 of uvs).
+fn triangle_buffer() -> Vec<u8> {
+    let p: [f32; 9] = [0.0, 0.0, -1.0, 1.0, 0.0, -1.0, 0.0, 1.0, -1.0];
+    let uv: [f32; 6] = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0];
+    p.iter().chain(&uv).flat_map(|v| v.to_le_bytes()).collect()
+}
+
+/// A glTF of one triangle whose buffer is at `buffer_uri` and, with `image_uri`, whose material
+/// has that base colour image.
+fn triangle_gltf(buffer_uri: &str, image_uri: Option<&str>) -> String {
+    let mut j = json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}}]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+             "min": [0.0, 0.0, -1.0], "max": [1.0, 1.0, -1.0]},
+            {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"},
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
+            {"buffer": 0, "byteOffset": 36, "byteLength": 24},
+        ],
+        "buffers": [{"byteLength": 60, "uri": buffer_uri}],
+    });
+    if let Some(uri) = image_uri {
+        j["meshes"][0]["primitives"][0]["material"] = json!(0);
+        j["materials"] = json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
+        j["textures"] = json!([{"source": 0}]);
+        j["images"] = json!([{"uri": uri}]);
+    }
+    serde_json::to_string_pretty(&j).unwrap()
+}
+
+const TRIANGLE_OBJ: &str = "v 0 0 -1\nv 1 0 -1\nv 0 1 -1\nvt 0 0\nvt 1 0\nvt 0 1\n";
+
+/// A scene folder `base/scene` with valid files in it (`ok.bin`, `ok.png`, `ok.mtl`), the
+/// same files outside it (`base/outside.*`, plus a file of secrets), and links from inside
+/// to outside. Returns (base, scene folder).
+fn scene_folder(name: &str) -> (PathBuf, PathBuf) {
+    let base = temp_dir(name);
+    let scene = base.join("scene");
+    std::fs::create_dir(&scene).unwrap();
+    let png = ColorImage::new(2, 2, [0.5, 0.5, 0.5, 1.0]);
+    for dir in [&scene, &base] {
+        let stem = if dir == &scene { "ok" } else { "outside" };
+        std::fs::write(dir.join(format!("{stem}.bin")), triangle_buffer()).unwrap();
+        io::write_color(&dir.join(format!("{stem}.png")), &png).unwrap();
+        std::fs::write(dir.join(format!("{stem}.mtl")), "newmtl m\nKd 1 1 1\n").unwrap();
+    }
+    std::fs::write(base.join("secret.txt"), format!("{SECRET}\n").repeat(40)).unwrap();
+    for ext in ["bin", "png", "mtl"] {
+        symlink(
+            &base.join(format!("outside.{ext}")),
+            &scene.join(format!("link.{ext}")),
+        );
+    }
+    symlink(Path::new("/dev/zero"), &scene.join("zero-link.bin"));
+    (base, scene)
+}
+
+/// The references a hostile scene makes to a file with extension `ext`, each refused without
+/// the opt-in: (case, reference as written in the scene).
+fn refused_references(base: &Path, ext: &str) -> Vec<(&'static str, String)> {
+    vec![
+        ("../ escape", format!("../outside.{ext}")),
+        (
+            "absolute path",
+            base.join(format!("outside.{ext}")).display().to_string(),
+        ),
+        ("link pointing out", format!("link.{ext}")),
+        ("/proc/self/environ", "/proc/self/environ".to_string()),
+        ("/dev/zero", "/dev/zero".to_string()),
+        ("link to /dev/zero", "zero-link.bin".to_string()),
+        ("secret file", "../secret.txt".to_string()),
+    ]
+}
+
+/// Checks that `err` refuses `reference` in `field` as leaving the folder, names `scene`, and
+/// shows nothing of the file.
+fn assert_leaves(case: &str, err: &str, scene: &Path, field: &str) {
+    let name = scene.file_name().unwrap().to_str().unwrap();
+    assert!(err.contains(name), "{case}: does not name {name}: {err}");
+    assert!(err.contains(field), "{case}: does not name {field}: {err}");
+    assert!(
+        err.contains("leaves the scene's folder") && err.contains("--allow-external-files"),
+        "{case}: {err}"
+    );
+    assert!(!err.contains(SECRET), "{case}: leaks the file: {err}");
+    assert!(!err.contains("bytes"), "{case}: gives a size: {err}");
+}
+
+#[test]
+fn gltf_uris_leaving_the_scene_folder_are_refused_without_showing_the_file() {
+    let (base, scene) = scene_folder("gltf-escape");
+    let ok = scene.join("ok.gltf");
+    std::fs::write(&ok, triangle_gltf("ok.bin", Some("ok.png"))).unwrap();
+    read_scene_file(&ok).expect("the contained scene loads");
+    for (case, reference) in refused_references(&base, "bin") {
+        let path = scene.join("buffer.gltf");
+        std::fs::write(&path, triangle_gltf(&reference, None)).unwrap();
+        let err = load_error(&path, LoadOptions::default()).expect("refused");
+        assert_leaves(case, &err, &path, "buffers[0].uri");
+    }
+    for (case, reference) in refused_references(&base, "png") {
+        let path = scene.join("image.gltf");
+        std::fs::write(&path, triangle_gltf("ok.bin", Some(&reference))).unwrap();
+        let err = load_error(&path, LoadOptions::default()).expect("refused");
+        assert_leaves(case, &err, &path, "images[0].uri");
+    }
+    std::fs::remove_dir_all(base).unwrap();
+}
+
+#[test]
+fn obj_libraries_and_maps_leaving_the_scene_folder_are_refused_without_showing_the_file() {
+    let (base, scene) = scene_folder("obj-escape");
+    let ok = scene.join("ok.obj");
+    std::fs::write(
+        &ok,
+        format!("mtllib ok.mtl\n{TRIANGLE_OBJ}usemtl m\nf 1/1 2/2 3/3\n"),
+    )
+    .unwrap();
+    read_scene_file(&ok).expect("the contained scene loads");
+    for (case, reference) in refused_references(&base, "mtl") {
+        let path = scene.join("lib.obj");
+        std::fs::write(
+            &path,
+            format!("mtllib {reference}\n{TRIANGLE_OBJ}f 1 2 3\n"),
+        )
+        .unwrap();
+        let err = load_error(&path, LoadOptions::default()).expect("refused");
+        assert_leaves(case, &err, &path, "mtllib");
+    }
+    for key in ["map_Kd", "map_d", "map_Ke"] {
+        for (case, reference) in refused_references(&base, "png") {
+            std::fs::write(
+                scene.join("maps.mtl"),
+                format!("newmtl m\n{key} {reference}\n"),
+            )
+            .unwrap();
+            let path = scene.join("maps.obj");
+            std::fs::write(
+                &path,
+                format!("mtllib maps.mtl\n{TRIANGLE_OBJ}usemtl m\nf 1/1 2/2 3/3\n"),
+            )
+            .unwrap();
+            let err = load_error(&path, LoadOptions::default()).expect("refused");
+            assert_leaves(case, &err, &path, &format!("material 'm': {key}"));
+        }
+    }
+    std::fs::remove_dir_all(base).unwrap();
+}
+
+#[test]
+fn fifos_and_devices_are_refused_as_not_regular_files_without_blocking() {
+    let (base, scene) = scene_folder("not-regular");
+    let allow = LoadOptions {
+        allow_external_files: true,
+    };
+    let fifo = mkfifo(&scene.join("pipe"));
+    // (scene file, its text, options, field): each names a FIFO or a device.
+    let mut cases: Vec<(&str, String, LoadOptions, &str)> = vec![
+        (
+            "zero.gltf",
+            triangle_gltf("/dev/zero", None),
+            allow,
+            "buffers[0].uri",
+        ),
+        (
+            "zero-image.gltf",
+            triangle_gltf("ok.bin", Some("/dev/zero")),
+            allow,
+            "images[0].uri",
+        ),
+        (
+            "zero.obj",
+            format!("mtllib /dev/zero\n{TRIANGLE_OBJ}f 1 2 3\n"),
+            allow,
+            "mtllib",
+        ),
+        (
+            "folder.gltf",
+            triangle_gltf(".", None),
+            LoadOptions::default(),
+            "buffers[0].uri",
+        ),
+    ];
+    if fifo {
+        cases.extend([
+            (
+                "pipe.gltf",
+                triangle_gltf("pipe", None),
+                LoadOptions::default(),
+                "buffers[0].uri",
+            ),
+            (
+                "pipe-image.gltf",
+                triangle_gltf("ok.bin", Some("pipe")),
+                LoadOptions::default(),
+                "images[0].uri",
+            ),
+            (
+                "pipe.obj",
+                format!("mtllib pipe\n{TRIANGLE_OBJ}f 1 2 3\n"),
+                LoadOptions::default(),
+                "mtllib",
+            ),
+        ]);
+    }
+    for (name, text, options, field) in cases {
+        let path = scene.join(name);
+        std::fs::write(&path, text).unwrap();
+        let start = Instant::now();
+        let err = load_error(&path, options).expect("refused");
+        assert!(
+            err.contains(name) && err.contains(field) && err.contains("not a regular file"),
+            "{name}: {err}"
+        );
+        assert!(start.elapsed() < Duration::from_secs(5), "{name}: slow");
+    }
+    if fifo {
+        std::fs::write(scene.join("pipe.mtl"), "newmtl m\nmap_Kd pipe\n").unwrap();
+        let path = scene.join("pipe-map.obj");
+        std::fs::write(
+            &path,
+            format!("mtllib pipe.mtl\n{TRIANGLE_OBJ}usemtl m\nf 1/1 2/2 3/3\n"),
+        )
+        .unwrap();
+        let err = load_error(&path, LoadOptions::default()).expect("refused");
+        assert!(
+            err.contains("map_Kd") && err.contains("not a regular file"),
+            "{err}"
+        );
+        // The scene file itself may not be a FIFO either.
+        let scene_fifo = scene.join("fifo.gltf");
+        if mkfifo(&scene_fifo) {
+            let err = load_error(&scene_fifo, LoadOptions::default()).expect("refused");
+            assert!(err.contains("not a regular file"), "{err}");
+        }
+    }
+    std::fs::remove_dir_all(base).unwrap();
+}
+
+#[test]
+fn allow_external_files_reads_files_outside_the_scene_folder() {
+    let (base, scene) = scene_folder("allow-external");
+    let outside_bin = base.join("outside.bin").display().to_string();
+    let outside_png = base.join("outside.png").display().to_string();
+    let gltf = scene.join("abs.gltf");
+    std::fs::write(&gltf, triangle_gltf(&outside_bin, Some(&outside_png))).unwrap();
+    let obj = scene.join("abs.obj");
+    std::fs::write(
+        &obj,
+        format!("mtllib ../outside.mtl\n{TRIANGLE_OBJ}usemtl m\nf 1/1 2/2 3/3\n"),
+    )
+    .unwrap();
+    let allow = LoadOptions {
+        allow_external_files: true,
+    };
+    for path in [&gltf, &obj] {
+        assert!(read_scene_file(path).is_err(), "{}", path.display());
+        let file = read_scene_file_with(path, &allow).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.scene.triangle_count(), 1);
+    }
+    // The same from the command line, with and without the flag.
+    let out = base.join("r.png");
+    let args = [
+        "render",
+        "--scene",
+        s(&gltf),
+        "--method",
+        "pinhole",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        s(&out),
+    ];
+    let o = defocus(&args);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("--allow-external-files"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
+    let o = defocus(&[&args[..], &["--allow-external-files"][..]].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.is_file());
+    std::fs::remove_dir_all(base).unwrap();
+}
+
+#[test]
+fn a_buffer_file_is_read_only_up_to_its_declared_length() {
+    let (base, scene) = scene_folder("byte-length");
+    // A buffer file followed by much more: only byteLength bytes are the buffer's.
+    let mut long = triangle_buffer();
+    long.extend(std::iter::repeat(7u8).take(1 << 20));
+    std::fs::write(scene.join("long.bin"), long).unwrap();
+    let path = scene.join("long.gltf");
+    std::fs::write(&path, triangle_gltf("long.bin", None)).unwrap();
+    assert_eq!(read_scene_file(&path).unwrap().scene.triangle_count(), 1);
+    // A short one is an error naming the buffer and both lengths (the scene may read it).
+    std::fs::write(scene.join("short.bin"), &triangle_buffer()[..20]).unwrap();
+    let path = scene.join("short.gltf");
+    std::fs::write(&path, triangle_gltf("short.bin", None)).unwrap();
+    let err = read_scene_file(&path).unwrap_err().to_string();
+    assert!(err.contains("buffer 0") && err.contains("60"), "{err}");
+    std::fs::remove_dir_all(base).unwrap();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Outputs
+// ---------------------------------------------------------------------------------------------
+
+/// Files in `dir`, sorted.
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn links_planted_in_a_report_folder_are_not_written_through() {
+    let base = temp_dir("planted");
+    let dir = base.join("report");
+    std::fs::create_dir(&dir).unwrap();
+    let victim = base.join("victim");
+    std::fs::write(&victim, "precious").unwrap();
+    // The old fixed staging names, and the targets themselves.
+    for name in [
+        "index.tmp-write",
+        "results.tmp-write",
+        "index.html",
+        "results.json",
+        "reference.png",
+        "pinhole.exr",
+    ] {
+        symlink(&victim, &dir.join(name));
+    }
+    let o = defocus(&[
+        "compare",
+        "--scene",
+        "railing",
+        "--methods",
+        "pinhole",
+        "--width",
+        "32",
+        "--height",
+        "18",
+        "--reference-samples",
+        "2",
+        "--out",
+        s(&dir),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious");
+    for name in ["index.html", "results.json", "reference.png", "pinhole.exr"] {
+        let meta = std::fs::symlink_metadata(dir.join(name)).unwrap();
+        assert!(meta.is_file(), "{name} is still a link");
+    }
+    assert!(std::fs::read_to_string(dir.join("index.html"))
+        .unwrap()
+        .contains("<html"));
+    // No staged file is left behind.
+    assert!(
+        !files_in(&dir).iter().any(|f| f.starts_with(".defocus-")),
+        "{:?}",
+        files_in(&dir)
+    );
+    std::fs::remove_dir_all(base).unwrap();
+}
+
+#[test]
+fn an_output_name_of_250_bytes_is_written() {
+    let dir = temp_dir("long-name");
+    let name = format!("{}.png", "n".repeat(246));
+    assert_eq!(name.len(), 250);
+    let out = dir.join(&name);
+    let o = defocus(&[
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(files_in(&dir), vec![name]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn an_output_that_is_a_fifo_a_device_link_or_a_folder_is_refused_naming_it() {
+    let dir = temp_dir("device-out");
+    let pipe = dir.join("pipe.png");
+    let null_link = dir.join("null.png");
+    symlink(Path::new("/dev/null"), &null_link);
+    let folder = dir.join("folder.png");
+    std::fs::create_dir(&folder).unwrap();
+    let mut targets = vec![
+        (null_link.clone(), "not a regular file"),
+        (folder, "folder"),
+    ];
+    if mkfifo(&pipe) {
+        targets.push((pipe.clone(), "not a regular file"));
+    }
+    for (target, needle) in &targets {
+        let o = defocus(&[
+            "render",
+            "--method",
+            "pinhole",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--out",
+            s(target),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{}", target.display());
+        let e = stderr(&o);
+        let name = target.file_name().unwrap().to_str().unwrap();
+        assert!(e.contains(name) && e.contains(needle), "{e}");
+    }
+    // The library refuses them too, and leaves them as they were.
+    let img = ColorImage::new(2, 2, [0.5; 4]);
+    for (target, _) in &targets {
+        let err = io::write_color(target, &img).unwrap_err().to_string();
+        assert!(
+            err.contains(target.file_name().unwrap().to_str().unwrap()),
+            "{err}"
+        );
+    }
+    assert!(std::fs::symlink_metadata(&null_link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    assert!(!files_in(&dir).iter().any(|f| f.starts_with(".defocus-")));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn write_errors_name_the_target_not_the_staged_file() {
+    let dir = temp_dir("names-target");
+    let target = dir.join("no-such-folder").join("out.png");
+    let err = io::write_color(&target, &ColorImage::new(2, 2, [0.5; 4]))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("no-such-folder/out.png"), "{err}");
+    assert!(!err.contains(".defocus-"), "{err}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Messages
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn control_characters_in_file_names_and_uris_are_escaped_in_errors() {
+    let dir = temp_dir("control-names");
+    // A newline that would forge a second error line, and an escape sequence that recolours.
+    let path = dir.join("evil\nerror: forged\x1b[31m.obj");
+    std::fs::write(&path, "v 0 0 0\nv 1 0 0\nf 1 2\n").unwrap();
+    let o = defocus(&[
+        "render",
+        "--scene",
+        s(&path),
+        "--out",
+        s(&dir.join("o.png")),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(e.contains("evil\\nerror: forged\\x1b[31m.obj"), "{e}");
+    assert!(!e.contains('\x1b'), "{e:?}");
+    assert!(!e.lines().any(|l| l.starts_with("error: forged")), "{e}");
+    // A URI from inside a scene file, in the library's own message.
+    let gltf = dir.join("uri.gltf");
+    std::fs::write(&gltf, triangle_gltf("a\u{1b}]0;pwned\u{7}\nb.bin", None)).unwrap();
+    let err = read_scene_file(&gltf).unwrap_err().to_string();
+    assert!(err.contains("a\\x1b]0;pwned\\x07\\nb.bin"), "{err}");
+    assert!(!err.chars().any(|c| c.is_control()), "{err:?}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Interrupts
+// ---------------------------------------------------------------------------------------------
+
+/// Interrupts per signal, spread over the second half of a run and a little after, where the
+/// outputs are written and committed: 120 such interrupts of today's main left one new output
+/// beside an old one twice (and staged files twice).
+const INTERRUPTS: usize = 45;
+
+#[test]
+fn an_interrupt_leaves_both_outputs_old_or_both_new_and_no_staged_file() {
+    let dir = temp_dir("interrupt");
+    let (out, depth) = (dir.join("r.exr"), dir.join("z.exr"));
+    let old = |dir: &Path| {
+        io::write_color(&dir.join("r.exr"), &ColorImage::new(4, 4, [0.5; 4])).unwrap();
+        io::write_depth_exr(
+            &dir.join("z.exr"),
+            &defocus::image::GrayImage::new(4, 4, 2.0),
+        )
+        .unwrap();
+    };
+    let size = "512";
+    let args = [
+        "render",
+        "--method",
+        "pinhole",
+        "--width",
+        size,
+        "--height",
+        size,
+        "--out",
+        s(&out),
+        "--depth-out",
+        s(&depth),
+        "--quiet",
+    ];
+    let start = Instant::now();
+    let o = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let run = start.elapsed();
+    let mut outcomes = [0usize; 2];
+    for i in 0..2 * INTERRUPTS {
+        old(&dir);
+        let signal = if i % 2 == 0 { "-TERM" } else { "-INT" };
+        let mut child = Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .args(args)
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(run.mul_f64(0.5 + 0.7 * (i / 2) as f64 / INTERRUPTS as f64));
+        let killed = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status();
+        if !matches!(killed, Ok(s) if s.success()) {
+            // The run had already ended: nothing was interrupted.
+            let _ = child.wait();
+        }
+        let _ = child.wait().unwrap();
+        let width_r = io::read_color(&out).unwrap().width();
+        let width_z = io::read_depth(&depth, &Default::default()).unwrap().width();
+        assert_eq!(
+            width_r, width_z,
+            "interrupt {i}: one output old, the other new"
+        );
+        outcomes[usize::from(width_r == 512)] += 1;
+        let left: Vec<String> = files_in(&dir)
+            .into_iter()
+            .filter(|f| f.starts_with(".defocus-"))
+            .collect();
+        assert!(left.is_empty(), "interrupt {i} left {left:?}");
+    }
+    eprintln!(
+        "interrupted runs: {} kept the old outputs, {} wrote new ones",
+        outcomes[0], outcomes[1]
+    );
+    assert!(outcomes[0] > 0, "no run was interrupted before its commit");
+    std::fs::remove_dir_all(dir).unwrap();
+}
