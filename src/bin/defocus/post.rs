@@ -13,6 +13,7 @@ use defocus::methods::multiview::{LayerCount, MultiviewSettings};
 use defocus::methods::poisson::{self, PoissonSettings};
 use defocus::methods::registry::MethodSettings;
 use defocus::methods::splat::SplatSettings;
+use defocus::raster::LayeredInput;
 
 use crate::common::parse_numbers;
 
@@ -183,6 +184,17 @@ pub struct PostArgs {
     #[arg(long, help_heading = "multiview")]
     pub no_culling: bool,
 
+    /// multilayer, splat --layers N, multiview: sample the fragments and layers at pixel
+    /// centres, as the papers, instead of with 16-sample coverage masks (anti-aliased edges,
+    /// textures and cut-outs).
+    #[arg(long, help_heading = "layered methods")]
+    pub no_coverage: bool,
+    /// multilayer, splat --layers N, multiview: rasterize the frame only, as the papers,
+    /// instead of the frame grown by the largest CoC in view (at most 1/8 of its longer side),
+    /// whose blur reaches into the frame.
+    #[arg(long, help_heading = "layered methods")]
+    pub no_guard_band: bool,
+
     /// multilayer: fragments kept per pixel, N.
     #[arg(
         long,
@@ -229,6 +241,14 @@ pub struct PostArgs {
 }
 
 impl PostArgs {
+    /// The layered methods' input from `--no-coverage` and `--no-guard-band`.
+    fn layered_input(&self) -> LayeredInput {
+        LayeredInput {
+            coverage: !self.no_coverage,
+            guard_band: !self.no_guard_band,
+        }
+    }
+
     /// The settings of the method `method` (a registry id) for a frame `height_px` rows high, seen through `lens` (needed
     /// by `--large-blur-coc auto`), with the aperture and seed of the run. Every range is
     /// checked here, before any image is read or rendered.
@@ -343,6 +363,7 @@ impl PostArgs {
                     layers: self.layers.unwrap_or(1),
                     group_px: self.group,
                     max_coc_px: self.max_coc,
+                    input: self.layered_input(),
                 };
                 sp.validate().context("invalid splat option")?;
                 MethodSettings::Splat(sp)
@@ -360,6 +381,7 @@ impl PostArgs {
                     cone: !self.no_cone,
                     jitter: !self.no_jitter,
                     culling: !self.no_culling,
+                    input: self.layered_input(),
                     ..MultiviewSettings::default()
                 };
                 mv.validate().context("invalid multiview option")?;
@@ -373,6 +395,7 @@ impl PostArgs {
                         .context("invalid --filter-steps")?,
                     truncation: !self.no_truncation,
                     supersample: self.ml_supersample,
+                    input: self.layered_input(),
                 };
                 m.validate().context("invalid multilayer option")?;
                 MethodSettings::Multilayer(m)

@@ -40,7 +40,7 @@ pub mod filter;
 
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Camera, ThinLens};
-use crate::raster::{render_fragment_lists, FragmentLists, PreparedScene, View};
+use crate::raster::{render_fragment_lists, FragmentLists, LayeredInput, PreparedScene, View};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::{Error, Result};
@@ -129,6 +129,8 @@ pub struct MultilayerSettings {
     /// K: collect the lists at K x K samples per pixel and mip-merge them to the output
     /// resolution (1, 2 or 4; not in the paper). Default 1.
     pub supersample: usize,
+    /// Coverage masks and guard band of the lists (default both on; off: the paper's input).
+    pub input: LayeredInput,
 }
 
 impl Default for MultilayerSettings {
@@ -139,6 +141,7 @@ impl Default for MultilayerSettings {
             filter_steps: FilterSteps::Auto,
             truncation: true,
             supersample: 1,
+            input: LayeredInput::default(),
         }
     }
 }
@@ -271,7 +274,12 @@ pub fn collect(
     big.width_px *= k;
     big.height_px *= k;
     big.f_px *= k as f32;
-    render_fragment_lists(prepared, &View::pinhole(big), settings.fragments, true)
+    render_fragment_lists(
+        prepared,
+        &View::pinhole(big),
+        settings.fragments,
+        settings.input.coverage,
+    )
 }
 
 /// The filter steps for a frame whose largest CoC diameter is `max_diameter_px`.
@@ -386,7 +394,7 @@ fn render_with(
     })?;
     // The lists cover the frame and its guard band, so the blur at the border gathers what
     // lies just outside; the image is cut back to the frame at the end.
-    let guard = prepared.guard_band_px(&frame);
+    let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
     check_memory(&lens, settings)?;
     let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, settings));

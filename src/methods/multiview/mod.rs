@@ -34,7 +34,7 @@ use glam::Vec2;
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, SampleSet, SamplerKind, ThinLens};
 use crate::random::SplitMix64;
-use crate::raster::{BinnedView, DepthLayers, LayerSpacing, PreparedScene, View};
+use crate::raster::{DepthLayers, LayerSpacing, LayeredInput, PreparedScene, View};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::{Error, Result};
@@ -96,6 +96,9 @@ pub struct MultiviewSettings {
     pub jitter: bool,
     /// Early layer culling with N-buffers (section 4.3). Default on.
     pub culling: bool,
+    /// Coverage masks and guard band of the layers (default both on; off: pixel centres over
+    /// the frame, as the paper).
+    pub input: LayeredInput,
 }
 
 impl Default for MultiviewSettings {
@@ -110,6 +113,7 @@ impl Default for MultiviewSettings {
             cone: true,
             jitter: true,
             culling: true,
+            input: LayeredInput::default(),
         }
     }
 }
@@ -202,7 +206,7 @@ pub fn decompose(
         "--layers, raise --layer-spacing, or lower the resolution",
     )?;
     let view = View::pinhole(lens);
-    let binned = BinnedView::with_coverage(prepared, &view);
+    let binned = settings.input.bin(prepared, &view);
     let mut layers = DepthLayers::new(spacing, lens.width_px, lens.height_px);
     binned.rasterize(prepared, &mut layers);
     Ok(layers)
@@ -274,7 +278,7 @@ fn render_with(
     })?;
     // The layers cover the frame and its guard band, so rays near the border reach what lies
     // just outside it; only the frame is traced.
-    let guard = prepared.guard_band_px(&frame);
+    let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
     let layers = timings.time(pass::DECOMPOSE, || decompose(&prepared, lens, settings))?;
     let (sets, noise) = sample_sets(settings)?;

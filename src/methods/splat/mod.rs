@@ -36,7 +36,7 @@ use rayon::prelude::*;
 
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, ThinLens};
-use crate::raster::{render_fragment_lists, PreparedScene, View};
+use crate::raster::{render_fragment_lists, LayeredInput, PreparedScene, View};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::{Error, Result};
@@ -75,6 +75,9 @@ pub struct SplatSettings {
     pub group_px: f32,
     /// Largest CoC radius in pixels; larger blurs are clamped to it. Default 64.
     pub max_coc_px: f32,
+    /// Coverage masks and guard band of the fragment lists (`layers` > 1; default both on;
+    /// off: the input sampled at pixel centres over the frame).
+    pub input: LayeredInput,
 }
 
 impl Default for SplatSettings {
@@ -85,6 +88,7 @@ impl Default for SplatSettings {
             layers: 1,
             group_px: 2.0,
             max_coc_px: 64.0,
+            input: LayeredInput::default(),
         }
     }
 }
@@ -297,11 +301,16 @@ pub fn render_scene(
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
     // Fragments of the guard band around the frame splat into it too (cut back at the end).
-    let guard = prepared.guard_band_px(&frame);
+    let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
     check(&lens)?;
     let lists = timings.time(pass::COLLECT, || {
-        render_fragment_lists(&prepared, &View::pinhole(lens), settings.layers, true)
+        render_fragment_lists(
+            &prepared,
+            &View::pinhole(lens),
+            settings.layers,
+            settings.input.coverage,
+        )
     });
     let max = settings.max_coc_px;
     let mut layers = build::from_lists(&lists, &lens, settings.group_px);
