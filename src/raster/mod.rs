@@ -9,7 +9,8 @@
 //! 3. `raster`: tiles in parallel (rayon); within a tile opaque and alpha-mask triangles nearest
 //!    first, then blended ones in scene order (see `bin`), so the output does not depend on the
 //!    thread count. Coverage uses the top-left fill rule at pixel
-//!    centres; the sink may reject a fragment by depth before it is shaded (early depth test);
+//!    centres, or for sinks that keep several fragments per pixel at 16 samples per pixel,
+//!    each fragment carrying its coverage mask ([`BinnedView::with_coverage`]); the sink may reject a fragment by depth before it is shaded (early depth test);
 //!    shading is unlit (base colour + emission, textures filtered with mipmaps) and alpha-mask
 //!    materials are tested against their cutoff.
 //! 4. The sink finishes each tile in parallel (e.g. sorts and composites transparent

@@ -31,9 +31,14 @@
 //! - The depth threshold is relative to depth (see [`mod@filter`]); the paper gives no value.
 //! - The merged fragment's depth is the opacity-weighted mean depth of what was merged.
 //! - Level interpolation: the paper says only "we interpolate accordingly"; see [`mod@accumulate`].
+//! - The lists' input ([`crate::raster::LayeredInput`], default on, `--no-coverage` and
+//!   `--no-guard-band` for the paper's): fragments carry 16-sample coverage masks (textures
+//!   shaded per sample), so in-focus edges resolve as in an anti-aliased frame at one fragment
+//!   per pixel and surface; and the lists cover the frame grown by the largest CoC in view, so
+//!   the blur at the border gathers what lies outside it.
 //! - `supersample` (off by default, not in the paper): collect the lists at K x K times the
 //!   resolution and mip-merge them down to the output resolution before filtering, which
-//!   anti-aliases the in-focus surfaces the way every other method's input is anti-aliased.
+//!   anti-aliases the in-focus surfaces at K^2 times the cost of `collect`.
 
 pub mod accumulate;
 pub mod filter;

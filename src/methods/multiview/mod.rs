@@ -23,8 +23,16 @@
 //!   so a thin surface between the segment's ends is not jumped over.
 //! - Jitter picks one of 16 complete sample sets per pixel (the paper's first option) rather
 //!   than rotating samples, which would turn polygonal and image apertures.
-//! - Layers hold opaque surfaces (blended ones at opacity 0.5 or more): the paper has no
-//!   transparency.
+//! - Layers see through (the paper has no transparency): each keeps its two nearest surfaces
+//!   per pixel composited, with their coverage in alpha, and a ray takes a hit's share and
+//!   goes on behind it ([`crate::raster::DepthLayers`]), so a pane or an edge covering part of
+//!   a pixel shows what is behind it.
+//! - The input ([`crate::raster::LayeredInput`], default on, `--no-coverage` and
+//!   `--no-guard-band` for the paper's): fragments with 16-sample coverage masks, textures
+//!   shaded per sample, so in-focus edges are anti-aliased; and layers over the frame grown by
+//!   the largest CoC in view, so rays near the border reach what lies outside it (only the
+//!   frame is traced). On the Cycles railing scene at 640x360 with 64 rays: 22.7 dB against
+//!   Cycles' render with the paper's input, 33.9 dB with both.
 
 pub mod nbuffer;
 pub mod trace;

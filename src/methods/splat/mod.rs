@@ -21,6 +21,10 @@
 //! lists (N per pixel) instead of the pinhole frame, so the surfaces hidden in the pinhole view
 //! (the text behind `railing`'s bars) reach the pixels where the near blur reveals them.
 //!
+//! The lists are rasterized with coverage masks and a guard band around the frame
+//! ([`crate::raster::LayeredInput`]; `--no-coverage`, `--no-guard-band`), so in-focus edges are
+//! anti-aliased and fragments just outside the frame splat into it.
+//!
 //! # Where we differ from the poster, and why
 //! - Merging is only done where every fragment of the block has a CoC radius of at least the
 //!   block size and the same surface (CoCs within `group_px`): the poster merges "spatially
