@@ -33,7 +33,7 @@ mod setup;
 mod shade;
 pub mod views;
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 use rayon::prelude::*;
 
 pub use fragments::{
@@ -287,29 +287,64 @@ impl<'a> PreparedScene<'a> {
         &self.positions
     }
 
-    /// The signed CoC range, in pixels, of the geometry in view of `lens`: from its nearest to
-    /// its farthest vertex between the near and far planes that projects near the image (a
-    /// generous frustum test: within one frame's size of it). `(0, 1)` when there is none.
+    /// The signed CoC range, in pixels, of the geometry in view of `lens`: the nearest and
+    /// farthest depth of every triangle clipped to the near and far planes and to a generous
+    /// window (the frame grown by its own size on every side), so a rail whose vertices all
+    /// lie far outside the frame still counts where it crosses it. `(0, 1)` when there is none.
     pub fn coc_range(&self, lens: &ThinLens) -> (f32, f32) {
         let (w, h) = (lens.width_px as f32, lens.height_px as f32);
-        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for p in &self.positions {
-            let z = -p.z;
-            if !(z >= lens.near_m && z <= lens.far_m) {
-                continue;
-            }
-            if let Some((x, y, _)) = lens.project(*p) {
-                if x < -w || x > 2.0 * w || y < -h || y > 2.0 * h {
+        let (cx, cy) = lens.centre_px();
+        let f = lens.f_px;
+        // Each plane as a linear function of (x, y, depth) that is >= 0 inside.
+        let planes: [Vec4; 6] = [
+            Vec4::new(0.0, 0.0, 1.0, -lens.near_m),
+            Vec4::new(0.0, 0.0, -1.0, lens.far_m),
+            Vec4::new(f, 0.0, cx + w, 0.0),
+            Vec4::new(-f, 0.0, 2.0 * w - cx, 0.0),
+            Vec4::new(0.0, -f, cy + h, 0.0),
+            Vec4::new(0.0, f, 2.0 * h - cy, 0.0),
+        ];
+        let dist = |k: usize, p: Vec3| planes[k].dot(p.extend(1.0));
+        let (mut near, mut far) = (f32::INFINITY, f32::NEG_INFINITY);
+        let mut poly: Vec<Vec3> = Vec::with_capacity(9);
+        let mut next: Vec<Vec3> = Vec::with_capacity(9);
+        for t in &self.triangles {
+            // (x, y, depth) with depth positive in front of the lens.
+            let v = t.v.map(|i| {
+                let p = self.positions[i as usize];
+                Vec3::new(p.x, p.y, -p.z)
+            });
+            poly.clear();
+            poly.extend_from_slice(&v);
+            for k in 0..planes.len() {
+                if poly.iter().all(|&p| dist(k, p) >= 0.0) {
                     continue;
                 }
+                next.clear();
+                for i in 0..poly.len() {
+                    let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+                    let (da, db) = (dist(k, a), dist(k, b));
+                    if da >= 0.0 {
+                        next.push(a);
+                    }
+                    if (da >= 0.0) != (db >= 0.0) {
+                        next.push(a + (b - a) * (da / (da - db)));
+                    }
+                }
+                std::mem::swap(&mut poly, &mut next);
+                if poly.is_empty() {
+                    break;
+                }
             }
-            let c = lens.coc_px(z);
-            lo = lo.min(c);
-            hi = hi.max(c);
+            for p in &poly {
+                near = near.min(p.z);
+                far = far.max(p.z);
+            }
         }
-        if !(lo.is_finite() && hi.is_finite()) {
+        if !(near.is_finite() && far.is_finite()) {
             return (0.0, 1.0);
         }
+        let (lo, hi) = (lens.coc_px(near.max(lens.near_m)), lens.coc_px(far));
         (lo, hi.max(lo + 1e-3))
     }
 
