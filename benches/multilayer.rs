@@ -4,7 +4,9 @@
 //! - `multilayer/filter/<m>-<s>/N<n>/<trunc|full>/<scene>/1280x720`: the Y-map of m mip and s
 //!   stack steps, with or without list truncation;
 //! - `multilayer/accumulate/<m>-<s>/N<n>/<scene>/1280x720`;
-//! - `multilayer/total/auto/N4/<scene>/1280x720`: the default settings, end to end.
+//! - `multilayer/total/auto/N4/<scene>/1280x720`: the default settings (bokeh in the aperture's
+//!   shape), end to end; `multilayer/total/box/N4/<scene>/1280x720`: the same with the paper's
+//!   box bokeh (`--ml-bokeh box`).
 //!
 //! Each pass runs on the previous pass's output, computed once.
 
@@ -15,7 +17,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use defocus::methods::multilayer::{
-    self, accumulate, collect, Borders, FilterSteps, MultilayerSettings,
+    self, accumulate, collect, Bokeh, Borders, FilterSteps, MultilayerSettings,
 };
 use defocus::raster::PreparedScene;
 use defocus::scene::builtin;
@@ -70,9 +72,19 @@ fn bench(c: &mut Criterion) {
                 }
             }
         }
-        let s = MultilayerSettings::default();
+        let s = MultilayerSettings {
+            aperture: scene.defaults.clone().expect("defaults").aperture,
+            ..MultilayerSettings::default()
+        };
         g.bench_function(format!("total/auto/N4/{name}/{res}"), |b| {
             b.iter(|| multilayer::render(&scene, &camera, &s).expect("render"))
+        });
+        let boxed = MultilayerSettings {
+            bokeh: Bokeh::Box,
+            ..s.clone()
+        };
+        g.bench_function(format!("total/box/N4/{name}/{res}"), |b| {
+            b.iter(|| multilayer::render(&scene, &camera, &boxed).expect("render"))
         });
     }
     g.finish();

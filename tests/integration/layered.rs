@@ -17,7 +17,15 @@ use crate::{add_screen_rect, test_camera};
 
 /// The three layered methods at the settings the issue measures (multiview with 64 rays).
 fn layered(scene: &Scene, camera: &Camera, aperture: &Aperture) -> Vec<(&'static str, ColorImage)> {
-    let ml = multilayer::render(scene, camera, &MultilayerSettings::default()).unwrap();
+    let ml = multilayer::render(
+        scene,
+        camera,
+        &MultilayerSettings {
+            aperture: aperture.clone(),
+            ..MultilayerSettings::default()
+        },
+    )
+    .unwrap();
     let (sp, _) = splat::render_scene(
         scene,
         camera,

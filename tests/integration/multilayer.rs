@@ -3,7 +3,7 @@
 
 use defocus::image::ColorImage;
 use defocus::lens::{Aperture, Camera};
-use defocus::methods::multilayer::{self, Borders, FilterSteps, MultilayerSettings};
+use defocus::methods::multilayer::{self, Bokeh, Borders, FilterSteps, MultilayerSettings};
 use defocus::methods::reference::{self, ReferenceSettings};
 use defocus::methods::registry::{self, Frame, MethodSettings, PinholeSettings, SceneOptions};
 use defocus::metrics;
@@ -190,13 +190,18 @@ fn level_borders_are_where_the_coc_diameter_reaches_the_filter_size() {
     assert!(t.windows(2).all(|w| w[0].0 <= w[1].0), "{t:?}");
 }
 
-/// Bokeh of a small bright square far behind focus: energy and spread against `reference`.
+/// Bokeh of a small bright square far behind focus with the paper's box filters: energy and
+/// spread against `reference`.
 #[test]
 fn point_light_behind_focus_spreads_over_the_coc_diameter_with_its_energy() {
     let size = 96;
     let (scene, camera, coc) = crate::point_light(size, 50.0);
     let c = size as f32 / 2.0;
-    let ours = multilayer::render(&scene, &camera, &MultilayerSettings::default()).unwrap();
+    let box_bokeh = MultilayerSettings {
+        bokeh: Bokeh::Box,
+        ..MultilayerSettings::default()
+    };
+    let ours = multilayer::render(&scene, &camera, &box_bokeh).unwrap();
     let truth = reference::render(
         &scene,
         &camera,
@@ -370,6 +375,165 @@ fn multilayer_settings_are_checked() {
     assert!(FilterSteps::parse("x").is_err());
 }
 
+/// The lit region of a bokeh: pixels above half the level a uniform bokeh of `energy` spread
+/// over `area_px` pixels would have.
+fn lit(img: &ColorImage, energy: f64, area_px: f64) -> Vec<bool> {
+    let half = 0.5 * energy / area_px;
+    img.pixels().iter().map(|p| p[0] as f64 > half).collect()
+}
+
+/// Farthest lit pixel centre from `c` within 10 degrees of direction `angle_rad`, in pixels.
+fn extent_along(mask: &[bool], size: usize, c: f32, angle_rad: f32) -> f32 {
+    let mut best = 0.0f32;
+    for y in 0..size {
+        for x in 0..size {
+            if !mask[y * size + x] {
+                continue;
+            }
+            let (dx, dy) = (x as f32 + 0.5 - c, y as f32 + 0.5 - c);
+            let a = (-dy).atan2(dx) - angle_rad;
+            let a = a.sin().atan2(a.cos());
+            if a.abs() < 10f32.to_radians() {
+                best = best.max((dx * dx + dy * dy).sqrt());
+            }
+        }
+    }
+    best
+}
+
+/// A point light far behind focus becomes the aperture: disc, hexagon, turned 5-blade polygon,
+/// of `reference`'s size and orientation (IoU of the lit regions and their extent in 12
+/// directions), where the paper's box gives a square.
+#[test]
+fn point_light_becomes_the_aperture_shape_of_diameter_two_coc() {
+    /// The gather samples the aperture on its level's cells (8 px here: a CoC radius of 21 px is
+    /// at the bottom of level 3's band, the coarsest case) with an edge a cell wide: measured
+    /// IoU 0.82 to 0.85 against `reference` (1024 samples), where the box gives 0.72 to 0.80.
+    const MIN_IOU: f64 = 0.8;
+    /// The edges, found at half the bokeh's level, lie within a third of a cell of
+    /// `reference`'s in every direction (measured at most 2.7 px, on the hexagon's flat sides,
+    /// which the 8 px grid cannot place more finely). Not the pixel the issue asks for: see the
+    /// README, "Bokeh shape".
+    const EXTENT_TOLERANCE_PX: f32 = 3.0;
+    let size = 96;
+    let (scene, camera, coc) = crate::point_light(size, 50.0);
+    let c = size as f32 / 2.0;
+    for spec in ["disc", "poly:6", "poly:5,rot=20"] {
+        let aperture = Aperture::parse(spec).unwrap();
+        let truth = reference::render(
+            &scene,
+            &camera,
+            &ReferenceSettings {
+                samples: 1024,
+                aperture: aperture.clone(),
+                ..ReferenceSettings::default()
+            },
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let energy: f64 = truth.image.pixels().iter().map(|p| p[0] as f64).sum();
+        let area = aperture.area() as f64 * (coc as f64).powi(2);
+        let want = lit(&truth.image, energy, area);
+        let iou = |img: &ColorImage| {
+            let got = lit(img, energy, area);
+            let both = got.iter().zip(&want).filter(|(a, b)| **a && **b).count();
+            let either = got.iter().zip(&want).filter(|(a, b)| **a || **b).count();
+            both as f64 / either as f64
+        };
+        let mut settings = MultilayerSettings {
+            aperture: aperture.clone(),
+            ..MultilayerSettings::default()
+        };
+        assert_eq!(settings.bokeh, Bokeh::Shape, "the default");
+        let ours = multilayer::render(&scene, &camera, &settings).unwrap();
+        settings.bokeh = Bokeh::Box;
+        let boxed = multilayer::render(&scene, &camera, &settings).unwrap();
+        let e_ours: f64 = ours.image.pixels().iter().map(|p| p[0] as f64).sum();
+        let (iou_shape, iou_box) = (iou(&ours.image), iou(&boxed.image));
+        eprintln!(
+            "{spec}: C = {coc:.1} px, IoU shape {iou_shape:.3}, box {iou_box:.3}, energy {e_ours:.0} vs {energy:.0}"
+        );
+        assert!(
+            (e_ours / energy - 1.0).abs() < 0.02,
+            "{spec}: energy {e_ours} vs {energy}"
+        );
+        assert!(iou_shape >= MIN_IOU, "{spec}: IoU {iou_shape}");
+        assert!(
+            iou_shape > iou_box,
+            "{spec}: shape {iou_shape} vs box {iou_box}"
+        );
+        let got = lit(&ours.image, energy, area);
+        for k in 0..12 {
+            let a = (k as f32 * 30.0 + 5.0).to_radians();
+            let (e_got, e_want) = (
+                extent_along(&got, size, c, a),
+                extent_along(&want, size, c, a),
+            );
+            assert!(
+                (e_got - e_want).abs() <= EXTENT_TOLERANCE_PX,
+                "{spec} at {} degrees: extent {e_got} vs reference {e_want}",
+                k * 30 + 5
+            );
+        }
+    }
+}
+
+/// The 5-blade bokeh in front of focus is the one behind it turned 180 degrees, as
+/// `reference`'s.
+#[test]
+fn near_field_bokeh_is_the_aperture_turned_half_a_turn() {
+    let size = 96;
+    // Behind focus at 50 m the CoC is +21 px; in front of it at 0.512 m about -21 px.
+    let (scene, camera, coc) = crate::point_light(size, 0.512);
+    assert!(coc < -18.0, "{coc}");
+    let aperture = Aperture::parse("poly:5").unwrap();
+    let truth = reference::render(
+        &scene,
+        &camera,
+        &ReferenceSettings {
+            samples: 1024,
+            aperture: aperture.clone(),
+            ..ReferenceSettings::default()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let ours = multilayer::render(
+        &scene,
+        &camera,
+        &MultilayerSettings {
+            aperture,
+            ..MultilayerSettings::default()
+        },
+    )
+    .unwrap();
+    let energy: f64 = truth.image.pixels().iter().map(|p| p[0] as f64).sum();
+    let area = Aperture::parse("poly:5").unwrap().area() as f64 * (coc as f64).powi(2);
+    let (got, want) = (
+        lit(&ours.image, energy, area),
+        lit(&truth.image, energy, area),
+    );
+    let c = size as f32 / 2.0;
+    // Behind focus one vertex points left; in front of it, right: the lit region reaches
+    // farther right than left, in both.
+    let (right, left) = (
+        extent_along(&got, size, c, 0.0),
+        extent_along(&got, size, c, std::f32::consts::PI),
+    );
+    let (right_ref, left_ref) = (
+        extent_along(&want, size, c, 0.0),
+        extent_along(&want, size, c, std::f32::consts::PI),
+    );
+    eprintln!("near 5-blade: right {right} left {left}; reference {right_ref} {left_ref}");
+    // The grid of 8 px cells rounds the flat side out by up to 3 px (see the test above).
+    assert!(
+        right_ref > left_ref + 2.0,
+        "reference {right_ref} {left_ref}"
+    );
+    assert!(right > left + 1.5, "ours {right} {left}");
+    assert!((right - right_ref).abs() <= 3.0 && (left - left_ref).abs() <= 3.0);
+}
+
 #[test]
 fn filter_and_accumulate_are_bit_identical_to_their_baseline_builds() {
     // The run-time dispatched filter and accumulate passes (AVX-512, AVX2 or NEON where present;
@@ -379,8 +543,16 @@ fn filter_and_accumulate_are_bit_identical_to_their_baseline_builds() {
     let mut camera = scene.defaults.clone().unwrap().camera;
     camera.width_px = 96;
     camera.height_px = 54;
-    let settings = MultilayerSettings::default();
-    let fast = multilayer::render(&scene, &camera, &settings).unwrap();
-    let base = multilayer::render_baseline(&scene, &camera, &settings).unwrap();
-    assert_eq!(fast.image, base.image);
+    for bokeh in [Bokeh::Box, Bokeh::Shape] {
+        for aperture in [Aperture::Disc, Aperture::parse("poly:5,rot=20").unwrap()] {
+            let settings = MultilayerSettings {
+                bokeh,
+                aperture,
+                ..MultilayerSettings::default()
+            };
+            let fast = multilayer::render(&scene, &camera, &settings).unwrap();
+            let base = multilayer::render_baseline(&scene, &camera, &settings).unwrap();
+            assert_eq!(fast.image, base.image, "{bokeh:?}");
+        }
+    }
 }

@@ -8,7 +8,7 @@ use defocus::methods::coc_map;
 use defocus::methods::gaussian::GaussianSettings;
 use defocus::methods::hammon::{CocMode, HammonSettings, LerpDistances};
 use defocus::methods::lowrank::LowRankSettings;
-use defocus::methods::multilayer::{FilterSteps, MultilayerSettings};
+use defocus::methods::multilayer::{Bokeh, FilterSteps, MultilayerSettings};
 use defocus::methods::multiview::{LayerCount, MultiviewSettings};
 use defocus::methods::poisson::{self, PoissonSettings};
 use defocus::methods::registry::MethodSettings;
@@ -238,6 +238,15 @@ pub struct PostArgs {
         help_heading = "multilayer"
     )]
     pub ml_supersample: usize,
+    /// multilayer: bokeh in the paper's `box` (each fragment from the box-filtered level that
+    /// matches its CoC) or in the aperture's `shape` (--aperture; not in the paper).
+    #[arg(
+        long,
+        default_value = Bokeh::default().name(),
+        value_name = "box|shape",
+        help_heading = "multilayer"
+    )]
+    pub ml_bokeh: String,
 }
 
 impl PostArgs {
@@ -396,6 +405,8 @@ impl PostArgs {
                     truncation: !self.no_truncation,
                     supersample: self.ml_supersample,
                     input: self.layered_input(),
+                    bokeh: Bokeh::parse(&self.ml_bokeh).context("invalid --ml-bokeh")?,
+                    aperture: aperture.clone(),
                 };
                 m.validate().context("invalid multilayer option")?;
                 MethodSettings::Multilayer(m)

@@ -16,7 +16,7 @@
 use rayon::prelude::*;
 
 use super::filter::Level;
-use super::Borders;
+use super::{shape, Bokeh, Borders, MultilayerSettings};
 use crate::image::{ColorImage, Rgba};
 use crate::raster::from_half;
 
@@ -43,7 +43,52 @@ pub fn level_weight(lambda: f32, s: usize, levels: usize) -> f32 {
     }
 }
 
-/// Blends the levels into the output image (premultiplied linear RGBA).
+/// Blends the levels into the output image with the bokeh `settings` ask for: the paper's box
+/// ([`accumulate`]) or the aperture's shape ([`shape::accumulate_shape`]).
+pub fn accumulate_for(
+    levels: &[Level],
+    borders: &Borders,
+    settings: &MultilayerSettings,
+    width: usize,
+    height: usize,
+) -> ColorImage {
+    match settings.bokeh {
+        Bokeh::Box => accumulate(levels, borders, settings.epsilon, width, height),
+        Bokeh::Shape => shape::accumulate_shape(
+            levels,
+            borders,
+            &settings.aperture,
+            settings.epsilon,
+            width,
+            height,
+        ),
+    }
+}
+
+/// [`accumulate_for`] built for the portable baseline only: the twin the run-time dispatched
+/// build is tested against.
+pub fn accumulate_for_baseline(
+    levels: &[Level],
+    borders: &Borders,
+    settings: &MultilayerSettings,
+    width: usize,
+    height: usize,
+) -> ColorImage {
+    match settings.bokeh {
+        Bokeh::Box => accumulate_baseline(levels, borders, settings.epsilon, width, height),
+        Bokeh::Shape => shape::accumulate_shape_baseline(
+            levels,
+            borders,
+            &settings.aperture,
+            settings.epsilon,
+            width,
+            height,
+        ),
+    }
+}
+
+/// Blends the levels into the output image with the paper's box bokeh (premultiplied linear
+/// RGBA).
 pub fn accumulate(
     levels: &[Level],
     borders: &Borders,

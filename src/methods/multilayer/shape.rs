@@ -1,0 +1,898 @@
+//! Pass `accumulate` with bokeh in the shape of the [`Aperture`] (`--ml-bokeh shape`; not in the
+//! paper, whose levels are box filters, so a small bright light far behind focus becomes a
+//! square).
+//!
+//! A fragment at pinhole pixel `q` with signed CoC `C` is seen at `q + C v` for every lens point
+//! `v` of the unit aperture, so pixel `p` gathers it when `(p - q) / C` lies in the aperture (a
+//! far-field bokeh shows the aperture as defined, a near-field one turned 180 degrees, as
+//! `reference` and `splat`). The levels already hold the scene box-filtered at every power of
+//! two, so the gather need not visit every pixel of the disc:
+//!
+//! 1. Each fragment is served by the one level `S >= 1` whose box is between `1/(2 rho)` and
+//!    `1/rho` of its CoC radius (`rho` = [`MIN_RADIUS_CELLS`]): level S serves
+//!    `rho 2^S <= |C| < rho 2^(S+1)`, the top level every larger CoC. Pixel `p` reads the level's
+//!    cells on the grid `q = p - 2^S (i, j)`: the boxes of those cells tile the plane, so each
+//!    fragment near `p` is read once. At least `pi rho^2` cells fall inside the smallest bokeh a
+//!    level serves.
+//! 2. A fragment read from the cell at offset `d = 2^S (i, j)` is weighted by the aperture's
+//!    coverage of `d / C` with an edge one cell wide (the signed distance to the disc's or the
+//!    polygon's edge, the same test as `splat`; curved blades and image apertures use their
+//!    density), divided by the summed coverage of the whole grid at that CoC, tabulated once
+//!    (`norm`): a point light keeps its energy exactly, and the weight changes continuously with
+//!    depth.
+//! 3. CoCs below `rho 2^1` pixels (at most a few pixels across, where shape and box differ by a
+//!    pixel or two) are taken from the levels as in the paper ([`super::accumulate`]): one cell
+//!    per level, the two levels around the CoC blended to the disc's variance.
+//! 4. A pixel only walks the grid of a level where some fragment the level serves can reach it:
+//!    per level, 8x8-pixel tiles hold the largest CoC radius of the fragments within reach,
+//!    which also bounds the radius of the walk.
+//!
+//! The fragments gathered at a pixel are then blended as in the box accumulation: those of one
+//! cell within the depth threshold of each other are combined with the over operator (one list
+//! occludes itself), all are sorted by depth, those within the depth threshold of each other
+//! are summed (side by side, from different cells or levels) and the sums are blended front to
+//! back with the over operator.
+
+use glam::Vec2;
+use rayon::prelude::*;
+
+use super::accumulate::level_weight;
+use super::filter::Level;
+use super::Borders;
+use crate::image::{ColorImage, Rgba};
+use crate::lens::Aperture;
+use crate::raster::from_half;
+
+/// `rho`: the smallest CoC radius, in cells of its level's box, that a level gathers in the
+/// aperture's shape; level S serves radii from `rho 2^S` to `rho 2^(S+1)` pixels. Measured on
+/// the built-in scenes at 640x360 against `reference` (README, "Bokeh shape"): 1.5 draws a
+/// 6-blade bokeh of 14 px as a blocky cross (26.4 dB on `lights`), 2 loses 0.6 dB on `glass`,
+/// 2.5 and 3 give the same images there, and 3 reads up to 1.6 times as many cells.
+pub const MIN_RADIUS_CELLS: f32 = 2.5;
+
+/// The first level gathered in the shape (level 0's box is one pixel: CoCs it would serve are
+/// at most a few pixels across).
+pub const FIRST_SHAPE_LEVEL: usize = 1;
+
+/// Side in pixels of the tiles that record which levels can reach a pixel.
+pub const TILE_PX: usize = 8;
+
+/// Width in cells of the ramp of the aperture's edge (coverage from 1 to 0), so that the weights
+/// change continuously with the CoC. Half a cell, which blurs less, drew a 42 px disc with 0.82
+/// IoU against `reference`'s instead of 0.85 (the steps between cells show).
+const EDGE_CELLS: f32 = 1.0;
+
+/// Steps per cell of the tabulated grid sums.
+const NORM_STEPS_PER_CELL: f32 = 64.0;
+
+/// The CoC radius in pixels from which fragments are gathered in the shape; smaller ones are
+/// taken from the box levels.
+#[inline]
+pub fn shape_threshold_px() -> f32 {
+    band_px(FIRST_SHAPE_LEVEL, usize::MAX).0
+}
+
+/// The smallest CoC radius in pixels gathered in the shape (a bokeh 9 pixels across; level 1
+/// then has at least 2.25 cells of radius). Below it the box levels are closer to `reference`:
+/// from 3 px the gather's coarse grid cost `railing` 0.5 dB at 640x360 (its far wall has a
+/// CoC of 3.2 px).
+pub const SHAPE_FROM_PX: f32 = 4.5;
+
+/// The range of CoC radii `[lo, hi)` in pixels that level `s` of `levels` serves.
+#[inline]
+pub fn band_px(s: usize, levels: usize) -> (f32, f32) {
+    let lo = MIN_RADIUS_CELLS * (1u64 << s) as f32;
+    let hi = if s + 1 >= levels {
+        f32::INFINITY
+    } else {
+        2.0 * lo
+    };
+    let lo = if s == FIRST_SHAPE_LEVEL {
+        SHAPE_FROM_PX.min(lo)
+    } else {
+        lo
+    };
+    (lo, hi)
+}
+
+/// The number of levels the shape accumulation needs for a largest CoC radius of `max_coc_px`:
+/// the first shape level, and enough levels that the top one's box is at least `1/(2 rho)` of
+/// it (larger CoCs are served by the top level with more cells).
+pub fn levels_needed(max_coc_px: f32) -> usize {
+    let mut s = FIRST_SHAPE_LEVEL;
+    while band_px(s, usize::MAX).1 <= max_coc_px && s < super::MAX_FILTER_STEPS {
+        s += 1;
+    }
+    s + 1
+}
+
+/// How the aperture's edge is tested.
+#[derive(Clone, Debug)]
+enum Edge {
+    /// Disc and straight-bladed polygons: signed distance to the edge, in units of the aperture
+    /// radius along the outward edge normals (`apothem` from the centre; 1 for the disc).
+    Distance { apothem: f32 },
+    /// Curved blades and images: the density at `d / C`.
+    Density(Aperture),
+}
+
+/// One cell offset `(i, j)` of the gather grid (in cells), with what its coverage needs.
+#[derive(Clone, Copy, Debug)]
+struct Offset {
+    i: i32,
+    j: i32,
+    /// `|(i, j)|`.
+    r: f32,
+    /// Disc and polygon: the largest `n_k . (i, j)` over the edge normals (far field), and of
+    /// `n_k . -(i, j)` (near field, the bokeh turned 180 degrees).
+    far: f32,
+    near: f32,
+}
+
+/// The aperture prepared for the gather: the cell offsets sorted by distance and the grid's
+/// summed coverage as a function of the CoC radius in cells.
+#[derive(Clone, Debug)]
+pub struct GatherShape {
+    edge: Edge,
+    /// How far the shape reaches, in units of the aperture radius (1, or `sqrt 2` for images).
+    extent: f32,
+    offsets: Vec<Offset>,
+    /// `1 / (summed coverage)` at CoC radius `k / NORM_STEPS_PER_CELL` cells.
+    norm: Vec<f32>,
+}
+
+impl GatherShape {
+    /// Prepares `aperture` for CoC radii up to `max_cells` cells of a level.
+    pub fn new(aperture: &Aperture, max_cells: f32) -> Self {
+        let (edge, normals) = match aperture {
+            Aperture::Disc => (Edge::Distance { apothem: 1.0 }, Vec::new()),
+            Aperture::Polygon {
+                blade_radius: None, ..
+            } => {
+                let v = aperture.vertices();
+                let n = v.len();
+                let mids: Vec<Vec2> = (0..n).map(|k| (v[k] + v[(k + 1) % n]) * 0.5).collect();
+                let apothem = mids[0].length();
+                let normals = mids.iter().map(|m| m.normalize()).collect();
+                (Edge::Distance { apothem }, normals)
+            }
+            other => (Edge::Density(other.clone()), Vec::new()),
+        };
+        let extent = if matches!(aperture, Aperture::Image(_)) {
+            std::f32::consts::SQRT_2
+        } else {
+            1.0
+        };
+        let mut shape = Self {
+            edge,
+            extent,
+            offsets: Vec::new(),
+            norm: Vec::new(),
+        };
+        let max_cells = max_cells.max(1.0);
+        let n = shape.reach_cells(max_cells).ceil() as i32 + 1;
+        for j in -n..=n {
+            for i in -n..=n {
+                let d = Vec2::new(i as f32, j as f32);
+                let (far, near) = if normals.is_empty() {
+                    (d.length(), d.length())
+                } else {
+                    normals.iter().fold((f32::MIN, f32::MIN), |(f, m), nk| {
+                        (f.max(nk.dot(d)), m.max(-nk.dot(d)))
+                    })
+                };
+                shape.offsets.push(Offset {
+                    i,
+                    j,
+                    r: d.length(),
+                    far,
+                    near,
+                });
+            }
+        }
+        // By distance, then row, then column: a fixed order, the same on every machine.
+        shape
+            .offsets
+            .sort_by(|a, b| a.r.total_cmp(&b.r).then(a.j.cmp(&b.j)).then(a.i.cmp(&b.i)));
+        let steps = (max_cells * NORM_STEPS_PER_CELL).ceil() as usize + 2;
+        shape.norm = (0..steps)
+            .map(|k| {
+                let t = k as f32 / NORM_STEPS_PER_CELL;
+                let sum = shape.grid_sum(t);
+                if sum > 0.0 {
+                    1.0 / sum
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        shape
+    }
+
+    /// The distance in cells beyond which no cell is covered at CoC radius `t` cells.
+    #[inline]
+    fn reach_cells(&self, t: f32) -> f32 {
+        match self.edge {
+            Edge::Distance { apothem } => t + 0.5 * EDGE_CELLS / apothem,
+            Edge::Density(_) => t * self.extent + 0.5,
+        }
+    }
+
+    /// Coverage of offset `o` by a fragment of CoC radius `t` cells, behind focus (`far`) or in
+    /// front of it.
+    #[inline(always)]
+    fn coverage(&self, o: &Offset, t: f32, far: bool) -> f32 {
+        match &self.edge {
+            Edge::Distance { apothem } => {
+                let m = if far { o.far } else { o.near };
+                (0.5 - (m - apothem * t) * (1.0 / EDGE_CELLS)).clamp(0.0, 1.0)
+            }
+            Edge::Density(a) => {
+                let v = Vec2::new(o.i as f32, o.j as f32) / t;
+                a.density(if far { v } else { -v })
+            }
+        }
+    }
+
+    /// Summed coverage of the whole grid at CoC radius `t` cells (the same in front of focus:
+    /// the grid is symmetric).
+    fn grid_sum(&self, t: f32) -> f32 {
+        if t <= 0.0 {
+            return 0.0;
+        }
+        let reach = self.reach_cells(t);
+        self.offsets
+            .iter()
+            .take_while(|o| o.r <= reach)
+            .map(|o| self.coverage(o, t, true))
+            .sum()
+    }
+
+    /// `1 / (summed coverage)` at CoC radius `t` cells, interpolated in the table (computed
+    /// directly beyond it).
+    #[inline(always)]
+    fn norm(&self, t: f32) -> f32 {
+        let x = t * NORM_STEPS_PER_CELL;
+        let k = x as usize;
+        if k + 1 < self.norm.len() {
+            let f = x - k as f32;
+            return (1.0 - f) * self.norm[k] + f * self.norm[k + 1];
+        }
+        let sum = self.grid_sum(t);
+        if sum > 0.0 {
+            1.0 / sum
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Per level gathered in the shape: which tiles some fragment it serves can reach, and the
+/// largest CoC radius there.
+#[derive(Clone, Debug)]
+struct Reach {
+    /// Largest CoC radius in pixels of the level's fragments that can reach each tile (0:
+    /// none).
+    tiles: Vec<f32>,
+    tiles_x: usize,
+}
+
+/// The fragments of a level with CoC radius in the level's band, with their signed CoC and
+/// full-precision colour: what the gather reads.
+#[derive(Clone, Debug, Default)]
+struct BandLevel {
+    offsets: Vec<u32>,
+    coc: Vec<f32>,
+    depth: Vec<f32>,
+    color: Vec<Rgba>,
+}
+
+impl BandLevel {
+    /// The fragments of `level` with CoC radius in `[lo, hi)`.
+    fn new(level: &Level, borders: &Borders, (lo, hi): (f32, f32)) -> Self {
+        let rows: Vec<(Vec<u32>, BandLevel)> = (0..level.height)
+            .into_par_iter()
+            .map(|cy| {
+                let mut counts = Vec::with_capacity(level.width);
+                let mut b = BandLevel::default();
+                for cx in 0..level.width {
+                    let (depths, colors) = level.cell(cx, cy);
+                    let before = b.depth.len();
+                    for (&z, c) in depths.iter().zip(colors) {
+                        let coc = borders.lens.coc_px(z);
+                        let r = coc.abs();
+                        if r >= lo && r < hi {
+                            b.coc.push(coc);
+                            b.depth.push(z);
+                            b.color.push(from_half(c));
+                        }
+                    }
+                    counts.push((b.depth.len() - before) as u32);
+                }
+                (counts, b)
+            })
+            .collect();
+        let mut out = BandLevel::default();
+        out.offsets.push(0);
+        for (counts, b) in rows {
+            for k in counts {
+                let last = *out.offsets.last().unwrap_or(&0);
+                out.offsets.push(last + k);
+            }
+            out.coc.extend_from_slice(&b.coc);
+            out.depth.extend_from_slice(&b.depth);
+            out.color.extend_from_slice(&b.color);
+        }
+        out
+    }
+}
+
+/// The largest CoC radius in pixels, per tile of `tiles_x` x `tiles_y`, of the fragments of
+/// `band` (on the cells of `level`) that can reach a pixel of the tile.
+fn reach_of(
+    level: &Level,
+    band: &BandLevel,
+    shape: &GatherShape,
+    (tiles_x, tiles_y): (usize, usize),
+) -> Option<Reach> {
+    if band.depth.is_empty() {
+        return None;
+    }
+    let tile = TILE_PX as f32;
+    let tile_of = |p: f32, n: usize| ((p / tile).max(0.0) as usize).min(n - 1);
+    let rows: Vec<Vec<(usize, f32)>> = (0..level.height)
+        .into_par_iter()
+        .map(|cy| {
+            let ty = tile_of(level.origin_px + level.stride_px * cy as f32, tiles_y);
+            let mut found = Vec::new();
+            for cx in 0..level.width {
+                let i = cy * level.width + cx;
+                let (a, e) = (band.offsets[i] as usize, band.offsets[i + 1] as usize);
+                let m = band.coc[a..e].iter().fold(0.0f32, |m, c| m.max(c.abs()));
+                if m > 0.0 {
+                    let tx = tile_of(level.origin_px + level.stride_px * cx as f32, tiles_x);
+                    found.push((ty * tiles_x + tx, m));
+                }
+            }
+            found
+        })
+        .collect();
+    let mut src = vec![0.0f32; tiles_x * tiles_y];
+    let mut max_c = 0.0f32;
+    for (t, m) in rows.into_iter().flatten() {
+        src[t] = src[t].max(m);
+        max_c = max_c.max(m);
+    }
+    if max_c <= 0.0 {
+        return None;
+    }
+    // A fragment reaches `reach` pixels from its cell's centre, whose tile is found from its
+    // centre (cells are up to a stride off the pixel that reads them).
+    let b = level.footprint_px;
+    let reach_px = shape.reach_cells(max_c / b) * b + level.stride_px + 1.0;
+    let r = (reach_px / tile).ceil() as usize;
+    // Separable square max filter of radius r tiles.
+    let mut across = vec![0.0f32; src.len()];
+    for ty in 0..tiles_y {
+        for tx in 0..tiles_x {
+            let (a, e) = (tx.saturating_sub(r), (tx + r).min(tiles_x - 1));
+            across[ty * tiles_x + tx] = src[ty * tiles_x + a..=ty * tiles_x + e]
+                .iter()
+                .fold(0.0, |m: f32, &v| m.max(v));
+        }
+    }
+    let mut tiles = vec![0.0f32; src.len()];
+    for ty in 0..tiles_y {
+        let (a, e) = (ty.saturating_sub(r), (ty + r).min(tiles_y - 1));
+        for tx in 0..tiles_x {
+            tiles[ty * tiles_x + tx] = (a..=e)
+                .map(|k| across[k * tiles_x + tx])
+                .fold(0.0, f32::max);
+        }
+    }
+    Some(Reach { tiles, tiles_x })
+}
+
+/// A level gathered in the aperture's shape: per cell of its level, the fragments that reach
+/// the pixels reading that cell, weighted, summed within the depth threshold, depth-sorted.
+#[derive(Clone, Debug, Default)]
+struct Gathered {
+    offsets: Vec<u32>,
+    depth: Vec<f32>,
+    color: Vec<Rgba>,
+}
+
+/// What every cell row of a level's gather reads.
+struct GatherInputs<'a> {
+    level: &'a Level,
+    /// The level's fragments in its band.
+    band: &'a BandLevel,
+    reach: &'a Reach,
+    shape: &'a GatherShape,
+    epsilon: f32,
+}
+
+/// One row of a level's gather: per cell the count, then the fragments.
+type GatherRow = (Vec<u32>, Vec<f32>, Vec<Rgba>);
+
+/// What every pixel row of the shape accumulation reads.
+struct RowInputs<'a> {
+    levels: &'a [Level],
+    borders: &'a Borders,
+    /// Per level from [`FIRST_SHAPE_LEVEL`] (index `s - FIRST_SHAPE_LEVEL`): its gather, if
+    /// any fragment it serves is in view.
+    gathered: &'a [Option<Gathered>],
+    /// The box levels that serve CoCs below the shape threshold.
+    box_levels: usize,
+    /// CoC radius in pixels from which the shape gather takes over.
+    threshold_px: f32,
+    epsilon: f32,
+}
+
+/// The row functions of the shape accumulation (run-time dispatched or baseline).
+struct RowFns<G, P> {
+    gather: G,
+    pixels: P,
+}
+
+/// Blends the levels into the output image with bokeh in the shape of `aperture`
+/// (premultiplied linear RGBA).
+pub fn accumulate_shape(
+    levels: &[Level],
+    borders: &Borders,
+    aperture: &Aperture,
+    epsilon: f32,
+    width: usize,
+    height: usize,
+) -> ColorImage {
+    accumulate_shape_with(
+        levels,
+        borders,
+        aperture,
+        epsilon,
+        (width, height),
+        RowFns {
+            gather: gather_row,
+            pixels: shape_row,
+        },
+    )
+}
+
+/// [`accumulate_shape`] built for the portable baseline only (no run-time dispatch): the twin
+/// the dispatched versions are tested against, bit for bit.
+pub fn accumulate_shape_baseline(
+    levels: &[Level],
+    borders: &Borders,
+    aperture: &Aperture,
+    epsilon: f32,
+    width: usize,
+    height: usize,
+) -> ColorImage {
+    accumulate_shape_with(
+        levels,
+        borders,
+        aperture,
+        epsilon,
+        (width, height),
+        RowFns {
+            gather: gather_row_inner,
+            pixels: shape_row_inner,
+        },
+    )
+}
+
+fn accumulate_shape_with<G, P>(
+    levels: &[Level],
+    borders: &Borders,
+    aperture: &Aperture,
+    epsilon: f32,
+    (width, height): (usize, usize),
+    fns: RowFns<G, P>,
+) -> ColorImage
+where
+    G: Fn(&GatherInputs, usize) -> GatherRow + Sync,
+    P: Fn(&RowInputs, usize, &mut [Rgba]) + Sync,
+{
+    let n = levels.len();
+    let threshold_px = if n > FIRST_SHAPE_LEVEL {
+        shape_threshold_px()
+    } else {
+        f32::INFINITY
+    };
+    // Box levels with a weight for some CoC below the threshold.
+    let box_levels = if threshold_px.is_finite() {
+        let lambda = (3f32.sqrt() * threshold_px).log2();
+        (lambda.floor() as usize + 2).min(n)
+    } else {
+        n
+    };
+    let tiles = (
+        width.div_ceil(TILE_PX).max(1),
+        height.div_ceil(TILE_PX).max(1),
+    );
+    // The largest CoC radius in cells any level is asked for: the top band's fragments.
+    let max_coc = levels
+        .last()
+        .map(|l| l.depth.iter())
+        .into_iter()
+        .flatten()
+        .map(|&z| borders.lens.coc_px(z).abs())
+        .filter(|c| c.is_finite())
+        .fold(0.0f32, f32::max);
+    let top_cells = levels
+        .last()
+        .map_or(1.0, |l| max_coc / l.footprint_px)
+        .max(2.0 * MIN_RADIUS_CELLS);
+    let shape = GatherShape::new(aperture, top_cells);
+    let gathered: Vec<Option<Gathered>> = (FIRST_SHAPE_LEVEL..n)
+        .map(|s| {
+            let level = &levels[s];
+            let band = BandLevel::new(level, borders, band_px(s, n));
+            let reach = reach_of(level, &band, &shape, tiles)?;
+            let inputs = GatherInputs {
+                level,
+                band: &band,
+                reach: &reach,
+                shape: &shape,
+                epsilon,
+            };
+            let rows: Vec<GatherRow> = (0..level.height)
+                .into_par_iter()
+                .map(|cy| (fns.gather)(&inputs, cy))
+                .collect();
+            let mut g = Gathered::default();
+            g.offsets.push(0);
+            for (counts, d, c) in rows {
+                for k in counts {
+                    let last = *g.offsets.last().unwrap_or(&0);
+                    g.offsets.push(last + k);
+                }
+                g.depth.extend_from_slice(&d);
+                g.color.extend_from_slice(&c);
+            }
+            Some(g)
+        })
+        .collect();
+    let inputs = RowInputs {
+        levels,
+        borders,
+        gathered: &gathered,
+        box_levels,
+        threshold_px,
+        epsilon,
+    };
+    let mut data = vec![[0.0f32; 4]; width * height];
+    data.par_chunks_mut(width.max(1))
+        .enumerate()
+        .for_each(|(y, row)| (fns.pixels)(&inputs, y, row));
+    ColorImage::from_vec(width, height, data).expect("sizes agree by construction")
+}
+
+/// Fragments of one cell list, combined with the over operator while they lie within the
+/// depth threshold of the first (one list occludes itself), then pushed as one weighted entry.
+struct Run {
+    depth_m: f32,
+    limit_m: f32,
+    p: [f32; 4],
+    transmit: f32,
+    open: bool,
+}
+
+impl Run {
+    #[inline(always)]
+    fn new() -> Self {
+        Self {
+            depth_m: 0.0,
+            limit_m: 0.0,
+            p: [0.0; 4],
+            transmit: 1.0,
+            open: false,
+        }
+    }
+
+    #[inline(always)]
+    fn add(&mut self, z: f32, weight: f32, c: Rgba, epsilon: f32, out: &mut Vec<(f32, Rgba)>) {
+        if self.open && z > self.limit_m {
+            self.flush(out);
+        }
+        if !self.open {
+            *self = Self {
+                depth_m: z,
+                limit_m: z + epsilon * z.abs(),
+                p: [0.0; 4],
+                transmit: 1.0,
+                open: true,
+            };
+        }
+        for (pk, ck) in self.p.iter_mut().zip(c) {
+            *pk += self.transmit * weight * ck;
+        }
+        self.transmit *= 1.0 - c[3];
+    }
+
+    #[inline(always)]
+    fn flush(&mut self, out: &mut Vec<(f32, Rgba)>) {
+        if self.open && self.p[3] > 0.0 {
+            out.push((self.depth_m, self.p));
+        }
+        self.open = false;
+    }
+}
+
+/// Fragments of one surface gathered for one cell: summed, with their opacity-weighted depth.
+struct Group {
+    first_m: f32,
+    limit_m: f32,
+    p: Rgba,
+    dw: f32,
+    ds: f32,
+}
+
+impl Group {
+    #[inline(always)]
+    fn new(z: f32, c: Rgba, epsilon: f32) -> Self {
+        Self {
+            first_m: z,
+            limit_m: z + epsilon * z.abs(),
+            p: c,
+            dw: c[3],
+            ds: c[3] * z,
+        }
+    }
+
+    #[inline(always)]
+    fn add(&mut self, z: f32, c: Rgba) {
+        for (pk, ck) in self.p.iter_mut().zip(c) {
+            *pk += ck;
+        }
+        self.dw += c[3];
+        self.ds += c[3] * z;
+    }
+}
+
+/// Adds a weighted fragment to the surface within the depth threshold of it, or opens one.
+#[inline(always)]
+fn add_to_groups(groups: &mut Vec<Group>, z: f32, p: Rgba, epsilon: f32) {
+    match groups
+        .iter_mut()
+        .find(|g| z <= g.limit_m && z * (1.0 + epsilon) >= g.first_m)
+    {
+        Some(g) => g.add(z, p),
+        None => groups.push(Group::new(z, p, epsilon)),
+    }
+}
+
+/// One cell row of a level's gather, compiled for several instruction sets and chosen at run
+/// time ([`multiversion`]); the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn gather_row(inputs: &GatherInputs, cy: usize) -> GatherRow {
+    gather_row_inner(inputs, cy)
+}
+
+#[inline(always)]
+fn gather_row_inner(inputs: &GatherInputs, cy: usize) -> GatherRow {
+    let GatherInputs {
+        level,
+        band,
+        reach,
+        shape,
+        epsilon,
+    } = *inputs;
+    let (w, h) = (level.width as isize, level.height as isize);
+    let b = level.footprint_px;
+    let inv_b = 1.0 / b;
+    // Grid offsets are whole boxes: `k` cells of the level.
+    let k = ((b / level.stride_px).round() as isize).max(1);
+    let tile_of = |c: usize, n: usize| {
+        (((level.origin_px + level.stride_px * c as f32) / TILE_PX as f32).max(0.0) as usize)
+            .min(n - 1)
+    };
+    let tiles_y = reach.tiles.len() / reach.tiles_x;
+    let ty = tile_of(cy, tiles_y);
+    let mut counts = Vec::with_capacity(level.width);
+    let mut depth = Vec::new();
+    let mut color = Vec::new();
+    let mut entries: Vec<(f32, Rgba)> = Vec::new();
+    let mut groups: Vec<Group> = Vec::new();
+    for cx in 0..level.width {
+        let r_px = reach.tiles[ty * reach.tiles_x + tile_of(cx, reach.tiles_x)];
+        if r_px <= 0.0 {
+            counts.push(0);
+            continue;
+        }
+        groups.clear();
+        let limit = shape.reach_cells(r_px * inv_b);
+        for o in shape.offsets.iter().take_while(|o| o.r <= limit) {
+            let sx = (cx as isize - k * o.i as isize).clamp(0, w - 1) as usize;
+            let sy = (cy as isize - k * o.j as isize).clamp(0, h - 1) as usize;
+            let i = sy * level.width + sx;
+            let (a, e) = (band.offsets[i] as usize, band.offsets[i + 1] as usize);
+            if e == a + 1 {
+                // One fragment (the usual case): straight into its surface.
+                let c = band.coc[a];
+                let t = c.abs() * inv_b;
+                let cover = shape.coverage(o, t, c > 0.0);
+                if cover > 0.0 {
+                    let weight = cover * shape.norm(t);
+                    let p = band.color[a].map(|v| v * weight);
+                    add_to_groups(&mut groups, band.depth[a], p, epsilon);
+                }
+                continue;
+            }
+            entries.clear();
+            let mut run = Run::new();
+            for f in a..e {
+                let c = band.coc[f];
+                let t = c.abs() * inv_b;
+                let cover = shape.coverage(o, t, c > 0.0);
+                if cover > 0.0 {
+                    run.add(
+                        band.depth[f],
+                        cover * shape.norm(t),
+                        band.color[f],
+                        epsilon,
+                        &mut entries,
+                    );
+                }
+            }
+            run.flush(&mut entries);
+            for &(z, p) in &entries {
+                add_to_groups(&mut groups, z, p, epsilon);
+            }
+        }
+        groups.sort_by(|a, b| a.first_m.total_cmp(&b.first_m));
+        let before = depth.len();
+        for g in &groups {
+            depth.push(if g.dw > 0.0 { g.ds / g.dw } else { g.first_m });
+            color.push(g.p);
+        }
+        counts.push((depth.len() - before) as u32);
+    }
+    (counts, depth, color)
+}
+
+/// One pixel row of [`accumulate_shape`], compiled for several instruction sets and chosen at
+/// run time ([`multiversion`]); the same arithmetic in every version, so the same bits.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2",
+    "x86_64+avx2",
+    "aarch64+neon"
+))]
+fn shape_row(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
+    shape_row_inner(inputs, y, row);
+}
+
+#[inline(always)]
+fn shape_row_inner(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
+    let RowInputs {
+        levels,
+        borders,
+        gathered,
+        box_levels,
+        threshold_px,
+        epsilon,
+    } = *inputs;
+    let n = levels.len();
+    let lens = borders.lens;
+    let mut entries: Vec<(f32, Rgba)> = Vec::new();
+    for (x, out) in row.iter_mut().enumerate() {
+        entries.clear();
+        // CoCs below the threshold: one cell per level, as the paper.
+        for (s, level) in levels.iter().enumerate().take(box_levels) {
+            let (cx, cy) = level.cell_of_pixel(x, y);
+            let (depths, colors) = level.cell(cx, cy);
+            let mut run = Run::new();
+            for (&z, c) in depths.iter().zip(colors) {
+                if lens.coc_px(z).abs() >= threshold_px {
+                    continue;
+                }
+                let weight = level_weight(borders.lambda(z), s, n);
+                if weight > 0.0 {
+                    run.add(z, weight, from_half(c), epsilon, &mut entries);
+                }
+            }
+            run.flush(&mut entries);
+        }
+        // Larger CoCs: the gather of the pixel's cell on their level.
+        for (g, level) in gathered.iter().zip(&levels[FIRST_SHAPE_LEVEL..]) {
+            let Some(g) = g else { continue };
+            let (cx, cy) = level.cell_of_pixel(x, y);
+            let i = cy * level.width + cx;
+            let (a, e) = (g.offsets[i] as usize, g.offsets[i + 1] as usize);
+            entries.extend(
+                g.depth[a..e]
+                    .iter()
+                    .copied()
+                    .zip(g.color[a..e].iter().copied()),
+            );
+        }
+        entries.sort_by(|a, b| a.0.total_cmp(&b.0));
+        *out = composite_sum(&entries, epsilon);
+    }
+}
+
+/// Front-to-back blending of depth-sorted weighted fragments: a group opens at the nearest
+/// remaining fragment and sums every fragment within the depth threshold of it (side by side:
+/// different cells or levels); groups are blended with the over operator. A group whose
+/// coverage exceeds 1 (rounding) is scaled back to opaque.
+#[inline(always)]
+pub fn composite_sum(entries: &[(f32, Rgba)], epsilon: f32) -> Rgba {
+    let mut out = [0.0f32; 4];
+    let mut transmit = 1.0f32;
+    let mut i = 0;
+    while i < entries.len() && transmit > 1e-5 {
+        let z0 = entries[i].0;
+        let limit = z0 + epsilon * z0.abs();
+        let mut p = [0.0f32; 4];
+        while i < entries.len() && entries[i].0 <= limit {
+            for (pk, ck) in p.iter_mut().zip(entries[i].1) {
+                *pk += ck;
+            }
+            i += 1;
+        }
+        let scale = if p[3] > 1.0 { 1.0 / p[3] } else { 1.0 };
+        let a = (p[3] * scale).clamp(0.0, 1.0);
+        for k in 0..3 {
+            out[k] += transmit * p[k] * scale;
+        }
+        out[3] += transmit * a;
+        transmit *= 1.0 - a;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_sum_is_the_area_of_the_shape_in_cells() {
+        // The one-cell soft edge keeps the area to within a few percent once the disc spans a
+        // few cells.
+        for aperture in [Aperture::Disc, Aperture::parse("poly:6").unwrap()] {
+            let shape = GatherShape::new(&aperture, 8.0);
+            for t in [2.0f32, 3.0, 5.5, 8.0] {
+                let area = aperture.area() * t * t;
+                let sum = 1.0 / shape.norm(t);
+                assert!(
+                    (sum / area - 1.0).abs() < 0.05,
+                    "{aperture:?} t {t}: {sum} vs {area}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn near_field_coverage_is_the_far_field_turned_half_a_turn() {
+        let shape = GatherShape::new(&Aperture::parse("poly:5,rot=10").unwrap(), 4.0);
+        for o in &shape.offsets {
+            let twin = shape
+                .offsets
+                .iter()
+                .find(|p| p.i == -o.i && p.j == -o.j)
+                .unwrap();
+            assert_eq!(
+                shape.coverage(o, 3.0, true),
+                shape.coverage(twin, 3.0, false)
+            );
+        }
+    }
+
+    #[test]
+    fn bands_partition_the_radii_above_the_threshold() {
+        let levels = 6;
+        let mut prev = shape_threshold_px();
+        for s in FIRST_SHAPE_LEVEL..levels {
+            let (lo, hi) = band_px(s, levels);
+            assert_eq!(lo, prev);
+            prev = hi;
+        }
+        assert!(prev.is_infinite());
+        // Radius 12 px: levels 1 (4.5-10 px) and 2 (10-20 px) over level 0.
+        assert_eq!(levels_needed(12.0), 3);
+    }
+}
