@@ -454,15 +454,7 @@ pub(crate) fn for_each_covered_mask(
             if mask == 0 {
                 continue;
             }
-            let (mut cx, mut cy) = (0i32, 0i32);
-            for (s, &(sx, sy)) in COVERAGE_PATTERN.iter().enumerate() {
-                if mask & (1 << s) != 0 {
-                    cx += i32::from(sx);
-                    cy += i32::from(sy);
-                }
-            }
-            let n = mask.count_ones() as f32 * 32.0;
-            f(x, y, mask, Vec2::new(cx as f32 / n, cy as f32 / n));
+            f(x, y, mask, mask_centroid(mask));
         }
     });
 }
@@ -584,40 +576,82 @@ impl ShadingGroups {
     /// Writes the groups of `mask` (samples, centroid relative to the pixel centre in pixels)
     /// into `out`; returns how many. `centroid` is the whole mask's.
     fn split(self, mask: u16, centroid: Vec2, out: &mut [(u16, Vec2); BATCH]) -> usize {
-        let group_of = |s: usize| -> usize {
-            match self {
-                Self::Pixel => 0,
-                Self::Quadrants => {
-                    let (sx, sy) = COVERAGE_PATTERN[s];
-                    usize::from(sx > 0) + 2 * usize::from(sy > 0)
+        match self {
+            Self::Pixel => {
+                out[0] = (mask, centroid);
+                1
+            }
+            Self::Quadrants => {
+                let mut n = 0;
+                for quadrant in QUADRANT_MASKS {
+                    let bits = mask & quadrant;
+                    if bits != 0 {
+                        out[n] = (bits, mask_centroid(bits));
+                        n += 1;
+                    }
                 }
-                Self::Samples => s,
+                n
             }
-        };
-        if self == Self::Pixel {
-            out[0] = (mask, centroid);
-            return 1;
-        }
-        let mut bits = [0u16; BATCH];
-        let mut sum = [(0i32, 0i32); BATCH];
-        for (s, &(sx, sy)) in COVERAGE_PATTERN.iter().enumerate() {
-            if mask & (1 << s) != 0 {
-                let g = group_of(s);
-                bits[g] |= 1 << s;
-                sum[g].0 += i32::from(sx);
-                sum[g].1 += i32::from(sy);
+            Self::Samples => {
+                let mut n = 0;
+                let mut rest = mask;
+                while rest != 0 {
+                    let s = rest.trailing_zeros() as usize;
+                    rest &= rest - 1;
+                    let (sx, sy) = COVERAGE_PATTERN[s];
+                    out[n] = (1 << s, Vec2::new(f32::from(sx), f32::from(sy)) / 32.0);
+                    n += 1;
+                }
+                n
             }
         }
-        let mut n = 0;
-        for g in 0..self.lanes_per_pixel() {
-            if bits[g] != 0 {
-                let k = bits[g].count_ones() as f32 * 32.0;
-                out[n] = (bits[g], Vec2::new(sum[g].0 as f32 / k, sum[g].1 as f32 / k));
-                n += 1;
-            }
-        }
-        n
     }
+}
+
+/// The samples of each quadrant of the pixel (right of and below the centre set bits 1 and 2
+/// of the quadrant's index).
+const QUADRANT_MASKS: [u16; 4] = {
+    let mut masks = [0u16; 4];
+    let mut s = 0;
+    while s < COVERAGE_PATTERN.len() {
+        let (sx, sy) = COVERAGE_PATTERN[s];
+        masks[(sx > 0) as usize + 2 * (sy > 0) as usize] |= 1 << s;
+        s += 1;
+    }
+    masks
+};
+
+/// Per byte of a mask (low, high) and per value of that byte: the summed sample offsets
+/// (1/32 px) and the count of its samples, so a mask's centroid takes two lookups.
+const MASK_SUMS: [[(i16, i16, u8); 256]; 2] = {
+    let mut sums = [[(0i16, 0i16, 0u8); 256]; 2];
+    let mut half = 0;
+    while half < 2 {
+        let mut byte = 0;
+        while byte < 256 {
+            let mut bit = 0;
+            while bit < 8 {
+                if byte & (1 << bit) != 0 {
+                    let (sx, sy) = COVERAGE_PATTERN[8 * half + bit];
+                    let e = &mut sums[half][byte];
+                    *e = (e.0 + sx as i16, e.1 + sy as i16, e.2 + 1);
+                }
+                bit += 1;
+            }
+            byte += 1;
+        }
+        half += 1;
+    }
+    sums
+};
+
+/// Centroid of the samples of a non-empty `mask`, relative to the pixel centre, in pixels.
+#[inline]
+fn mask_centroid(mask: u16) -> Vec2 {
+    let lo = MASK_SUMS[0][usize::from(mask & 0xff)];
+    let hi = MASK_SUMS[1][usize::from(mask >> 8)];
+    let k = 32.0 * f32::from(lo.2 + hi.2);
+    Vec2::new(f32::from(lo.0 + hi.0) / k, f32::from(lo.1 + hi.1) / k)
 }
 
 /// Shading lanes of several pixels waiting to be shaded together (see [`ShadingGroups`]).

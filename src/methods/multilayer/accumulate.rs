@@ -43,24 +43,47 @@ pub fn level_weight(lambda: f32, s: usize, levels: usize) -> f32 {
     }
 }
 
-/// Blends the levels into the output image with the bokeh `settings` ask for: the paper's box
-/// ([`accumulate`]) or the aperture's shape ([`shape::accumulate_shape`]).
+/// The pixels of the levels' frame an accumulation outputs: the frame without its guard band.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Region {
+    /// Column of the region's left pixel in the levels' frame.
+    pub x0: usize,
+    /// Row of the region's top pixel in the levels' frame.
+    pub y0: usize,
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+}
+
+impl Region {
+    /// The whole `width` x `height` frame.
+    pub fn whole(width: usize, height: usize) -> Self {
+        Self {
+            x0: 0,
+            y0: 0,
+            width,
+            height,
+        }
+    }
+}
+
+/// Blends the levels into the output image of `region` with the bokeh `settings` ask for: the
+/// paper's box ([`accumulate`]) or the aperture's shape ([`shape::accumulate_shape`]).
 pub fn accumulate_for(
     levels: &[Level],
     borders: &Borders,
     settings: &MultilayerSettings,
-    width: usize,
-    height: usize,
+    region: Region,
 ) -> ColorImage {
     match settings.bokeh {
-        Bokeh::Box => accumulate(levels, borders, settings.epsilon, width, height),
+        Bokeh::Box => accumulate_with(levels, borders, settings.epsilon, region, accumulate_row),
         Bokeh::Shape => shape::accumulate_shape(
             levels,
             borders,
             &settings.aperture,
             settings.epsilon,
-            width,
-            height,
+            region,
         ),
     }
 }
@@ -71,18 +94,22 @@ pub fn accumulate_for_baseline(
     levels: &[Level],
     borders: &Borders,
     settings: &MultilayerSettings,
-    width: usize,
-    height: usize,
+    region: Region,
 ) -> ColorImage {
     match settings.bokeh {
-        Bokeh::Box => accumulate_baseline(levels, borders, settings.epsilon, width, height),
+        Bokeh::Box => accumulate_with(
+            levels,
+            borders,
+            settings.epsilon,
+            region,
+            accumulate_row_inner,
+        ),
         Bokeh::Shape => shape::accumulate_shape_baseline(
             levels,
             borders,
             &settings.aperture,
             settings.epsilon,
-            width,
-            height,
+            region,
         ),
     }
 }
@@ -96,7 +123,13 @@ pub fn accumulate(
     width: usize,
     height: usize,
 ) -> ColorImage {
-    accumulate_with(levels, borders, epsilon, width, height, accumulate_row)
+    accumulate_with(
+        levels,
+        borders,
+        epsilon,
+        Region::whole(width, height),
+        accumulate_row,
+    )
 }
 
 /// [`accumulate`] built for the portable baseline only (no run-time dispatch): the twin the
@@ -112,8 +145,7 @@ pub fn accumulate_baseline(
         levels,
         borders,
         epsilon,
-        width,
-        height,
+        Region::whole(width, height),
         accumulate_row_inner,
     )
 }
@@ -131,9 +163,8 @@ fn accumulate_with(
     levels: &[Level],
     borders: &Borders,
     epsilon: f32,
-    width: usize,
-    height: usize,
-    row_fn: impl Fn(&RowInputs, usize, &mut [Rgba]) + Sync,
+    region: Region,
+    row_fn: impl Fn(&RowInputs, usize, usize, &mut [Rgba]) + Sync,
 ) -> ColorImage {
     let n = levels.len();
     // Per level, the depths it can serve (weight above 0 needs lambda in (s - 1, s + 1)):
@@ -160,6 +191,12 @@ fn accumulate_with(
             (i0, i1, o0, o1)
         })
         .collect();
+    let Region {
+        x0,
+        y0,
+        width,
+        height,
+    } = region;
     let mut data = vec![[0.0f32; 4]; width * height];
     let inputs = RowInputs {
         levels,
@@ -169,7 +206,7 @@ fn accumulate_with(
     };
     data.par_chunks_mut(width.max(1))
         .enumerate()
-        .for_each(|(y, row)| row_fn(&inputs, y, row));
+        .for_each(|(y, row)| row_fn(&inputs, x0, y0 + y, row));
     ColorImage::from_vec(width, height, data).expect("sizes agree by construction")
 }
 
@@ -181,12 +218,12 @@ fn accumulate_with(
     "x86_64+avx2",
     "aarch64+neon"
 ))]
-fn accumulate_row(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
-    accumulate_row_inner(inputs, y, row);
+fn accumulate_row(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
+    accumulate_row_inner(inputs, x0, y, row);
 }
 
 #[inline(always)]
-fn accumulate_row_inner(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
+fn accumulate_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
     let RowInputs {
         levels,
         borders,
@@ -195,7 +232,7 @@ fn accumulate_row_inner(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
     } = *inputs;
     let n = levels.len();
     let mut entries: Vec<Entry> = Vec::new();
-    for (x, out) in row.iter_mut().enumerate() {
+    for (x, out) in (x0..).zip(row.iter_mut()) {
         entries.clear();
         for (s, level) in levels.iter().enumerate() {
             let (cx, cy) = level.cell_of_pixel(x, y);

@@ -445,7 +445,7 @@ pub fn render_baseline(
 }
 
 /// The accumulate pass's signature (see [`accumulate::accumulate_for`]).
-type AccumulateFn = fn(&[Level], &Borders, &MultilayerSettings, usize, usize) -> ColorImage;
+type AccumulateFn = fn(&[Level], &Borders, &MultilayerSettings, accumulate::Region) -> ColorImage;
 
 fn render_with(
     scene: &Scene,
@@ -471,11 +471,17 @@ fn render_with(
     let (levels, bytes) = timings.time(pass::FILTER, || {
         filter_with(&lists, &borders, settings, step_fn)
     });
-    let image = timings.time(pass::ACCUMULATE, || {
-        accumulate_fn(&levels, &borders, settings, lens.width_px, lens.height_px)
-    });
+    // Only the frame is accumulated; its guard band was needed by the filter.
     let (w, h) = (frame.width_px, frame.height_px);
-    let image = image.crop(guard, guard, w, h);
+    let region = accumulate::Region {
+        x0: guard,
+        y0: guard,
+        width: w,
+        height: h,
+    };
+    let image = timings.time(pass::ACCUMULATE, || {
+        accumulate_fn(&levels, &borders, settings, region)
+    });
     let depth = pinhole_depth(&levels[0]).crop(guard, guard, w, h);
     Ok(MethodOutput {
         image,

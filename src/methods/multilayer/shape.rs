@@ -36,7 +36,7 @@
 use glam::Vec2;
 use rayon::prelude::*;
 
-use super::accumulate::level_weight;
+use super::accumulate::{level_weight, Region};
 use super::filter::Level;
 use super::Borders;
 use crate::image::{ColorImage, Rgba};
@@ -409,6 +409,8 @@ struct GatherInputs<'a> {
     band: &'a BandLevel,
     reach: &'a Reach,
     shape: &'a GatherShape,
+    /// The first and last cell column read (others are left empty).
+    columns: (usize, usize),
     epsilon: f32,
 }
 
@@ -435,22 +437,21 @@ struct RowFns<G, P> {
     pixels: P,
 }
 
-/// Blends the levels into the output image with bokeh in the shape of `aperture`
+/// Blends the levels into the output image of `region` with bokeh in the shape of `aperture`
 /// (premultiplied linear RGBA).
 pub fn accumulate_shape(
     levels: &[Level],
     borders: &Borders,
     aperture: &Aperture,
     epsilon: f32,
-    width: usize,
-    height: usize,
+    region: Region,
 ) -> ColorImage {
     accumulate_shape_with(
         levels,
         borders,
         aperture,
         epsilon,
-        (width, height),
+        region,
         RowFns {
             gather: gather_row,
             pixels: shape_row,
@@ -465,15 +466,14 @@ pub fn accumulate_shape_baseline(
     borders: &Borders,
     aperture: &Aperture,
     epsilon: f32,
-    width: usize,
-    height: usize,
+    region: Region,
 ) -> ColorImage {
     accumulate_shape_with(
         levels,
         borders,
         aperture,
         epsilon,
-        (width, height),
+        region,
         RowFns {
             gather: gather_row_inner,
             pixels: shape_row_inner,
@@ -486,13 +486,19 @@ fn accumulate_shape_with<G, P>(
     borders: &Borders,
     aperture: &Aperture,
     epsilon: f32,
-    (width, height): (usize, usize),
+    region: Region,
     fns: RowFns<G, P>,
 ) -> ColorImage
 where
     G: Fn(&GatherInputs, usize) -> GatherRow + Sync,
-    P: Fn(&RowInputs, usize, &mut [Rgba]) + Sync,
+    P: Fn(&RowInputs, usize, usize, &mut [Rgba]) + Sync,
 {
+    let Region {
+        x0,
+        y0,
+        width,
+        height,
+    } = region;
     let n = levels.len();
     let threshold_px = if n > FIRST_SHAPE_LEVEL {
         shape_threshold_px()
@@ -506,9 +512,10 @@ where
     } else {
         n
     };
+    // Tiles of the levels' whole frame: fragments outside the region gather into it.
     let tiles = (
-        width.div_ceil(TILE_PX).max(1),
-        height.div_ceil(TILE_PX).max(1),
+        borders.lens.width_px.div_ceil(TILE_PX).max(1),
+        borders.lens.height_px.div_ceil(TILE_PX).max(1),
     );
     // The largest CoC radius in cells any level is asked for: the top band's fragments.
     let max_coc = levels
@@ -529,16 +536,26 @@ where
             let level = &levels[s];
             let band = BandLevel::new(level, borders, band_px(s, n));
             let reach = reach_of(level, &band, &shape, tiles)?;
+            // Only the cells the region's pixels read are gathered.
+            let (cx0, cy0) = level.cell_of_pixel(x0, y0);
+            let (cx1, cy1) = level.cell_of_pixel(x0 + width.max(1) - 1, y0 + height.max(1) - 1);
             let inputs = GatherInputs {
                 level,
                 band: &band,
                 reach: &reach,
                 shape: &shape,
+                columns: (cx0, cx1),
                 epsilon,
             };
             let rows: Vec<GatherRow> = (0..level.height)
                 .into_par_iter()
-                .map(|cy| (fns.gather)(&inputs, cy))
+                .map(|cy| {
+                    if (cy0..=cy1).contains(&cy) {
+                        (fns.gather)(&inputs, cy)
+                    } else {
+                        (vec![0; level.width], Vec::new(), Vec::new())
+                    }
+                })
                 .collect();
             let mut g = Gathered::default();
             g.offsets.push(0);
@@ -564,7 +581,7 @@ where
     let mut data = vec![[0.0f32; 4]; width * height];
     data.par_chunks_mut(width.max(1))
         .enumerate()
-        .for_each(|(y, row)| (fns.pixels)(&inputs, y, row));
+        .for_each(|(y, row)| (fns.pixels)(&inputs, x0, y0 + y, row));
     ColorImage::from_vec(width, height, data).expect("sizes agree by construction")
 }
 
@@ -680,6 +697,7 @@ fn gather_row_inner(inputs: &GatherInputs, cy: usize) -> GatherRow {
         band,
         reach,
         shape,
+        columns,
         epsilon,
     } = *inputs;
     let (w, h) = (level.width as isize, level.height as isize);
@@ -700,7 +718,7 @@ fn gather_row_inner(inputs: &GatherInputs, cy: usize) -> GatherRow {
     let mut groups: Vec<Group> = Vec::new();
     for cx in 0..level.width {
         let r_px = reach.tiles[ty * reach.tiles_x + tile_of(cx, reach.tiles_x)];
-        if r_px <= 0.0 {
+        if r_px <= 0.0 || cx < columns.0 || cx > columns.1 {
             counts.push(0);
             continue;
         }
@@ -762,12 +780,12 @@ fn gather_row_inner(inputs: &GatherInputs, cy: usize) -> GatherRow {
     "x86_64+avx2",
     "aarch64+neon"
 ))]
-fn shape_row(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
-    shape_row_inner(inputs, y, row);
+fn shape_row(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
+    shape_row_inner(inputs, x0, y, row);
 }
 
 #[inline(always)]
-fn shape_row_inner(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
+fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
     let RowInputs {
         levels,
         borders,
@@ -779,7 +797,7 @@ fn shape_row_inner(inputs: &RowInputs, y: usize, row: &mut [Rgba]) {
     let n = levels.len();
     let lens = borders.lens;
     let mut entries: Vec<(f32, Rgba)> = Vec::new();
-    for (x, out) in row.iter_mut().enumerate() {
+    for (x, out) in (x0..).zip(row.iter_mut()) {
         entries.clear();
         // CoCs below the threshold: one cell per level, as the paper.
         for (s, level) in levels.iter().enumerate().take(box_levels) {
