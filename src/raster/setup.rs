@@ -573,36 +573,41 @@ impl ShadingGroups {
         }
     }
 
-    /// Writes the groups of `mask` (samples, centroid relative to the pixel centre in pixels)
-    /// into `out`; returns how many. `centroid` is the whole mask's.
-    fn split(self, mask: u16, centroid: Vec2, out: &mut [(u16, Vec2); BATCH]) -> usize {
+    /// How many groups `mask` has (lanes it takes).
+    #[inline(always)]
+    fn count(self, mask: u16) -> usize {
         match self {
-            Self::Pixel => {
-                out[0] = (mask, centroid);
-                1
-            }
+            Self::Pixel => 1,
+            Self::Quadrants => QUADRANT_MASKS
+                .iter()
+                .map(|&q| usize::from(mask & q != 0))
+                .sum(),
+            Self::Samples => mask.count_ones() as usize,
+        }
+    }
+
+    /// Calls `f(samples, centroid)` for each group of `mask`, its centroid relative to the
+    /// pixel centre in pixels; `centroid` is the whole mask's.
+    #[inline(always)]
+    fn for_each(self, mask: u16, centroid: Vec2, mut f: impl FnMut(u16, Vec2)) {
+        match self {
+            Self::Pixel => f(mask, centroid),
             Self::Quadrants => {
-                let mut n = 0;
                 for quadrant in QUADRANT_MASKS {
                     let bits = mask & quadrant;
                     if bits != 0 {
-                        out[n] = (bits, mask_centroid(bits));
-                        n += 1;
+                        f(bits, mask_centroid(bits));
                     }
                 }
-                n
             }
             Self::Samples => {
-                let mut n = 0;
                 let mut rest = mask;
                 while rest != 0 {
                     let s = rest.trailing_zeros() as usize;
                     rest &= rest - 1;
                     let (sx, sy) = COVERAGE_PATTERN[s];
-                    out[n] = (1 << s, Vec2::new(f32::from(sx), f32::from(sy)) / 32.0);
-                    n += 1;
+                    f(1 << s, Vec2::new(f32::from(sx), f32::from(sy)) / 32.0);
                 }
-                n
             }
         }
     }
@@ -725,6 +730,40 @@ impl SampleBatch {
 /// (the product is +inf, never below the bound) and for products that underflow.
 const SURELY_BEHIND: f32 = 1.0 - 1.0 / (1u32 << 21) as f32;
 
+/// Depth of a coverage fragment of `tri` at pixel `(x, y)` whose plane gives `q` (1 / depth),
+/// kept within the triangle's depths, or `None` when `tile` hides it (opaque triangles only).
+/// Most fragments tested are hidden: a product settles them before the division does (see
+/// [`SURELY_BEHIND`]).
+#[inline(always)]
+fn visible_depth<T: TileSink>(
+    tile: &T,
+    tri: &SetupTriangle,
+    x: usize,
+    y: usize,
+    q: f32,
+) -> Option<f32> {
+    let depth_of = |q: f32| (1.0 / q).clamp(tri.nearest_m, tri.farthest_m);
+    if tri.blend {
+        return Some(depth_of(q));
+    }
+    let (x, y) = (x as u32, y as u32);
+    match tile.occlusion_row(y, x, x + 1) {
+        Some(&[farthest]) => {
+            // `1 / q >= farthest` and a triangle reaching `farthest` clamp to at least it.
+            if tri.nearest_m >= farthest || (q * farthest <= SURELY_BEHIND && tri.farthest_m >= farthest)
+            {
+                return None;
+            }
+            let depth_m = depth_of(q);
+            (depth_m < farthest).then_some(depth_m)
+        }
+        _ => {
+            let depth_m = depth_of(q);
+            (!tile.occluded(x, y, depth_m)).then_some(depth_m)
+        }
+    }
+}
+
 /// Rasterizes `tri` within `rect` into `tile` (pass `raster`). `lod_bias` is added to the
 /// texture level of detail (negative when each pixel is supersampled).
 ///
@@ -817,10 +856,9 @@ pub(crate) fn raster_triangle<T: TileSink>(
         if flat.is_some() {
             for_each_covered_mask(tri, rect, |x, y, mask, c| {
                 let e = plane(x, y as f32 + 0.5 - origin_y + c.y) + p1 * c.x;
-                let depth_m = (1.0 / e.x).clamp(tri.nearest_m, tri.farthest_m);
-                if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
+                let Some(depth_m) = visible_depth(tile, tri, x, y, e.x) else {
                     return;
-                }
+                };
                 if pending.push_masked(x, y, depth_m, e, mask) {
                     shade_and_emit(pending, tile);
                 }
@@ -842,33 +880,36 @@ pub(crate) fn raster_triangle<T: TileSink>(
             for_each_covered_mask(tri, rect, |x, y, mask, c| {
                 let fy = y as f32 + 0.5 - origin_y;
                 let e = plane(x, fy + c.y) + p1 * c.x;
-                let depth_m = (1.0 / e.x).clamp(tri.nearest_m, tri.farthest_m);
-                if !tri.blend && tile.occluded(x as u32, y as u32, depth_m) {
+                let Some(depth_m) = visible_depth(tile, tri, x, y, e.x) else {
                     return;
-                }
-                let mut lanes = [(0u16, Vec2::ZERO); BATCH];
-                let n = groups.split(mask, c, &mut lanes);
-                if batch.lanes + n > BATCH || batch.pixels == BATCH {
+                };
+                if batch.lanes + groups.count(mask) > BATCH || batch.pixels == BATCH {
                     batch.flush(&fine, sample_uv, sample_colors, tri.blend, tile);
                 }
                 let slot = batch.pixels;
                 batch.pixels += 1;
                 batch.pixel[slot] = (x as u32, y as u32, depth_m);
-                for &(bits, g) in &lanes[..n] {
-                    let e = plane(x, fy + g.y) + p1 * g.x;
-                    let (q, uq, vq) = (e.x, e.y, e.z);
-                    let (u, v) = (uq / q, vq / q);
-                    let (qx, qy) = (q + pq[1], q + pq[2]);
+                // Texture coordinates and their derivatives at the centroid (one set of
+                // divisions a pixel); each group's coordinates are carried from there along
+                // the derivatives (the perspective's second-order term across a fraction of a
+                // pixel is far below a texel).
+                let (q, uq, vq) = (e.x, e.y, e.z);
+                let (u, v) = (uq / q, vq / q);
+                let (qx, qy) = (q + pq[1], q + pq[2]);
+                let (du_dx, dv_dx) = ((uq + pu[1]) / qx - u, (vq + pv[1]) / qx - v);
+                let (du_dy, dv_dy) = ((uq + pu[2]) / qy - u, (vq + pv[2]) / qy - v);
+                groups.for_each(mask, c, |bits, g| {
+                    let d = g - c;
                     let i = batch.lanes;
-                    sample_uv.u[i] = u;
-                    sample_uv.v[i] = v;
-                    sample_uv.du_dx[i] = (uq + pu[1]) / qx - u;
-                    sample_uv.dv_dx[i] = (vq + pv[1]) / qx - v;
-                    sample_uv.du_dy[i] = (uq + pu[2]) / qy - u;
-                    sample_uv.dv_dy[i] = (vq + pv[2]) / qy - v;
+                    sample_uv.u[i] = u + du_dx * d.x + du_dy * d.y;
+                    sample_uv.v[i] = v + dv_dx * d.x + dv_dy * d.y;
+                    sample_uv.du_dx[i] = du_dx;
+                    sample_uv.dv_dx[i] = dv_dx;
+                    sample_uv.du_dy[i] = du_dy;
+                    sample_uv.dv_dy[i] = dv_dy;
                     batch.lane[i] = (slot as u8, bits);
                     batch.lanes += 1;
-                }
+                });
             });
             batch.flush(&fine, sample_uv, sample_colors, tri.blend, tile);
         }
