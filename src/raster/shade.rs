@@ -22,6 +22,10 @@ pub(crate) struct Shader<'a> {
     emissive: Option<Slot<'a>>,
     emission: [f32; 3],
     lod_bias: f32,
+    /// Alpha to coverage: an alpha-mask material returns the share of the lookup's footprint
+    /// it keeps as alpha instead of testing it against the cutoff (see
+    /// [`Shader::with_alpha_to_coverage`]).
+    alpha_to_coverage: bool,
 }
 
 impl<'a> Shader<'a> {
@@ -34,7 +38,27 @@ impl<'a> Shader<'a> {
             emissive: bind(&material.emissive_texture),
             emission: material.emissive.map(|e| e * material.emissive_strength),
             lod_bias,
+            alpha_to_coverage: false,
         }
+    }
+
+    /// The same shader with alpha to coverage, for an alpha-mask material whose base colour
+    /// texture has two-valued alpha ([`Texture::has_two_valued_alpha`]): the filtered alpha of
+    /// a lookup is then the share of its footprint that is opaque, and the shader returns it
+    /// as alpha (0 where the base colour factor's alpha is below the cutoff: nothing passes)
+    /// instead of one test at the lookup's centre. `None` for other materials.
+    pub(crate) fn with_alpha_to_coverage(self, textures: &[Texture]) -> Option<Self> {
+        let AlphaMode::Mask { .. } = self.material.alpha_mode else {
+            return None;
+        };
+        let binding = self.material.base_color_texture.as_ref()?;
+        textures
+            .get(binding.texture)?
+            .has_two_valued_alpha()
+            .then_some(Self {
+                alpha_to_coverage: true,
+                ..self
+            })
     }
 
     /// True when shading reads texture coordinates.
@@ -75,9 +99,15 @@ impl<'a> Shader<'a> {
             let mut m = 0;
             for (i, &b) in bound.iter().enumerate().take(n) {
                 kept[m] = i;
-                // Kept unless bounded below the cutoff (a NaN bound keeps it).
+                // Kept unless bounded below the cutoff (a NaN bound keeps it); with alpha to
+                // coverage, unless bounded at 0.
                 let bound = factor * b * ALPHA_BOUND_MARGIN;
-                m += usize::from(bound >= cutoff || bound.is_nan());
+                let least = if self.alpha_to_coverage {
+                    f32::MIN_POSITIVE
+                } else {
+                    cutoff
+                };
+                m += usize::from(bound >= least || bound.is_nan());
             }
             if m == 0 {
                 out[..n].fill(None);
@@ -157,6 +187,18 @@ impl<'a> Shader<'a> {
         }
         let alpha = match m.alpha_mode {
             AlphaMode::Opaque => 1.0,
+            AlphaMode::Mask { cutoff } if self.alpha_to_coverage => {
+                // The texture's filtered alpha is the share kept when the factor passes.
+                let share = if m.base_color[3] >= cutoff {
+                    (c[3] / m.base_color[3]).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                if share.is_nan() || share <= 0.0 {
+                    return None;
+                }
+                share
+            }
             AlphaMode::Mask { cutoff } => {
                 if c[3] < cutoff {
                     return None;

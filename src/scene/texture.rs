@@ -61,6 +61,9 @@ pub struct Texture {
     levels: Vec<ColorImage>,
     /// Bounds on the alpha of lookups, made the first time an alpha-tested material asks.
     alpha_bounds: OnceLock<AlphaBounds>,
+    /// Whether the alpha is two-valued ([`Texture::has_two_valued_alpha`]), found the first
+    /// time it is asked.
+    two_valued_alpha: OnceLock<bool>,
 }
 
 impl PartialEq for Texture {
@@ -73,6 +76,15 @@ impl PartialEq for Texture {
 /// Largest mean alpha of a texture for which alpha-mask materials take the early alpha test
 /// (see [`Texture::wants_early_alpha_test`]).
 pub(crate) const EARLY_ALPHA_TEST_MAX_MEAN: f32 = 0.5;
+
+/// Alpha below which a texel counts as transparent, and above one minus which as opaque, in
+/// [`Texture::has_two_valued_alpha`].
+const TWO_VALUED_LOW: f32 = 0.02;
+
+/// Largest share of the visible texels with alpha between transparent and opaque for
+/// [`Texture::has_two_valued_alpha`]: an anti-aliased edge one or two texels wide around
+/// shapes several texels across.
+const TWO_VALUED_MAX_EDGE: f32 = 0.25;
 
 /// Texels per side of the cells of [`AlphaBounds`].
 const BOUND_CELL: usize = 4;
@@ -251,7 +263,25 @@ impl Texture {
         Self {
             levels,
             alpha_bounds: OnceLock::new(),
+            two_valued_alpha: OnceLock::new(),
         }
+    }
+
+    /// True when the alpha of level 0 is two-valued, a cut-out: of the texels not transparent
+    /// (alpha at least [`TWO_VALUED_LOW`]), at most [`TWO_VALUED_MAX_EDGE`] lie between
+    /// transparent and opaque (their anti-aliased edge). Then a lookup's filtered alpha is the
+    /// share of its footprint that is opaque, whatever the alpha-mask cutoff, and an alpha-mask
+    /// material can take its coverage from one lookup (alpha to coverage).
+    pub(crate) fn has_two_valued_alpha(&self) -> bool {
+        *self.two_valued_alpha.get_or_init(|| {
+            let (mut seen, mut between) = (0usize, 0usize);
+            for p in self.levels[0].pixels() {
+                let a = p[3];
+                seen += usize::from(a >= TWO_VALUED_LOW);
+                between += usize::from(a >= TWO_VALUED_LOW && a <= 1.0 - TWO_VALUED_LOW);
+            }
+            seen > 0 && between as f32 <= TWO_VALUED_MAX_EDGE * seen as f32
+        })
     }
 
     /// True when the early alpha test pays for alpha-mask materials with this texture: when
@@ -831,6 +861,26 @@ fn wrap(i: i32, n: i32, mode: WrapMode) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A cut-out with an anti-aliased rim is two-valued; a soft ramp of alpha is not.
+    #[test]
+    fn two_valued_alpha_is_told_from_a_ramp() {
+        let n = 64;
+        let disc = |x: usize, y: usize| {
+            let d = ((x as f32 - 32.0).powi(2) + (y as f32 - 32.0).powi(2)).sqrt();
+            (20.0 - d + 0.5).clamp(0.0, 1.0)
+        };
+        let image = |f: &dyn Fn(usize, usize) -> f32| {
+            let data = (0..n * n)
+                .map(|i| [0.5, 0.5, 0.5, f(i % n, i / n)])
+                .collect();
+            ColorImage::from_vec(n, n, data).expect("size")
+        };
+        assert!(Texture::new(image(&disc)).has_two_valued_alpha());
+        let ramp = |x: usize, _y: usize| x as f32 / (n - 1) as f32;
+        assert!(!Texture::new(image(&ramp)).has_two_valued_alpha());
+        assert!(!Texture::new(image(&|_, _| 0.0)).has_two_valued_alpha());
+    }
 
     #[test]
     fn floor_small_is_floor() {
