@@ -531,17 +531,18 @@ impl PendingPixels {
 }
 
 /// How the covered samples of a textured fragment are grouped for shading (one lookup a
-/// group). A trilinear texture lookup at the pixel's footprint is already the pixel's average,
-/// so one group suffices; an alpha-mask material's cut-out edge is a threshold inside the
-/// pixel, resolved by four groups (the pixel's quadrants, each with its own alpha test); a
-/// texture filtered with nearest texels (a chart drawn texel for texel) varies stepwise inside
-/// the pixel and takes every sample. Measured on `grass` (alpha-cut blades) at 1280x720,
-/// `multilayer/collect`: 4.4 s with every sample shaded, 2.3 s with quadrants, 0.9 s with one
-/// group (0.4 s at pixel centres without coverage); one group instead of quadrants costs
-/// 3.1 dB on `grass` and 13 dB on the Cycles foliage scene (its leaves' edges alias). A
-/// cut-out texture of two-valued alpha takes one group with alpha to coverage instead
-/// ([`shade::Shader::with_alpha_to_coverage`], [`A2C_BIAS`]): `grass`'s collect 1.3 s with
-/// quadrants, 0.7 s so.
+/// group). `reference` averages many views of point-like lookups, the exact box filter of the
+/// texture over the pixel; one trilinear lookup at the pixel's footprint is a wider, mip-shaped
+/// filter, and a minified chart loses its edges (`railing` at 640x360, `multilayer` against
+/// `reference` at 1024 samples: 31.3 dB with one lookup a pixel, 35.8 with quadrants, 36.2
+/// with every sample). So a trilinear texture takes four groups (the pixel's quadrants, each
+/// a lookup with a quarter of the footprint, and an alpha-mask material its own alpha test in
+/// each); a texture filtered with nearest texels (a chart drawn texel for texel) varies
+/// stepwise inside the pixel and takes every sample. One group is for alpha to coverage: a
+/// cut-out of two-valued alpha takes its coverage from one sharper lookup
+/// ([`shade::Shader::with_alpha_to_coverage`], [`A2C_BIAS`]). Measured on `grass` (alpha-cut
+/// blades) at 1280x720, `multilayer/collect`: 4.4 s with every sample, 1.3 s with quadrants,
+/// 0.7 s with alpha to coverage (0.3 s at pixel centres without coverage).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum ShadingGroups {
     Pixel,
@@ -561,10 +562,8 @@ impl ShadingGroups {
             });
         if nearest {
             Self::Samples
-        } else if matches!(material.alpha_mode, crate::scene::AlphaMode::Mask { .. }) {
-            Self::Quadrants
         } else {
-            Self::Pixel
+            Self::Quadrants
         }
     }
 
