@@ -278,7 +278,7 @@ impl Texture {
             for p in self.levels[0].pixels() {
                 let a = p[3];
                 seen += usize::from(a >= TWO_VALUED_LOW);
-                between += usize::from(a >= TWO_VALUED_LOW && a <= 1.0 - TWO_VALUED_LOW);
+                between += usize::from((TWO_VALUED_LOW..=1.0 - TWO_VALUED_LOW).contains(&a));
             }
             seen > 0 && between as f32 <= TWO_VALUED_MAX_EDGE * seen as f32
         })

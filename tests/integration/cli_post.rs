@@ -536,6 +536,46 @@ fn blur_writes_the_signed_coc_map_of_the_thin_lens() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// A NaN in the image to filter is refused naming the file and the pixel (a filter would
+/// spread it over its whole kernel), unless --sanitize sets it to 0.
+#[test]
+fn kernel_filter_refuses_nan_colour_unless_sanitized() {
+    let dir = temp_dir("kfilter-nan");
+    let mut img = ColorImage::new(33, 33, [0.5, 0.5, 0.5, 1.0]);
+    *img.get_mut(7, 9) = [f32::NAN, 0.5, 0.5, 1.0];
+    let input = dir.join("nan.exr");
+    io::write_color(&input, &img).unwrap();
+    let out = dir.join("out.exr");
+    let args = |sanitize: bool| {
+        let mut a = vec![
+            "kernel",
+            "--size",
+            "9",
+            "--filter",
+            s(&input),
+            "--filter-out",
+            s(&out),
+        ];
+        if sanitize {
+            a.push("--sanitize");
+        }
+        defocus(&a)
+    };
+    let o = args(false);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("nan.exr") && e.contains("(7, 9)"), "{e}");
+    assert!(!out.exists());
+    let o = args(true);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let blurred = io::read_color(&out).unwrap();
+    assert!(blurred
+        .pixels()
+        .iter()
+        .all(|p| p.iter().all(|v| v.is_finite())));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn kernel_filter_blurs_an_image_with_the_low_rank_and_the_full_kernel() {
     let dir = temp_dir("kfilter");

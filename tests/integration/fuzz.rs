@@ -238,6 +238,14 @@ fn absurd_numeric_flags_are_refused_naming_the_flag() {
         ),
         (&["--method", "splat", "--merge", "3"], "merge"),
         (&["--method", "splat", "--group", "nan"], "group"),
+        // Flags of a method that is not run are checked all the same.
+        (&["--method", "hammon", "--max-coc", "nan"], "max CoC"),
+        (&["--method", "pinhole", "--epsilon", "-1"], "epsilon"),
+        (&["--method", "reference", "--merge", "3"], "merge"),
+        (
+            &["--method", "hammon", "--filter-steps", "0/0"],
+            "filter-steps",
+        ),
     ];
     for (args, needle) in cases {
         let mut a = vec!["render", "--out", s(&out)];

@@ -60,6 +60,10 @@ pub struct KernelArgs {
     /// approximates) into this file, and print the difference and both times.
     #[arg(long, value_name = "FILE", requires = "filter")]
     pub full_2d_out: Option<PathBuf>,
+    /// Replace NaN and infinite colour values of --filter by 0 (and say how many) instead of
+    /// refusing them (a filter spreads each over its whole kernel).
+    #[arg(long, requires = "filter")]
+    pub sanitize: bool,
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
@@ -246,7 +250,18 @@ fn filter_image(
     rank: usize,
     set: &mut io::OutputSet,
 ) -> Result<Filtered> {
-    let img = io::read_color(input)?;
+    let mut img = io::read_color(input)?;
+    if a.sanitize {
+        let n = io::sanitize_color(&mut img);
+        if n > 0 {
+            eprintln!(
+                "--sanitize: {n} pixel(s) of {} had NaN or infinite values, set to 0",
+                defocus::error::shown(input)
+            );
+        }
+    } else {
+        io::check_finite_color(input, &img)?;
+    }
     let start = std::time::Instant::now();
     let schedule = match a.schedule {
         ScheduleArg::Banded => Schedule::Banded,

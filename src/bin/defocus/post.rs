@@ -258,10 +258,43 @@ impl PostArgs {
         }
     }
 
+    /// True when `--large-blur-coc auto` is given (resolved against the run's lens).
+    pub fn large_blur_coc_is_auto(&self) -> bool {
+        self.large_blur_coc.as_deref().map(str::trim) == Some("auto")
+    }
+
     /// The settings of the method `method` (a registry id) for a frame `height_px` rows high, seen through `lens` (needed
     /// by `--large-blur-coc auto`), with the aperture and seed of the run. Every range is
     /// checked here, before any image is read or rendered.
     pub fn settings(
+        &self,
+        method: &str,
+        aperture: &Aperture,
+        seed: u64,
+        height_px: usize,
+        lens: Option<&ThinLens>,
+    ) -> Result<MethodSettings> {
+        let settings = self.settings_of(method, aperture, seed, height_px, lens)?;
+        // The flags of the other methods are range-checked too: a bad value is a mistake
+        // whichever method runs (`--max-coc nan` with `hammon` is refused, not ignored).
+        for other in FLAGGED_METHODS {
+            if other == method {
+                continue;
+            }
+            // `--large-blur-coc auto` is resolved against the lens of a `hammon` run only.
+            if other == "hammon" && lens.is_none() && self.large_blur_coc_is_auto() {
+                continue;
+            }
+            self.settings_of(other, aperture, seed, height_px, lens)
+                .with_context(|| {
+                    format!("a flag of method {other} (not the one run, {method}) is out of range")
+                })?;
+        }
+        Ok(settings)
+    }
+
+    /// [`PostArgs::settings`] of one method, without checking the flags of the others.
+    fn settings_of(
         &self,
         method: &str,
         aperture: &Aperture,
@@ -416,6 +449,17 @@ impl PostArgs {
         Ok(s)
     }
 }
+
+/// The methods with flags of their own, each checked by [`PostArgs::settings`] whichever runs.
+const FLAGGED_METHODS: [&str; 7] = [
+    "hammon",
+    "lowrank",
+    "gaussian",
+    "poisson",
+    "splat",
+    "multiview",
+    "multilayer",
+];
 
 fn check_taps(flag: &str, n: usize) -> Result<()> {
     if !(1..=poisson::MAX_TAPS).contains(&n) {

@@ -207,6 +207,37 @@ fn apply_setting(
     Ok(())
 }
 
+/// Checks the flags of `run` (its sweep value applied) as the run itself would, without
+/// reading or rendering anything: a bad sweep value fails the report before its first render.
+fn check_run(a: &CompareArgs, run: &Run) -> Result<()> {
+    let mut post = a.post.clone();
+    let mut samples = a.samples;
+    apply_setting(&mut post, &mut samples, &run.setting)?;
+    let what = || match &run.setting {
+        Some((k, v)) => format!("invalid --sweep {k}={v}"),
+        None => format!("invalid flags for {}", run.info.id),
+    };
+    if let Some(n) = samples {
+        if !(1..=1 << 20).contains(&n) {
+            bail!("{}: expected --samples 1 to {}", what(), 1 << 20);
+        }
+    }
+    // `--large-blur-coc auto` needs the run's lens, resolved when it runs.
+    if post.large_blur_coc_is_auto() {
+        post.large_blur_coc = None;
+    }
+    let height = a.height.unwrap_or(720);
+    post.settings(
+        run.info.id,
+        &defocus::lens::Aperture::Disc,
+        a.seed,
+        height,
+        None,
+    )
+    .with_context(what)?;
+    Ok(())
+}
+
 /// The `render` flags of a run on a scene.
 fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> RenderArgs {
     RenderArgs {
@@ -291,6 +322,10 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     let methods = parse_methods(&a.methods)?;
     let sweeps = parse_sweeps(&a.sweep)?;
     let runs = runs(&methods, &sweeps);
+    // Every run's flags, sweep values included, are checked before anything is rendered.
+    for run in &runs {
+        check_run(a, run)?;
+    }
     std::fs::create_dir_all(&dir)
         .with_context(|| format!("could not create the report folder {}", shown(&dir)))?;
     let bar = progress_bar(quiet, runs.len() as u64 + 1, "methods");
@@ -343,6 +378,20 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         let truth_path = a.truth.clone().context("--truth")?;
         let truth = io::read_color(&truth_path)?;
         let color_path = a.color.clone().context("--color")?;
+        // A truth of another size fails every run: refused before the first.
+        let color = io::read_color(&color_path)?;
+        if !color.same_size(&truth) {
+            bail!(
+                "--truth {} is {}x{} but --color {} is {}x{}: expected the same size",
+                shown(&truth_path),
+                truth.width(),
+                truth.height(),
+                shown(&color_path),
+                color.width(),
+                color.height()
+            );
+        }
+        drop(color);
         parameters.extend([
             ("colour".to_string(), shown(&color_path)),
             (

@@ -116,6 +116,12 @@ impl FilterSteps {
 
     fn validate(&self) -> Result<()> {
         if let Self::Fixed { mip, stack } = *self {
+            if mip + stack == 0 {
+                return Err(Error::invalid(
+                    "filter steps",
+                    format!("{mip}/{stack}: expected at least one step (no step blurs nothing)"),
+                ));
+            }
             if mip + stack > MAX_FILTER_STEPS {
                 return Err(Error::invalid(
                     "filter steps",

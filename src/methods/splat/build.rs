@@ -240,27 +240,67 @@ type ChunkLists = (Vec<usize>, Vec<(u32, u32)>);
 fn tile_range(
     f: &SplatFragment,
     merge: usize,
-    tiles_x: usize,
-    tiles_y: usize,
+    window: &TileWindow,
 ) -> (usize, usize, usize, usize) {
     let c = f.centre();
     let r = reach_px(f.coc_px, f.soft_px(merge));
     let t = TILE_PX as f32;
-    let clamp = |v: f32, n: usize| ((v / t).floor().max(0.0) as usize).min(n - 1);
+    let tile = |v: f32| (v / t).floor();
+    let (ax, bx, ay, by) = (tile(c.x - r), tile(c.x + r), tile(c.y - r), tile(c.y + r));
+    let (wx, wy) = (
+        (window.x.0 as f32, window.x.1 as f32),
+        (window.y.0 as f32, window.y.1 as f32),
+    );
+    // Not `!(a <= b)`-style: a NaN reach also lands in the empty range.
+    if !(bx >= wx.0 && ax <= wx.1 && by >= wy.0 && ay <= wy.1) {
+        return (1, 0, 1, 0);
+    }
     (
-        clamp(c.x - r, tiles_x),
-        clamp(c.x + r, tiles_x),
-        clamp(c.y - r, tiles_y),
-        clamp(c.y + r, tiles_y),
+        ax.max(wx.0) as usize,
+        bx.min(wx.1) as usize,
+        ay.max(wy.0) as usize,
+        by.min(wy.1) as usize,
     )
 }
 
-/// Distributes `fragments` into the lists of the tiles they overlap (count, prefix sum, fill).
+/// The tiles that receive fragments: first and last column and row (inclusive).
+#[derive(Clone, Copy, Debug)]
+pub struct TileWindow {
+    /// First and last tile column.
+    pub x: (usize, usize),
+    /// First and last tile row.
+    pub y: (usize, usize),
+}
+
+impl TileWindow {
+    /// The tiles of a `width` x `height` frame that hold pixels of the rectangle of `width_px`
+    /// x `height_px` pixels at `(x0, y0)` (the whole frame: `(0, 0, width, height)`).
+    pub fn of(
+        width: usize,
+        height: usize,
+        (x0, y0, width_px, height_px): (usize, usize, usize, usize),
+    ) -> Self {
+        let tiles_x = width.div_ceil(TILE_PX).max(1);
+        let tiles_y = height.div_ceil(TILE_PX).max(1);
+        let last = |p: usize, n: usize, tiles: usize| ((p + n.max(1) - 1) / TILE_PX).min(tiles - 1);
+        Self {
+            x: ((x0 / TILE_PX).min(tiles_x - 1), last(x0, width_px, tiles_x)),
+            y: (
+                (y0 / TILE_PX).min(tiles_y - 1),
+                last(y0, height_px, tiles_y),
+            ),
+        }
+    }
+}
+
+/// Distributes `fragments` into the lists of the tiles of `window` they overlap (count, prefix
+/// sum, fill); a fragment that reaches none of them is left out.
 pub fn distribute(
     fragments: &[SplatFragment],
     merge: usize,
     width: usize,
     height: usize,
+    window: &TileWindow,
 ) -> crate::Result<TileLists> {
     let tiles_x = width.div_ceil(TILE_PX).max(1);
     let tiles_y = height.div_ceil(TILE_PX).max(1);
@@ -273,7 +313,7 @@ pub fn distribute(
         .map(|ch| {
             let mut count = vec![0u32; tiles];
             for f in ch.iter() {
-                let (x0, x1, y0, y1) = tile_range(f, merge, tiles_x, tiles_y);
+                let (x0, x1, y0, y1) = tile_range(f, merge, window);
                 for ty in y0..=y1 {
                     for tx in x0..=x1 {
                         count[ty * tiles_x + tx] += 1;
@@ -305,7 +345,7 @@ pub fn distribute(
             let mut buf = vec![(0u32, 0u32); off[tiles]];
             let first = c * chunk;
             for (i, f) in ch.iter().enumerate() {
-                let (x0, x1, y0, y1) = tile_range(f, merge, tiles_x, tiles_y);
+                let (x0, x1, y0, y1) = tile_range(f, merge, window);
                 let k = super::sort::key(f.coc_px);
                 for ty in y0..=y1 {
                     for tx in x0..=x1 {

@@ -144,6 +144,7 @@ fn splat(
     layers: &build::PixelLayers,
     width: usize,
     height: usize,
+    region: (usize, usize, usize, usize),
     settings: &SplatSettings,
     timings: &mut Timings,
     blend_fn: BlendFn,
@@ -170,7 +171,9 @@ fn splat(
                 )
             })
             .collect();
-        let lists = build::distribute(&fragments, settings.merge, width, height);
+        // Only the tiles of the region are blended (the guard band around it is a source).
+        let window = build::TileWindow::of(width, height, region);
+        let lists = build::distribute(&fragments, settings.merge, width, height, &window);
         (fragments, norms, lists)
     });
     let mut lists = lists?;
@@ -264,6 +267,7 @@ fn render_detailed_with(
         &layers,
         color.width(),
         color.height(),
+        (0, 0, color.width(), color.height()),
         settings,
         &mut timings,
         blend_fn,
@@ -321,15 +325,16 @@ pub fn render_scene(
     for f in layers.items_mut() {
         f.1 = f.1.clamp(-max, max);
     }
+    let (w, h) = (frame.width_px, frame.height_px);
     let (image, stats, bytes) = splat(
         &layers,
         lens.width_px,
         lens.height_px,
+        (guard, guard, w, h),
         settings,
         &mut timings,
         blend::blend,
     )?;
-    let (w, h) = (frame.width_px, frame.height_px);
     let image = image.crop(guard, guard, w, h);
     let depth = GrayImage::from_vec(lens.width_px, lens.height_px, lists.nearest_depth())?
         .crop(guard, guard, w, h);
