@@ -61,12 +61,21 @@ pub struct Metrics {
 
 /// Computes all of [`Metrics`] for `a` against `b` (symmetric).
 pub fn compare(a: &ColorImage, b: &ColorImage) -> Result<Metrics> {
+    // The SSIM's luma planes, window sums and map, in double precision where they add up.
+    crate::budget::check(
+        a.pixels().len() as u64 * COMPARE_BYTES_PER_PIXEL,
+        &format!("comparing {}x{} images", a.width(), a.height()),
+        "the images' size",
+    )?;
     Ok(Metrics {
         mse_linear: mse_linear(a, b)?,
         psnr_db: psnr_srgb(a, b)?,
         ssim: ssim_srgb_luma(a, b)?,
     })
 }
+
+/// Scratch bytes a pixel of [`compare`] can take besides the two images.
+const COMPARE_BYTES_PER_PIXEL: u64 = 64;
 
 /// Fails with [`Error::Mismatch`] naming both sizes unless the images have the same size, and
 /// with [`Error::Invalid`] if they are empty.

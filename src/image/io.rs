@@ -229,7 +229,13 @@ fn input_format(path: &Path, role: &'static str) -> Result<FileFormat> {
     }
 }
 
-/// [`check_size`] for a size read from a file header: the error names the file.
+/// Bytes a pixel of a decoded image can take at the peak of a read: the image (RGBA, 4 floats)
+/// and the decoder's own buffer of the file's samples (up to as many again).
+const DECODE_BYTES_PER_PIXEL: u64 = 32;
+
+/// [`check_size`] for a size read from a file header: the error names the file. The decoded
+/// size is also held against the memory budget ([`crate::budget`]) before any pixel memory is
+/// allocated (a small compressed file can claim a huge image).
 fn check_file_size(path: &Path, width: usize, height: usize) -> Result<()> {
     check_size(width, height).map_err(|e| {
         let reason = match e {
@@ -237,7 +243,12 @@ fn check_file_size(path: &Path, width: usize, height: usize) -> Result<()> {
             other => other.to_string(),
         };
         Error::format(path, format!("image size from the header: {reason}"))
-    })
+    })?;
+    crate::budget::check(
+        (width * height) as u64 * DECODE_BYTES_PER_PIXEL,
+        &format!("decoding {} ({width}x{height})", shown(&path)),
+        "the image's size",
+    )
 }
 
 /// Opens a file for reading; a missing or unreadable file is an [`Error::Io`] naming it.

@@ -239,10 +239,47 @@ pub struct Frame<'a> {
     pub lens: &'a ThinLens,
 }
 
+/// Memory a run takes besides its images: the program, its threads and their stacks, the
+/// scene (measured: 55-60 MiB for a 1280x720 `reference` run of `railing`, most of it fixed).
+pub const FIXED_PEAK_BYTES: u64 = 64 << 20;
+
+/// Estimated peak bytes a pixel of a run of `settings` takes, for the methods whose memory is
+/// proportional to the frame: its input frame (colour and depth), scratch and output. Measured
+/// as the largest resident size of `render --scene railing` at 1280x720 and 2560x1440 (the
+/// difference over the difference in pixels), rounded up by a quarter: `reference` and
+/// `pinhole` 32-40, `hammon`, `gaussian` and `poisson` 56, `lowrank` 81 bytes a pixel. The
+/// layered methods and `splat`'s tile lists grow with their options and the CoCs: they check
+/// their own estimates before allocating (`multilayer::peak_bytes`, `multiview::peak_bytes`,
+/// `splat`'s lists), and count here only the frame they start from.
+pub fn peak_bytes_per_pixel(settings: &MethodSettings) -> u64 {
+    match settings {
+        MethodSettings::Reference(_) | MethodSettings::Pinhole(_) => 50,
+        MethodSettings::Lowrank(_) => 100,
+        _ => 70,
+    }
+}
+
+/// Estimated peak bytes of a run of `settings` on a `width` x `height` frame (see
+/// [`peak_bytes_per_pixel`]).
+pub fn peak_bytes(settings: &MethodSettings, width: usize, height: usize) -> u64 {
+    FIXED_PEAK_BYTES + (width as u64 * height as u64) * peak_bytes_per_pixel(settings)
+}
+
+/// Refuses a run whose estimated peak ([`peak_bytes`]) exceeds the memory budget, before
+/// anything is allocated.
+pub fn check_budget(settings: &MethodSettings, width: usize, height: usize) -> Result<()> {
+    crate::budget::check(
+        peak_bytes(settings, width, height),
+        &format!("{} at {width}x{height}", settings.id()),
+        "the resolution",
+    )
+}
+
 /// Runs a method that reads a pinhole frame. A method that needs a scene is refused with a
 /// message that says what it needs.
 pub fn run_frame(settings: &MethodSettings, frame: &Frame) -> Result<MethodOutput> {
     let (c, d, l) = (frame.color, frame.depth, frame.lens);
+    check_budget(settings, c.width(), c.height())?;
     match settings {
         MethodSettings::Hammon(s) => hammon::render(c, d, l, s),
         MethodSettings::Lowrank(s) => lowrank::render(c, d, l, s),
@@ -308,6 +345,7 @@ pub fn run_scene(
     options: &SceneOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<MethodOutput> {
+    check_budget(settings, camera.width_px, camera.height_px)?;
     match settings {
         MethodSettings::Reference(s) => {
             let s = ReferenceSettings {

@@ -14,8 +14,18 @@ use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
 
 use crate::cli::{defocus, s, stderr, temp_dir};
 
-/// Cases per file kind.
+/// Cases per file kind on every run; `DEFOCUS_FUZZ_CASES=N cargo test --release fuzz` runs
+/// N instead, for as long a search as wanted.
 const CASES: u32 = 48;
+
+/// [`CASES`], or the number `DEFOCUS_FUZZ_CASES` gives.
+fn cases() -> u32 {
+    std::env::var("DEFOCUS_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.trim().parse().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(CASES)
+}
 
 /// How a valid file is damaged.
 #[derive(Clone, Debug)]
@@ -68,7 +78,7 @@ fn apply(bytes: &[u8], d: &Damage) -> Vec<u8> {
 fn runner() -> TestRunner {
     TestRunner::new_with_rng(
         Config {
-            cases: CASES,
+            cases: cases(),
             failure_persistence: None,
             ..Config::default()
         },
@@ -160,6 +170,14 @@ fn corrupted_scenes_are_errors_not_panics() {
     fuzz(&gltf, &dir.join("bad.gltf"), |p| read_scene_file(p).is_ok());
     let obj = b"# quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n";
     fuzz(obj, &dir.join("bad.obj"), |p| read_scene_file(p).is_ok());
+    // A material library: the OBJ is sound, its MTL damaged.
+    let with_mtl = b"mtllib bad.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nusemtl m\nf 1/1 2/2 3/3\n";
+    let obj_path = dir.join("uses.obj");
+    std::fs::write(&obj_path, with_mtl).unwrap();
+    let mtl = b"newmtl m\nKd 0.8 0.2 0.1\nKe 0 0 0\nd 1\nNs 10\n";
+    fuzz(mtl, &dir.join("bad.mtl"), |_| {
+        read_scene_file(&obj_path).is_ok()
+    });
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -380,3 +380,97 @@ fn layered_methods_refuse_frames_beyond_the_memory_budget() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// Every method estimates its peak before it allocates and refuses a frame beyond the
+/// budget, naming the budget and what to lower, with no output; so does decoding an image whose
+/// small file claims a huge size, and comparing two.
+#[test]
+fn every_method_refuses_a_frame_beyond_the_memory_budget_before_rendering() {
+    let dir = temp_dir("budget-all");
+    let out = dir.join("o.exr");
+    for id in defocus::methods::registry::ids() {
+        let o = defocus(&[
+            "--memory-budget",
+            "0.25",
+            "render",
+            "--method",
+            id,
+            "--width",
+            "4096",
+            "--height",
+            "4096",
+            "--out",
+            s(&out),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{id}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(
+            e.contains("budget of 0.2 GiB") && e.contains("lower"),
+            "{id}: {e}"
+        );
+        assert!(!out.exists(), "{id}");
+    }
+    // A 4096x4096 PNG of one colour is a small file that decodes to 256 MiB and more.
+    let png = dir.join("flat.png");
+    image::RgbImage::from_pixel(4096, 4096, image::Rgb([90, 90, 90]))
+        .save(&png)
+        .unwrap();
+    assert!(std::fs::metadata(&png).unwrap().len() < 1 << 20);
+    let o = defocus(&["--memory-budget", "0.25", "compare", s(&png), s(&png)]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("flat.png") && e.contains("budget"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// The estimate a method is held to is an upper bound of what it takes, and not a wild one:
+/// at its defaults on `railing` at 640x360, the process's largest resident size (reported by
+/// `--timings json`, Linux only) is at most the estimate and at least a quarter of it.
+#[test]
+fn estimated_peak_memory_bounds_the_measured_peak_of_every_frame_method() {
+    let Some(_) = std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .filter(|s| s.contains("VmHWM"))
+    else {
+        eprintln!("skipped: no /proc/self/status VmHWM on this system");
+        return;
+    };
+    let dir = temp_dir("budget-peak");
+    let out = dir.join("o.exr");
+    let (w, h) = (640usize, 360usize);
+    for id in [
+        "reference",
+        "pinhole",
+        "hammon",
+        "lowrank",
+        "gaussian",
+        "poisson",
+    ] {
+        let o = defocus(&[
+            "render",
+            "--scene",
+            "railing",
+            "--method",
+            id,
+            "--samples",
+            "4",
+            "--width",
+            "640",
+            "--height",
+            "360",
+            "--timings",
+            "json",
+            "--out",
+            s(&out),
+        ]);
+        assert!(o.status.success(), "{id}: {}", stderr(&o));
+        let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        let rss = json["max_rss_bytes"].as_u64().expect("max_rss_bytes");
+        let settings = defocus::methods::registry::MethodSettings::default_for(id).unwrap();
+        let estimate = defocus::methods::registry::peak_bytes(&settings, w, h);
+        eprintln!("{id}: resident peak {rss} bytes, estimate {estimate}");
+        assert!(rss <= estimate, "{id}: {rss} > {estimate}");
+        assert!(rss * 4 >= estimate, "{id}: {rss} is far below {estimate}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

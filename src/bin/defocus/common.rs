@@ -113,6 +113,15 @@ pub fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
     bar
 }
 
+/// The process's largest resident size so far (`VmHWM` of `/proc/self/status`), where the
+/// system reports it (Linux); `None` elsewhere.
+pub fn resident_peak_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
 pub fn report_timings(
     format: Option<TimingFormat>,
     method: &str,
@@ -140,6 +149,13 @@ pub fn report_timings(
             if let Some(b) = memory_bytes {
                 eprintln!("{:<name_width$} {:>10.1}", "peak MiB", b as f64 / 1048576.0);
             }
+            if let Some(b) = resident_peak_bytes() {
+                eprintln!(
+                    "{:<name_width$} {:>10.1}",
+                    "max RSS MiB",
+                    b as f64 / 1048576.0
+                );
+            }
         }
         Some(TimingFormat::Json) => {
             let value = serde_json::json!({
@@ -149,6 +165,7 @@ pub fn report_timings(
                 "passes": timings.passes,
                 "total_ms": timings.total_ms(),
                 "memory_bytes": memory_bytes,
+                "max_rss_bytes": resident_peak_bytes(),
             });
             #[expect(
                 clippy::print_stdout,
