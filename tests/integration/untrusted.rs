@@ -628,3 +628,156 @@ fn an_interrupt_leaves_both_outputs_old_or_both_new_and_no_staged_file() {
     assert!(outcomes[0] > 0, "no run was interrupted before its commit");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A report run twice into one folder: the second replaces the first's images and leaves no
+/// image of the first; files of the user's own in the folder, and files a planted
+/// `results.json` names outside it, are left alone.
+#[test]
+fn a_second_report_into_one_folder_replaces_the_first_without_mixing() {
+    let dir = temp_dir("report-twice");
+    let out = dir.join("report");
+    let compare = |methods: &str| {
+        let o = defocus(&[
+            "compare",
+            "--scene",
+            "lights",
+            "--methods",
+            methods,
+            "--width",
+            "48",
+            "--height",
+            "32",
+            "--reference-samples",
+            "8",
+            "--out",
+            s(&out),
+        ]);
+        assert!(o.status.success(), "{methods}: {}", stderr(&o));
+    };
+    compare("hammon,gaussian");
+    assert!(out.join("hammon.png").exists() && out.join("gaussian.exr").exists());
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    let victim = dir.join("victim.png");
+    std::fs::write(&victim, "keep").unwrap();
+    // A results.json that names a file outside the folder, and the folder's own notes.
+    let planted = std::fs::read_to_string(out.join("results.json"))
+        .unwrap()
+        .replace("\"hammon.png\"", "\"../victim.png\"")
+        .replace("\"gaussian.png\"", "\"notes.txt\"");
+    std::fs::write(out.join("results.json"), planted).unwrap();
+    compare("poisson");
+    let files = files_in(&out);
+    for gone in [
+        "gaussian.exr",
+        "gaussian-error.png",
+        "hammon.exr",
+        "hammon-error.png",
+    ] {
+        assert!(
+            !files.iter().any(|f| f == gone),
+            "{gone} is left: {files:?}"
+        );
+    }
+    for kept in [
+        "poisson.png",
+        "poisson.exr",
+        "reference.png",
+        "index.html",
+        "notes.txt",
+    ] {
+        assert!(
+            files.iter().any(|f| f == kept),
+            "{kept} is missing: {files:?}"
+        );
+    }
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep");
+    let index = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(index.contains("poisson") && !index.contains("gaussian.png"));
+    let staged: Vec<String> = files
+        .into_iter()
+        .filter(|f| f.starts_with(".defocus-"))
+        .collect();
+    assert!(staged.is_empty(), "{staged:?}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// An interrupted report leaves the report that was there, whole, and no staged file.
+#[test]
+fn an_interrupted_report_leaves_the_old_report_and_no_staged_file() {
+    let dir = temp_dir("report-interrupt");
+    let out = dir.join("report");
+    let args = |methods: &'static str| {
+        [
+            "compare",
+            "--scene",
+            "railing",
+            "--methods",
+            methods,
+            "--width",
+            "320",
+            "--height",
+            "180",
+            "--reference-samples",
+            "64",
+            "--quiet",
+            "--out",
+            s(&out),
+        ]
+        .map(String::from)
+    };
+    let o = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(args("hammon"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let start = Instant::now();
+    let o = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(args("hammon,lowrank,gaussian"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let run = start.elapsed();
+    // Back to the first report, then interrupt the bigger one at points through its run.
+    let mut kept = 0;
+    for i in 0..6 {
+        let o = Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .args(args("hammon"))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+        let mut child = Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .args(args("hammon,lowrank,gaussian"))
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(run.mul_f64(0.15 + 0.15 * i as f64));
+        let signal = if i % 2 == 0 { "-TERM" } else { "-INT" };
+        let _ = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status();
+        let _ = child.wait().unwrap();
+        let files = files_in(&out);
+        let staged: Vec<&String> = files
+            .iter()
+            .filter(|f| f.starts_with(".defocus-"))
+            .collect();
+        assert!(staged.is_empty(), "interrupt {i} left {staged:?}");
+        let index = std::fs::read_to_string(out.join("index.html")).unwrap();
+        if !index.contains("lowrank") {
+            // The old report, whole: none of the new run's images.
+            kept += 1;
+            assert!(
+                !files
+                    .iter()
+                    .any(|f| f.starts_with("lowrank") || f.starts_with("gaussian")),
+                "interrupt {i}: the old report with new images {files:?}"
+            );
+        } else {
+            for f in ["lowrank.png", "gaussian.png", "hammon.png"] {
+                assert!(files.iter().any(|g| g == f), "interrupt {i}: {f} missing");
+            }
+        }
+    }
+    assert!(kept > 0, "no run was interrupted before its commit");
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -551,7 +551,18 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     files.text("results.json", &json)?;
     let html = page(&report, &files)?;
     files.text("index.html", &html)?;
+    // The files of a report written before into this folder, to remove those this one does not
+    // replace (two runs into one folder would otherwise mix their images).
+    let before = previous_report_files(&dir);
     files.set.commit()?;
+    let now = report_files(&report);
+    for name in before.iter().filter(|n| !now.contains(n)) {
+        let path = dir.join(name);
+        // Only regular files (never through a link), named as a report names them.
+        if std::fs::symlink_metadata(&path).is_ok_and(|m| m.file_type().is_file()) {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
     eprintln!("report: {}", shown(&dir.join("index.html")));
     // The report is written either way; a failed run still makes the command fail, so that a
     // script does not take a report of errors for results.
@@ -570,6 +581,55 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The image files `report` names besides `index.html` and `results.json`.
+fn report_files(report: &Report) -> Vec<String> {
+    let mut names = vec![
+        report.reference.image_png.clone(),
+        report.reference.image_exr.clone(),
+        "error-legend.png".to_string(),
+    ];
+    for r in &report.runs {
+        names.extend(
+            [&r.image_png, &r.image_exr, &r.error_map_png]
+                .into_iter()
+                .flatten()
+                .cloned(),
+        );
+    }
+    names
+}
+
+/// The image files of the report in `dir` before this one, from its `results.json`: only plain
+/// file names of PNG and EXR images (a planted `results.json` cannot name files elsewhere).
+fn previous_report_files(dir: &Path) -> Vec<String> {
+    let Ok(text) = std::fs::read_to_string(dir.join("results.json")) else {
+        return Vec::new();
+    };
+    let Ok(value) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Vec::new();
+    };
+    let mut names = vec!["error-legend.png".to_string()];
+    let mut add = |v: &serde_json::Value| {
+        if let Some(n) = v.as_str() {
+            names.push(n.to_string());
+        }
+    };
+    add(&value["reference"]["image_png"]);
+    add(&value["reference"]["image_exr"]);
+    for r in value["runs"].as_array().into_iter().flatten() {
+        add(&r["image_png"]);
+        add(&r["image_exr"]);
+        add(&r["error_map_png"]);
+    }
+    names.retain(|n| {
+        let plain =
+            Path::new(n).file_name().is_some_and(|f| f == n.as_str()) && !n.starts_with('.');
+        let image = n.ends_with(".png") || n.ends_with(".exr");
+        plain && image
+    });
+    names
 }
 
 /// Total time of the method's own passes (reading and writing files excluded).
