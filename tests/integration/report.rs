@@ -254,3 +254,76 @@ fn report_page_loads_every_image_in_a_real_browser() {
     );
     eprintln!("screenshot kept in {}", shot.display());
 }
+
+/// `--frontier` runs `reference` at the sample counts below the ground truth's, with another
+/// seed, and marks each run on or behind the frontier by the definition: behind when a
+/// `reference` run is both at least as fast and at least as good.
+#[test]
+fn frontier_marks_each_run_on_or_behind_reference_at_fewer_samples() {
+    let dir = temp_dir("report-frontier");
+    let out = dir.join("report");
+    let o = defocus(&[
+        "compare",
+        "--scene",
+        "lights",
+        "--methods",
+        "hammon,gaussian,multilayer",
+        "--width",
+        "96",
+        "--height",
+        "54",
+        "--reference-samples",
+        "64",
+        "--frontier",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = results(&out);
+    let points = r["frontier"].as_array().unwrap();
+    let samples: Vec<u64> = points
+        .iter()
+        .map(|p| p["samples"].as_u64().unwrap())
+        .collect();
+    assert_eq!(samples, [4, 8, 16, 32], "below the truth's 64");
+    for p in points {
+        assert_ne!(p["seed"], serde_json::json!(0), "the truth's seed");
+        assert!(p["psnr_db"].as_f64().unwrap() > 10.0, "{p}");
+    }
+    // More samples are closer to the truth.
+    let psnr: Vec<f64> = points
+        .iter()
+        .map(|p| p["psnr_db"].as_f64().unwrap())
+        .collect();
+    assert!(psnr[3] > psnr[0], "{psnr:?}");
+    for run in r["runs"].as_array().unwrap() {
+        let (t, q) = (
+            run["total_ms"].as_f64().unwrap(),
+            run["psnr_db"].as_f64().unwrap(),
+        );
+        let beaten = points
+            .iter()
+            .any(|p| p["total_ms"].as_f64().unwrap() <= t && p["psnr_db"].as_f64().unwrap() >= q);
+        let verdict = run["frontier"].as_str().unwrap();
+        assert_eq!(verdict.starts_with("behind"), beaten, "{run}");
+        assert_eq!(verdict == "on", !beaten, "{run}");
+    }
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(html.contains("id=\"frontier\"") && html.contains("ref 16"));
+    // A frame has no scene to render the frontier from.
+    let o = defocus(&[
+        "compare",
+        "--color",
+        "c.exr",
+        "--depth",
+        "z.exr",
+        "--truth",
+        "t.exr",
+        "--frontier",
+        "--out",
+        s(&out),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--scene"), "{}", stderr(&o));
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -211,6 +211,12 @@ pub struct CompareArgs {
     /// Report: aperture (as `render --aperture`) [default: the scene's; disc for frames].
     #[arg(long, value_name = "SPEC", help_heading = "Report")]
     pub aperture: Option<String>,
+    /// Report: also run `reference` at 4, 8, 16, 32, 64 and 128 lens samples (fewer than
+    /// --reference-samples; another seed than the ground truth's) and mark each method as on
+    /// the time-quality frontier or behind it (some `reference --samples N` is both faster and
+    /// at least as good). Needs --scene.
+    #[arg(long, help_heading = "Report", requires = "scene")]
+    pub frontier: bool,
     /// Report: samples of the methods (as `render --samples`) [default: each method's].
     #[arg(long, value_name = "N", help_heading = "Report")]
     pub samples: Option<usize>,

@@ -90,6 +90,37 @@ struct RunResult {
     image_png: Option<String>,
     image_exr: Option<String>,
     error_map_png: Option<String>,
+    /// With `--frontier`: `on`, or `behind` with the `reference` run that beats it.
+    frontier: Option<String>,
+}
+
+/// One point of the time-quality frontier: `reference` at `samples` lens samples.
+#[derive(Serialize)]
+struct FrontierPoint {
+    samples: usize,
+    seed: u64,
+    psnr_db: f64,
+    ssim: f64,
+    total_ms: f64,
+}
+
+/// Lens samples of the frontier's `reference` runs (those below the ground truth's).
+const FRONTIER_SAMPLES: [usize; 6] = [4, 8, 16, 32, 64, 128];
+
+/// Whether a run of `total_ms` and `psnr_db` is on the frontier: `on`, or `behind` naming the
+/// fastest `reference` run that is at least as fast and at least as good.
+fn frontier_verdict(points: &[FrontierPoint], total_ms: f64, psnr_db: f64) -> String {
+    match points
+        .iter()
+        .filter(|p| p.total_ms <= total_ms && p.psnr_db >= psnr_db)
+        .min_by(|a, b| a.total_ms.total_cmp(&b.total_ms))
+    {
+        Some(p) => format!(
+            "behind: reference {} samples, {:.0} ms, {:.2} dB",
+            p.samples, p.total_ms, p.psnr_db
+        ),
+        None => "on".to_string(),
+    }
 }
 
 #[derive(Serialize)]
@@ -101,6 +132,8 @@ struct Report {
     reference: ReferenceInfo,
     error_map_top: f32,
     runs: Vec<RunResult>,
+    /// With `--frontier`: `reference` at a few sample counts, fastest first.
+    frontier: Vec<FrontierPoint>,
 }
 
 #[derive(Serialize)]
@@ -312,6 +345,9 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
             shown(&dir)
         );
     }
+    if a.frontier && a.scene.is_none() {
+        bail!("--frontier needs --scene: the frontier is `reference` rendered from the scene at fewer samples");
+    }
     if !(1..=1 << 20).contains(&a.reference_samples) {
         bail!(
             "invalid --reference-samples {}: expected 1 to {}",
@@ -475,6 +511,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
             image_png: None,
             image_exr: None,
             error_map_png: None,
+            frontier: None,
         };
         match outcome.and_then(|o| {
             if !o.image.same_size(&truth) {
@@ -515,6 +552,35 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         results.push(r);
         bar.inc(1);
     }
+    // The frontier: `reference` at a few sample counts, with another seed than the truth's.
+    let mut frontier = Vec::new();
+    if a.frontier {
+        let scene = a.scene.as_deref().context("--frontier needs --scene")?;
+        let seed = a.seed.wrapping_add(1);
+        for n in FRONTIER_SAMPLES
+            .into_iter()
+            .filter(|&n| n < a.reference_samples)
+        {
+            bar.set_message(format!("frontier: reference {n}"));
+            let mut args = render_args(a, scene, "reference", &dir.join("frontier.exr"));
+            args.samples = Some(n);
+            args.seed = seed;
+            let out = RenderJob::try_from(args)?.compute(&mut |_, _| {})?;
+            let m = metrics::compare(&out.image, &truth)?;
+            frontier.push(FrontierPoint {
+                samples: n,
+                seed,
+                psnr_db: m.psnr_db,
+                ssim: m.ssim,
+                total_ms: without_io(&out.timings),
+            });
+        }
+        for r in &mut results {
+            if let (Some(t), Some(p)) = (r.total_ms, r.psnr_db) {
+                r.frontier = Some(frontier_verdict(&frontier, t, p));
+            }
+        }
+    }
     bar.finish_and_clear();
 
     // Error maps on one scale: the largest of the methods' 99th-percentile differences.
@@ -546,6 +612,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         },
         error_map_top: top,
         runs: results,
+        frontier,
     };
     let json = serde_json::to_string_pretty(&report)?;
     files.text("results.json", &json)?;
@@ -737,20 +804,29 @@ fn plot(report: &Report) -> Result<String> {
         let root = SVGBackend::with_string(&mut svg, (760, 440)).into_drawing_area();
         root.fill(&WHITE)
             .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
-        let (tmin, tmax) = points.iter().fold((f64::INFINITY, 0.0f64), |(a, b), p| {
+        let curve: Vec<(f64, f64)> = report
+            .frontier
+            .iter()
+            .filter(|p| p.total_ms > 0.0 && p.psnr_db.is_finite())
+            .map(|p| (p.total_ms, p.psnr_db))
+            .collect();
+        let all = points
+            .iter()
+            .map(|p| (p.0, p.1))
+            .chain(curve.iter().copied());
+        let (tmin, tmax) = all.clone().fold((f64::INFINITY, 0.0f64), |(a, b), p| {
             (a.min(p.0), b.max(p.0))
         });
-        let (pmin, pmax) = points
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-                (a.min(p.1), b.max(p.1))
-            });
-        let (tmin, tmax) = if points.is_empty() {
+        let (pmin, pmax) = all.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.1), b.max(p.1))
+        });
+        let points_empty = points.is_empty() && curve.is_empty();
+        let (tmin, tmax) = if points_empty {
             (1.0, 10.0)
         } else {
             (tmin / 1.5, tmax * 1.5)
         };
-        let (pmin, pmax) = if points.is_empty() {
+        let (pmin, pmax) = if points_empty {
             (0.0, 40.0)
         } else {
             ((pmin - 1.0).floor(), (pmax + 1.0).ceil())
@@ -768,6 +844,25 @@ fn plot(report: &Report) -> Result<String> {
             .y_desc("PSNR against the reference, dB")
             .draw()
             .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        if !curve.is_empty() {
+            // The frontier: `reference` at its sample counts, joined in time order.
+            let grey = RGBColor(0x88, 0x88, 0x88);
+            chart
+                .draw_series(LineSeries::new(curve.iter().copied(), grey.stroke_width(2)))
+                .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+            for (p, (t, q)) in report.frontier.iter().zip(&curve) {
+                chart
+                    .draw_series(std::iter::once(Cross::new((*t, *q), 4, grey)))
+                    .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+                chart
+                    .draw_series(std::iter::once(Text::new(
+                        format!("ref {}", p.samples),
+                        (*t, *q - 0.6),
+                        ("sans-serif", 11).into_font().color(&grey),
+                    )))
+                    .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+            }
+        }
         let palette = [
             RGBColor(0x1f, 0x77, 0xb4),
             RGBColor(0xd6, 0x27, 0x28),
@@ -839,7 +934,7 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
     );
     h.push_str(
         "<h2>Quality and time</h2><p>PSNR and SSIM (Wang 2004) on the sRGB image clamped to [0, 1]; MSE in linear light; time: the method's own passes (file reading and writing excluded; post-process methods on a scene include rendering their pinhole frame).</p>\n\
-<table id=\"results\"><tr><th class=\"l\">method</th><th class=\"l\">setting</th><th>PSNR dB</th><th>SSIM</th><th>MSE</th><th>total ms</th><th class=\"l\">passes (ms)</th><th>peak MiB</th></tr>\n",
+<table id=\"results\"><tr><th class=\"l\">method</th><th class=\"l\">setting</th><th>PSNR dB</th><th>SSIM</th><th>MSE</th><th>total ms</th><th class=\"l\">passes (ms)</th><th>peak MiB</th><th class=\"l\">frontier</th></tr>\n",
     );
     for r in &report.runs {
         let passes: Vec<String> = r
@@ -852,7 +947,7 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
             None => {
                 let _ = writeln!(
                     h,
-                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{:.2}</td><td>{:.4}</td><td>{:.3e}</td><td>{:.1}</td><td class=\"l\">{}</td><td>{}</td></tr>",
+                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{:.2}</td><td>{:.4}</td><td>{:.3e}</td><td>{:.1}</td><td class=\"l\">{}</td><td>{}</td><td class=\"l\">{}</td></tr>",
                     esc(&r.method),
                     esc(&r.setting),
                     r.psnr_db.unwrap_or(f64::NAN),
@@ -862,7 +957,8 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
                     passes.join(", "),
                     r.memory_bytes
                         .map(|b| format!("{:.1}", b as f64 / 1048576.0))
-                        .unwrap_or_default()
+                        .unwrap_or_default(),
+                    esc(r.frontier.as_deref().unwrap_or_default())
                 );
             }
             Some(e) => {
@@ -873,7 +969,7 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
                 };
                 let _ = writeln!(
                     h,
-                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td class=\"l {class}\" colspan=\"6\">{}: {}</td></tr>",
+                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td class=\"l {class}\" colspan=\"7\">{}: {}</td></tr>",
                     esc(&r.method),
                     esc(&r.setting),
                     esc(&r.status),
@@ -882,7 +978,19 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
             }
         }
     }
-    h.push_str("</table>\n<h2>Time against PSNR</h2><div id=\"plot\">\n");
+    h.push_str("</table>\n");
+    if !report.frontier.is_empty() {
+        h.push_str("<h2>Frontier</h2><p><code>reference</code> at a few lens samples (another seed than the ground truth's): a method is behind the frontier when one of these is both faster and at least as good.</p>\n<table id=\"frontier\"><tr><th>samples</th><th>PSNR dB</th><th>SSIM</th><th>total ms</th></tr>\n");
+        for p in &report.frontier {
+            let _ = writeln!(
+                h,
+                "<tr><td>{}</td><td>{:.2}</td><td>{:.4}</td><td>{:.1}</td></tr>",
+                p.samples, p.psnr_db, p.ssim, p.total_ms
+            );
+        }
+        h.push_str("</table>\n");
+    }
+    h.push_str("<h2>Time against PSNR</h2><div id=\"plot\">\n");
     h.push_str(&plot(report)?);
     h.push_str("</div>\n<h2>Images</h2>\n<p>Each method's image and its false-colour absolute error against the reference (sRGB), all maps on one scale: ");
     let _ = writeln!(
