@@ -420,14 +420,14 @@ type GatherRow = (Vec<u32>, Vec<f32>, Vec<Rgba>);
 /// What every pixel row of the shape accumulation reads.
 struct RowInputs<'a> {
     levels: &'a [Level],
-    borders: &'a Borders,
     /// Per level from [`FIRST_SHAPE_LEVEL`] (index `s - FIRST_SHAPE_LEVEL`): its gather, if
     /// any fragment it serves is in view.
     gathered: &'a [Option<Gathered>],
     /// The box levels that serve CoCs below the shape threshold.
     box_levels: usize,
-    /// CoC radius in pixels from which the shape gather takes over.
-    threshold_px: f32,
+    /// Per box level, each fragment's weight there: 0 at or above the shape threshold, else
+    /// its level weight (worked out once per fragment, not once per pixel that reads it).
+    box_weights: &'a [Vec<f32>],
     epsilon: f32,
 }
 
@@ -570,12 +570,29 @@ where
             Some(g)
         })
         .collect();
+    let box_weights: Vec<Vec<f32>> = levels
+        .iter()
+        .take(box_levels)
+        .enumerate()
+        .map(|(s, level)| {
+            level
+                .depth
+                .par_iter()
+                .map(|&z| {
+                    if borders.lens.coc_px(z).abs() >= threshold_px {
+                        0.0
+                    } else {
+                        level_weight(borders.lambda(z), s, n)
+                    }
+                })
+                .collect()
+        })
+        .collect();
     let inputs = RowInputs {
         levels,
-        borders,
         gathered: &gathered,
         box_levels,
-        threshold_px,
+        box_weights: &box_weights,
         epsilon,
     };
     let mut data = vec![[0.0f32; 4]; width * height];
@@ -788,27 +805,26 @@ fn shape_row(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
 fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
     let RowInputs {
         levels,
-        borders,
         gathered,
         box_levels,
-        threshold_px,
+        box_weights,
         epsilon,
+        ..
     } = *inputs;
-    let n = levels.len();
-    let lens = borders.lens;
     let mut entries: Vec<(f32, Rgba)> = Vec::new();
     for (x, out) in (x0..).zip(row.iter_mut()) {
         entries.clear();
         // CoCs below the threshold: one cell per level, as the paper.
-        for (s, level) in levels.iter().enumerate().take(box_levels) {
+        for (level, weights) in levels.iter().take(box_levels).zip(box_weights) {
             let (cx, cy) = level.cell_of_pixel(x, y);
-            let (depths, colors) = level.cell(cx, cy);
+            let i = cy * level.width + cx;
+            let (a, b) = (level.offsets[i] as usize, level.offsets[i + 1] as usize);
             let mut run = Run::new();
-            for (&z, c) in depths.iter().zip(colors) {
-                if lens.coc_px(z).abs() >= threshold_px {
-                    continue;
-                }
-                let weight = level_weight(borders.lambda(z), s, n);
+            for ((&z, c), &weight) in level.depth[a..b]
+                .iter()
+                .zip(&level.color[a..b])
+                .zip(&weights[a..b])
+            {
                 if weight > 0.0 {
                     run.add(z, weight, from_half(c), epsilon, &mut entries);
                 }
