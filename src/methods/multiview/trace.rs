@@ -258,6 +258,7 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
     let mut col = [0.0f32; 4];
     let mut weight = 1.0f32;
     let inside = |q: Vec2| q.x >= 0.0 && q.y >= 0.0 && q.x < w && q.y < h;
+    let speed = v.length();
     for l in 0..spacing.layers {
         let (ca, cb) = spacing.bounds(l);
         // A ray that leaves the image in this layer's segment is discarded (q is linear in C,
@@ -269,7 +270,8 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
         if !open[l] {
             continue;
         }
-        let steps = ((cb - ca) * v.length()).ceil().max(1.0) as usize;
+        let steps = ((cb - ca) * speed).ceil().max(1.0) as usize;
+        let dc = (cb - ca) / steps as f32;
         // The ray was in front of the surface under it at the previous sample; a crossing from
         // there to behind it brackets a hit. It enters the layer in front of everything the
         // layer holds: the overlap margin before its front bound.
@@ -277,7 +279,7 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
         let mut prev_front = true;
         let mut hit = None;
         for k in 0..=steps {
-            let c = ca + (cb - ca) * k as f32 / steps as f32;
+            let c = ca + dc * k as f32;
             let q = p - c * v;
             let i = layers.index(l, q.x as usize, q.y as usize);
             let behind = layers.coc_px[i] <= c;
