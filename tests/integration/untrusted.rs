@@ -781,3 +781,67 @@ fn an_interrupted_report_leaves_the_old_report_and_no_staged_file() {
     assert!(kept > 0, "no run was interrupted before its commit");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A report that cannot be written in full (the disk fills: here a file-size limit makes
+/// writes fail past 32 KiB) fails naming a file, leaves the report that was there, and no
+/// staged file.
+#[test]
+fn a_report_on_a_full_disk_fails_and_leaves_the_old_report() {
+    if Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -f 1")
+        .status()
+        .map(|s| !s.success())
+        .unwrap_or(true)
+    {
+        eprintln!("skipped: no sh with ulimit -f here");
+        return;
+    }
+    let dir = temp_dir("report-full");
+    let out = dir.join("report");
+    let compare = |limit: Option<&str>| {
+        let cmd = format!(
+            "trap '' XFSZ; {} exec \"$0\" compare --scene lights --methods hammon,gaussian \
+             --width 160 --height 90 --reference-samples 8 --quiet --out \"$1\"",
+            limit.map(|k| format!("ulimit -f {k};")).unwrap_or_default()
+        );
+        Command::new("sh")
+            .arg("-c")
+            .arg(cmd)
+            .arg(env!("CARGO_BIN_EXE_defocus"))
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    let o = compare(None);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let before: Vec<(String, Vec<u8>)> = files_in(&out)
+        .into_iter()
+        .map(|f| {
+            let bytes = std::fs::read(out.join(&f)).unwrap();
+            (f, bytes)
+        })
+        .collect();
+    // 512-byte blocks: 32 KiB, less than the report's EXR images (160x90x16 bytes).
+    let o = compare(Some("64"));
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("report/reference.exr") && !e.contains(".defocus-"),
+        "{e}"
+    );
+    let after: Vec<(String, Vec<u8>)> = files_in(&out)
+        .into_iter()
+        .map(|f| {
+            let bytes = std::fs::read(out.join(&f)).unwrap();
+            (f, bytes)
+        })
+        .collect();
+    assert_eq!(
+        before.iter().map(|f| &f.0).collect::<Vec<_>>(),
+        after.iter().map(|f| &f.0).collect::<Vec<_>>(),
+        "the folder's files changed"
+    );
+    assert!(before == after, "a file of the old report changed");
+    std::fs::remove_dir_all(dir).unwrap();
+}
