@@ -156,6 +156,7 @@ pub fn read_exr_placement(path: &Path) -> Result<Option<Placement>> {
     if input_format(path, "input image")? != FileFormat::Exr {
         return Ok(None);
     }
+    check_exr_windows(path)?;
     let meta = exr::meta::MetaData::read_from_buffered(BufReader::new(open(path)?), false)
         .map_err(|e| exr_read_error(path, e))?;
     let Some(header) = meta.headers.first() else {
@@ -232,6 +233,50 @@ fn input_format(path: &Path, role: &'static str) -> Result<FileFormat> {
 /// Bytes a pixel of a decoded image can take at the peak of a read: the image (RGBA, 4 floats)
 /// and the decoder's own buffer of the file's samples (up to as many again).
 const DECODE_BYTES_PER_PIXEL: u64 = 32;
+
+/// How far into an OpenEXR file its headers are searched for their windows (headers come first
+/// and are small; a window past this is left to the decoder).
+const EXR_HEADER_SEARCH_BYTES: u64 = 1 << 16;
+
+/// Refuses an OpenEXR file whose data or display window is inverted (a maximum below its
+/// minimum), naming the window and its corners, which the decoder would turn into a wrong
+/// size. The windows are `box2i` attributes: the name, `box2i`, the size 16, then xMin, yMin,
+/// xMax, yMax as little-endian 32-bit integers.
+fn check_exr_windows(path: &Path) -> Result<()> {
+    let mut head = Vec::new();
+    open(path)?
+        .take(EXR_HEADER_SEARCH_BYTES)
+        .read_to_end(&mut head)
+        .map_err(|e| Error::io(path, e))?;
+    for name in ["dataWindow", "displayWindow"] {
+        let key = format!("{name}\0box2i\0");
+        let key = key.as_bytes();
+        let mut from = 0;
+        while let Some(at) = head[from..].windows(key.len()).position(|w| w == key) {
+            let start = from + at + key.len();
+            from = start;
+            let Some(b) = head.get(start..start + 20) else {
+                break;
+            };
+            if b[..4] != 16u32.to_le_bytes() {
+                continue;
+            }
+            let v = |k: usize| {
+                i32::from_le_bytes([b[4 + 4 * k], b[5 + 4 * k], b[6 + 4 * k], b[7 + 4 * k]])
+            };
+            let (x0, y0, x1, y1) = (v(0), v(1), v(2), v(3));
+            if x1 < x0 || y1 < y0 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "{name} from ({x0}, {y0}) to ({x1}, {y1}) is inverted: expected its maximum corner at or after its minimum"
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
 
 /// [`check_size`] for a size read from a file header: the error names the file. The decoded
 /// size is also held against the memory budget ([`crate::budget`]) before any pixel memory is
@@ -360,6 +405,7 @@ fn ends_with_component(name: &str, suffix: &str) -> bool {
 /// Subsampled channels (x or y sampling other than 1, as in luminance-chroma files) are skipped.
 /// Deep files are refused.
 pub fn read_exr_channels(path: &Path) -> Result<ExrChannels> {
+    check_exr_windows(path)?;
     let chunks = exr::block::read(BufReader::new(open(path)?), false)
         .map_err(|e| exr_read_error(path, e))?;
     for header in chunks.headers() {

@@ -824,3 +824,36 @@ fn zero_depth_is_refused_with_a_hint_or_read_as_far_when_asked() {
         "{err}"
     );
 }
+
+/// An EXR whose display or data window is inverted (its maximum corner before its minimum) is
+/// refused naming the window and its corners, not read at a made-up size.
+#[test]
+fn an_inverted_exr_window_is_refused_naming_it() {
+    let dir = TempDir::new("exr-inverted");
+    let good = dir.join("good.exr");
+    write_color(&good, &ColorImage::new(6, 4, [0.5, 0.5, 0.5, 1.0])).unwrap();
+    let bytes = std::fs::read(&good).unwrap();
+    for name in ["displayWindow", "dataWindow"] {
+        let key = format!("{name}\0box2i\0");
+        let at = bytes
+            .windows(key.len())
+            .position(|w| w == key.as_bytes())
+            .expect("the window attribute")
+            + key.len()
+            + 4;
+        let mut bad = bytes.clone();
+        // xMin 4, yMin 4, xMax 1, yMax 1.
+        for (k, v) in [4i32, 4, 1, 1].into_iter().enumerate() {
+            bad[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+        }
+        let path = dir.join(&format!("{name}.exr"));
+        std::fs::write(&path, &bad).unwrap();
+        let e = read_color(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("{name}.exr"))
+                && e.contains(name)
+                && e.contains("(4, 4) to (1, 1)"),
+            "{e}"
+        );
+    }
+}
