@@ -200,6 +200,7 @@ fn report_page_loads_every_image_in_a_real_browser() {
         "32",
         "--sweep",
         "samples=8,16",
+        "--frontier",
         "--out",
         s(&out),
     ]);
@@ -238,6 +239,17 @@ fn report_page_loads_every_image_in_a_real_browser() {
     assert_eq!(total.parse::<usize>().unwrap(), 2 + 2 * runs);
     assert_eq!(dom.matches("class=\"run\"").count(), runs);
     assert!(dom.contains("<svg"), "the plot is present");
+    // The frontier: its table, and its curve's labels in the plot.
+    assert!(
+        dom.contains("id=\"frontier\""),
+        "the frontier table is present"
+    );
+    for n in [4, 8, 16] {
+        assert!(
+            dom.contains(&format!("ref {n}")),
+            "the curve's point {n} is labelled"
+        );
+    }
     let shot = dir.join("screenshot.png");
     let o = Command::new(&browser)
         .args(flags)
