@@ -842,21 +842,42 @@ impl OutputSet {
         check_output_size(path, img.width(), img.height())?;
         match format {
             FileFormat::Exr => {
-                let mut planes: [Vec<f32>; 4] =
-                    std::array::from_fn(|_| Vec::with_capacity(img.pixels().len()));
-                for p in img.pixels() {
-                    for (plane, &v) in planes.iter_mut().zip(p) {
-                        plane.push(v);
-                    }
+                // Straight from our pixels: the encoder asks for each line's samples (no
+                // copy of the image into channel planes first).
+                let (w, px) = (img.width(), img.pixels());
+                let at = move |p: Vec2<usize>| px[p.1 * w + p.0];
+                if exr.half {
+                    let f = half::f16::from_f32;
+                    let channels = exr::prelude::SpecificChannels::rgba(move |p: Vec2<usize>| {
+                        let c = at(p);
+                        (f(c[0]), f(c[1]), f(c[2]), f(c[3]))
+                    });
+                    let (attributes, encoding, frame) = exr_frame(w, img.height(), exr);
+                    let layer =
+                        exr::prelude::Layer::new((w, img.height()), attributes, encoding, channels);
+                    let image = ExrImage::new(frame, layer);
+                    self.write(path, |out| {
+                        image
+                            .write()
+                            .to_buffered(out)
+                            .map_err(|e| exr_write_error(path, e))
+                    })
+                } else {
+                    let channels = exr::prelude::SpecificChannels::rgba(move |p: Vec2<usize>| {
+                        let c = at(p);
+                        (c[0], c[1], c[2], c[3])
+                    });
+                    let (attributes, encoding, frame) = exr_frame(w, img.height(), exr);
+                    let layer =
+                        exr::prelude::Layer::new((w, img.height()), attributes, encoding, channels);
+                    let image = ExrImage::new(frame, layer);
+                    self.write(path, |out| {
+                        image
+                            .write()
+                            .to_buffered(out)
+                            .map_err(|e| exr_write_error(path, e))
+                    })
                 }
-                let [r, g, b, a] = planes;
-                let channels = vec![
-                    ("R".to_string(), r),
-                    ("G".to_string(), g),
-                    ("B".to_string(), b),
-                    ("A".to_string(), a),
-                ];
-                write_exr(self, path, img.width(), img.height(), channels, exr)
             }
             FileFormat::Png => {
                 let bytes = png8_samples(img);
@@ -1160,28 +1181,52 @@ fn write_exr(
             ),
         ));
     }
+    let (attributes, encoding, frame) = exr_frame(width, height, options);
+    let layer = exr::prelude::Layer::new((width, height), attributes, encoding, channels);
+    let image = ExrImage::new(frame, layer);
+    set.write(path, |out| {
+        image
+            .write()
+            .to_buffered(out)
+            .map_err(|e| exr_write_error(path, e))
+    })
+}
+
+/// What a one-part scanline EXR of a `width` x `height` image is written with besides its
+/// channels: the data window's attributes, the encoding and the image attributes (display
+/// window), as `options` says.
+fn exr_frame(
+    width: usize,
+    height: usize,
+    options: &ExrOptions,
+) -> (
+    LayerAttributes,
+    Encoding,
+    exr::meta::header::ImageAttributes,
+) {
     let placement = options
         .placement
         .unwrap_or_else(|| Placement::full(width, height));
     let (x, y) = placement.data_origin;
-    let layer = exr::prelude::Layer::new(
-        (width, height),
-        LayerAttributes {
-            layer_position: Vec2(x, y),
-            ..LayerAttributes::default()
-        },
-        options.compression.encoding(),
-        channels,
-    );
+    let attributes = LayerAttributes {
+        layer_position: Vec2(x, y),
+        ..LayerAttributes::default()
+    };
     let display =
         exr::meta::attribute::IntegerBounds::new(placement.display_origin, placement.display_size);
-    let image = ExrImage::new(exr::meta::header::ImageAttributes::new(display), layer);
-    set.write(path, |out| {
-        image.write().to_buffered(out).map_err(|e| match e {
-            exr::error::Error::Io(e) => Error::io(path, e),
-            other => Error::format(path, format!("could not write OpenEXR: {other}")),
-        })
-    })
+    (
+        attributes,
+        options.compression.encoding(),
+        exr::meta::header::ImageAttributes::new(display),
+    )
+}
+
+/// An error of the EXR encoder while writing `path`.
+fn exr_write_error(path: &Path, e: exr::error::Error) -> Error {
+    match e {
+        exr::error::Error::Io(e) => Error::io(path, e),
+        other => Error::format(path, format!("could not write OpenEXR: {other}")),
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

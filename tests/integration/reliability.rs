@@ -474,3 +474,40 @@ fn estimated_peak_memory_bounds_the_measured_peak_of_every_frame_method() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A reader of the output that has gone (`defocus compare a b | head -1`) ends the command
+/// quietly, not in a panic; a standard output that cannot be written (a full disk) is an error.
+#[test]
+fn output_to_a_closed_pipe_is_no_panic_and_to_a_full_device_an_error() {
+    let dir = temp_dir("pipe");
+    let img = dir.join("a.exr");
+    io::write_color(&img, &ColorImage::new(8, 8, [0.5; 4])).unwrap();
+    for args in [
+        vec!["compare", s(&img), s(&img)],
+        vec!["kernel", "--size", "9", "--json"],
+    ] {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .args(&args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!e.contains("panicked"), "{args:?}: {e}");
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {e}");
+    }
+    if let Ok(full) = std::fs::OpenOptions::new().write(true).open("/dev/full") {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .args(["compare", s(&img), s(&img)])
+            .stdout(full)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(1));
+        assert!(stderr(&o).contains("standard output"), "{}", stderr(&o));
+    } else {
+        eprintln!("skipped the full-device case: no /dev/full here");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -479,8 +479,7 @@ impl BlurJob {
             self.color.height(),
             &timings,
             output.memory_bytes,
-        );
-        Ok(())
+        )
     }
 }
 

@@ -338,8 +338,7 @@ impl RenderJob {
             self.camera.height_px,
             &timings,
             output.memory_bytes,
-        );
-        Ok(())
+        )
     }
 }
 
@@ -397,9 +396,5 @@ fn compare(args: &CompareArgs) -> Result<()> {
             m.ssim
         )
     };
-    #[expect(clippy::print_stdout, reason = "the metrics are the command's output")]
-    {
-        println!("{text}");
-    }
-    Ok(())
+    crate::common::print_output(&text)
 }

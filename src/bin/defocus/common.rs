@@ -113,6 +113,20 @@ pub fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
     bar
 }
 
+/// Prints a command's output (`text` and a newline) on standard output. A reader that has gone
+/// (`defocus compare a b | head -1`) is not an error: the rest is dropped, as other tools do,
+/// instead of a panic; any other failure to write is.
+pub fn print_output(text: &str) -> anyhow::Result<()> {
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{text}").and_then(|()| out.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(anyhow::anyhow!(
+            "could not write the output to standard output: {e}"
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// The process's largest resident size so far (`VmHWM` of `/proc/self/status`), where the
 /// system reports it (Linux); `None` elsewhere.
 pub fn resident_peak_bytes() -> Option<u64> {
@@ -129,7 +143,7 @@ pub fn report_timings(
     height: usize,
     timings: &Timings,
     memory_bytes: Option<usize>,
-) {
+) -> anyhow::Result<()> {
     match format {
         None => {}
         Some(TimingFormat::Table) => {
@@ -167,15 +181,10 @@ pub fn report_timings(
                 "memory_bytes": memory_bytes,
                 "max_rss_bytes": resident_peak_bytes(),
             });
-            #[expect(
-                clippy::print_stdout,
-                reason = "--timings json is the command's output"
-            )]
-            {
-                println!("{value}");
-            }
+            print_output(&value.to_string())?;
         }
     }
+    Ok(())
 }
 
 /// `--exr-compression`.

@@ -225,11 +225,7 @@ pub fn run(a: &KernelArgs) -> Result<()> {
         }
         t.trim_end().to_string()
     };
-    #[expect(clippy::print_stdout, reason = "the analysis is the command's output")]
-    {
-        println!("{text}");
-    }
-    Ok(())
+    crate::common::print_output(&text)
 }
 
 /// What `--filter` measured.
