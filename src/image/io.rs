@@ -318,7 +318,7 @@ fn open(path: &Path) -> Result<File> {
 /// - `.pfm`: colour (`PF`) or grey (`Pf`), either byte order.
 pub fn read_color(path: &Path) -> Result<ColorImage> {
     match input_format(path, "input image path")? {
-        FileFormat::Exr => color_from_exr(path, &read_exr_channels(path)?),
+        FileFormat::Exr => read_exr_color(path),
         FileFormat::Png => color_from_png(read_png(path)?),
         FileFormat::Pfm => color_from_pfm(read_pfm(path)?),
         FileFormat::Jpeg => color_from_png(read_jpeg(path)?),
@@ -408,6 +408,14 @@ pub fn read_exr_channels(path: &Path) -> Result<ExrChannels> {
     check_exr_windows(path)?;
     let chunks = exr::block::read(BufReader::new(open(path)?), false)
         .map_err(|e| exr_read_error(path, e))?;
+    exr_channels_from(path, chunks)
+}
+
+/// [`read_exr_channels`] of chunks already read from `path`.
+fn exr_channels_from<R: Read + std::io::Seek>(
+    path: &Path,
+    chunks: exr::block::reader::Reader<R>,
+) -> Result<ExrChannels> {
     for header in chunks.headers() {
         check_file_size(path, header.layer_size.0, header.layer_size.1)?;
         if header.deep {
@@ -971,6 +979,57 @@ fn exr_read_error(path: &Path, err: exr::error::Error) -> Error {
 }
 
 /// The RGBA image in an EXR file's channels; see [`read_color`] for the rules.
+/// Reads the colour of an OpenEXR file. A file of one part whose only channels are R, G, B
+/// and perhaps A (the common case: a render's beauty pass) is decoded straight into the
+/// image's pixels; any other (named layers, Y, more channels) goes through
+/// [`read_exr_channels`] and [`color_from_exr`], which pick the colour layer.
+fn read_exr_color(path: &Path) -> Result<ColorImage> {
+    check_exr_windows(path)?;
+    let chunks = exr::block::read(BufReader::new(open(path)?), false)
+        .map_err(|e| exr_read_error(path, e))?;
+    let plain = match chunks.headers() {
+        [header] => {
+            let names: Vec<String> = header
+                .channels
+                .list
+                .iter()
+                .map(|c| c.name.to_string())
+                .collect();
+            let subsampled = header
+                .channels
+                .list
+                .iter()
+                .any(|c| c.sampling != Vec2(1, 1));
+            !header.deep
+                && !subsampled
+                && (names == ["B", "G", "R"] || names == ["A", "B", "G", "R"])
+        }
+        _ => false,
+    };
+    if !plain {
+        return color_from_exr(path, &exr_channels_from(path, chunks)?);
+    }
+    for header in chunks.headers() {
+        check_file_size(path, header.layer_size.0, header.layer_size.1)?;
+    }
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |size, _| (size.0, vec![[0.0f32; 4]; size.0 * size.1]),
+            |(w, pixels): &mut (usize, Vec<Rgba>), p, (r, g, b, a): (f32, f32, f32, f32)| {
+                pixels[p.1 * *w + p.0] = [r, g, b, a];
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_chunks(chunks)
+        .map_err(|e| exr_read_error(path, e))?;
+    let size = image.layer_data.size;
+    let (_, pixels) = image.layer_data.channel_data.pixels;
+    ColorImage::from_vec(size.0, size.1, pixels)
+}
+
 fn color_from_exr(path: &Path, ch: &ExrChannels) -> Result<ColorImage> {
     let prefix = color_prefix(path, ch)?;
     let n = ch.width * ch.height;
