@@ -511,3 +511,73 @@ fn output_to_a_closed_pipe_is_no_panic_and_to_a_full_device_an_error() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// The layered methods are held to their own estimates, made before they allocate from the
+/// frame grown by its guard band: `multilayer`'s fragment lists and levels, `multiview`'s
+/// layers for the layer count its CoC range gives. At their defaults on `railing` and `grass`
+/// at 640x360, the measured peak lies at or below the fixed part, the frame and that estimate,
+/// and at least a quarter of it. (`splat`'s tile lists are counted from its fragments before
+/// they are allocated, and are not estimated here.)
+#[test]
+fn layered_methods_stay_within_their_own_memory_estimates() {
+    use defocus::methods::registry::{self, MethodSettings};
+    use defocus::methods::{multilayer, multiview};
+    use defocus::raster::PreparedScene;
+    if !std::fs::read_to_string("/proc/self/status").is_ok_and(|s| s.contains("VmHWM")) {
+        eprintln!("skipped: no /proc/self/status VmHWM on this system");
+        return;
+    }
+    let dir = temp_dir("budget-layered");
+    let out = dir.join("o.exr");
+    let (w, h) = (640usize, 360usize);
+    for name in ["railing", "grass"] {
+        let scene = defocus::scene::builtin::load(name).unwrap();
+        let mut camera = scene.defaults.clone().unwrap().camera;
+        camera.width_px = w;
+        camera.height_px = h;
+        let frame = camera.thin_lens().unwrap();
+        let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+        for id in ["multilayer", "multiview"] {
+            let settings = MethodSettings::default_for(id).unwrap();
+            let own = match &settings {
+                MethodSettings::Multilayer(s) => {
+                    let lens = frame.with_guard_band(s.input.guard_band_px(&prepared, &frame));
+                    multilayer::peak_bytes(&lens, s)
+                }
+                MethodSettings::Multiview(s) => {
+                    let lens = frame.with_guard_band(s.input.guard_band_px(&prepared, &frame));
+                    let range = multiview::coc_range(&prepared, &lens);
+                    let layers = multiview::spacing_for(lens, s, range).layers;
+                    multiview::peak_bytes(&lens, layers)
+                }
+                _ => unreachable!(),
+            };
+            let estimate = registry::peak_bytes(&settings, w, h) + own;
+            let o = defocus(&[
+                "render",
+                "--scene",
+                name,
+                "--method",
+                id,
+                "--width",
+                "640",
+                "--height",
+                "360",
+                "--timings",
+                "json",
+                "--out",
+                s(&out),
+            ]);
+            assert!(o.status.success(), "{name} {id}: {}", stderr(&o));
+            let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+            let rss = json["max_rss_bytes"].as_u64().expect("max_rss_bytes");
+            eprintln!("{name} {id}: resident peak {rss} bytes, estimate {estimate}");
+            assert!(rss <= estimate, "{name} {id}: {rss} > {estimate}");
+            assert!(
+                rss * 4 >= estimate,
+                "{name} {id}: {rss} is far below {estimate}"
+            );
+        }
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
