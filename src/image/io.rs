@@ -854,37 +854,31 @@ impl OutputSet {
                 // copy of the image into channel planes first).
                 let (w, px) = (img.width(), img.pixels());
                 let at = move |p: Vec2<usize>| px[p.1 * w + p.0];
+                // One layer of the four channels from `sample`, as f32 or f16 samples.
+                macro_rules! write_rgba {
+                    ($sample:expr) => {{
+                        let sample = $sample;
+                        let channels =
+                            exr::prelude::SpecificChannels::rgba(move |p: Vec2<usize>| {
+                                let c = at(p);
+                                (sample(c[0]), sample(c[1]), sample(c[2]), sample(c[3]))
+                            });
+                        let (attributes, encoding, frame) = exr_frame(w, img.height(), exr);
+                        let size = (w, img.height());
+                        let layer = exr::prelude::Layer::new(size, attributes, encoding, channels);
+                        let image = ExrImage::new(frame, layer);
+                        self.write(path, |out| {
+                            image
+                                .write()
+                                .to_buffered(out)
+                                .map_err(|e| exr_write_error(path, e))
+                        })
+                    }};
+                }
                 if exr.half {
-                    let f = half::f16::from_f32;
-                    let channels = exr::prelude::SpecificChannels::rgba(move |p: Vec2<usize>| {
-                        let c = at(p);
-                        (f(c[0]), f(c[1]), f(c[2]), f(c[3]))
-                    });
-                    let (attributes, encoding, frame) = exr_frame(w, img.height(), exr);
-                    let layer =
-                        exr::prelude::Layer::new((w, img.height()), attributes, encoding, channels);
-                    let image = ExrImage::new(frame, layer);
-                    self.write(path, |out| {
-                        image
-                            .write()
-                            .to_buffered(out)
-                            .map_err(|e| exr_write_error(path, e))
-                    })
+                    write_rgba!(half::f16::from_f32)
                 } else {
-                    let channels = exr::prelude::SpecificChannels::rgba(move |p: Vec2<usize>| {
-                        let c = at(p);
-                        (c[0], c[1], c[2], c[3])
-                    });
-                    let (attributes, encoding, frame) = exr_frame(w, img.height(), exr);
-                    let layer =
-                        exr::prelude::Layer::new((w, img.height()), attributes, encoding, channels);
-                    let image = ExrImage::new(frame, layer);
-                    self.write(path, |out| {
-                        image
-                            .write()
-                            .to_buffered(out)
-                            .map_err(|e| exr_write_error(path, e))
-                    })
+                    write_rgba!(|v: f32| v)
                 }
             }
             FileFormat::Png => {

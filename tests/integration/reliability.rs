@@ -423,21 +423,71 @@ fn every_method_refuses_a_frame_beyond_the_memory_budget_before_rendering() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// Whether this system reports a process's largest resident size (`VmHWM`); prints why not.
+fn resident_peak_reported() -> bool {
+    let ok = std::fs::read_to_string("/proc/self/status").is_ok_and(|s| s.contains("VmHWM"));
+    if !ok {
+        eprintln!("skipped: no /proc/self/status VmHWM on this system");
+    }
+    ok
+}
+
+/// `render --scene S --method M` at 640x360 with `extra` flags into `out`: its `--timings
+/// json` object (which holds `max_rss_bytes`).
+fn render_timings(
+    scene: &str,
+    method: &str,
+    extra: &[&str],
+    out: &std::path::Path,
+) -> serde_json::Value {
+    let mut args = vec![
+        "render",
+        "--scene",
+        scene,
+        "--method",
+        method,
+        "--width",
+        "640",
+        "--height",
+        "360",
+        "--timings",
+        "json",
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    let o = defocus(&args);
+    assert!(o.status.success(), "{scene} {method}: {}", stderr(&o));
+    serde_json::from_slice(&o.stdout).expect("json")
+}
+
+/// The measured peak of `what` is at most its estimate and at least a quarter of it.
+fn assert_peak_within(what: &str, json: &serde_json::Value, estimate: u64) {
+    let rss = json["max_rss_bytes"].as_u64().expect("max_rss_bytes");
+    eprintln!("{what}: resident peak {rss} bytes, estimate {estimate}");
+    assert!(rss <= estimate, "{what}: {rss} > {estimate}");
+    assert!(rss * 4 >= estimate, "{what}: {rss} is far below {estimate}");
+}
+
+/// A built-in scene and its own camera at `w` x `h`.
+fn builtin_at(name: &str, w: usize, h: usize) -> (defocus::scene::Scene, defocus::lens::Camera) {
+    let scene = defocus::scene::builtin::load(name).unwrap();
+    let mut camera = scene.defaults.clone().unwrap().camera;
+    camera.width_px = w;
+    camera.height_px = h;
+    (scene, camera)
+}
+
 /// The estimate a method is held to is an upper bound of what it takes, and not a wild one:
 /// at its defaults on `railing` at 640x360, the process's largest resident size (reported by
 /// `--timings json`, Linux only) is at most the estimate and at least a quarter of it.
 #[test]
 fn estimated_peak_memory_bounds_the_measured_peak_of_every_frame_method() {
-    let Some(_) = std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .filter(|s| s.contains("VmHWM"))
-    else {
-        eprintln!("skipped: no /proc/self/status VmHWM on this system");
+    if !resident_peak_reported() {
         return;
-    };
+    }
     let dir = temp_dir("budget-peak");
     let out = dir.join("o.exr");
-    let (w, h) = (640usize, 360usize);
     for id in [
         "reference",
         "pinhole",
@@ -446,31 +496,10 @@ fn estimated_peak_memory_bounds_the_measured_peak_of_every_frame_method() {
         "gaussian",
         "poisson",
     ] {
-        let o = defocus(&[
-            "render",
-            "--scene",
-            "railing",
-            "--method",
-            id,
-            "--samples",
-            "4",
-            "--width",
-            "640",
-            "--height",
-            "360",
-            "--timings",
-            "json",
-            "--out",
-            s(&out),
-        ]);
-        assert!(o.status.success(), "{id}: {}", stderr(&o));
-        let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
-        let rss = json["max_rss_bytes"].as_u64().expect("max_rss_bytes");
+        let json = render_timings("railing", id, &["--samples", "4"], &out);
         let settings = defocus::methods::registry::MethodSettings::default_for(id).unwrap();
-        let estimate = defocus::methods::registry::peak_bytes(&settings, w, h);
-        eprintln!("{id}: resident peak {rss} bytes, estimate {estimate}");
-        assert!(rss <= estimate, "{id}: {rss} > {estimate}");
-        assert!(rss * 4 >= estimate, "{id}: {rss} is far below {estimate}");
+        let estimate = defocus::methods::registry::peak_bytes(&settings, 640, 360);
+        assert_peak_within(id, &json, estimate);
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
@@ -517,24 +546,19 @@ fn output_to_a_closed_pipe_is_no_panic_and_to_a_full_device_an_error() {
 /// layers for the layer count its CoC range gives. At their defaults on `railing` and `grass`
 /// at 640x360, the measured peak lies at or below the fixed part, the frame and that estimate,
 /// and at least a quarter of it. (`splat`'s tile lists are counted from its fragments before
-/// they are allocated, and are not estimated here.)
+/// they are allocated: the next test.)
 #[test]
 fn layered_methods_stay_within_their_own_memory_estimates() {
     use defocus::methods::registry::{self, MethodSettings};
     use defocus::methods::{multilayer, multiview};
     use defocus::raster::PreparedScene;
-    if !std::fs::read_to_string("/proc/self/status").is_ok_and(|s| s.contains("VmHWM")) {
-        eprintln!("skipped: no /proc/self/status VmHWM on this system");
+    if !resident_peak_reported() {
         return;
     }
     let dir = temp_dir("budget-layered");
     let out = dir.join("o.exr");
-    let (w, h) = (640usize, 360usize);
     for name in ["railing", "grass"] {
-        let scene = defocus::scene::builtin::load(name).unwrap();
-        let mut camera = scene.defaults.clone().unwrap().camera;
-        camera.width_px = w;
-        camera.height_px = h;
+        let (scene, camera) = builtin_at(name, 640, 360);
         let frame = camera.thin_lens().unwrap();
         let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
         for id in ["multilayer", "multiview"] {
@@ -552,31 +576,9 @@ fn layered_methods_stay_within_their_own_memory_estimates() {
                 }
                 _ => unreachable!(),
             };
-            let estimate = registry::peak_bytes(&settings, w, h) + own;
-            let o = defocus(&[
-                "render",
-                "--scene",
-                name,
-                "--method",
-                id,
-                "--width",
-                "640",
-                "--height",
-                "360",
-                "--timings",
-                "json",
-                "--out",
-                s(&out),
-            ]);
-            assert!(o.status.success(), "{name} {id}: {}", stderr(&o));
-            let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
-            let rss = json["max_rss_bytes"].as_u64().expect("max_rss_bytes");
-            eprintln!("{name} {id}: resident peak {rss} bytes, estimate {estimate}");
-            assert!(rss <= estimate, "{name} {id}: {rss} > {estimate}");
-            assert!(
-                rss * 4 >= estimate,
-                "{name} {id}: {rss} is far below {estimate}"
-            );
+            let estimate = registry::peak_bytes(&settings, 640, 360) + own;
+            let json = render_timings(name, id, &[], &out);
+            assert_peak_within(&format!("{name} {id}"), &json, estimate);
         }
     }
     std::fs::remove_dir_all(dir).unwrap();
@@ -590,18 +592,13 @@ fn layered_methods_stay_within_their_own_memory_estimates() {
 #[test]
 fn splat_stays_within_its_frame_estimate_and_counted_lists() {
     use defocus::methods::registry::{self, MethodSettings, SceneOptions};
-    if !std::fs::read_to_string("/proc/self/status").is_ok_and(|s| s.contains("VmHWM")) {
-        eprintln!("skipped: no /proc/self/status VmHWM on this system");
+    if !resident_peak_reported() {
         return;
     }
     let dir = temp_dir("budget-splat");
     let out = dir.join("o.exr");
-    let (w, h) = (640usize, 360usize);
     for name in ["railing", "grass"] {
-        let scene = defocus::scene::builtin::load(name).unwrap();
-        let mut camera = scene.defaults.clone().unwrap().camera;
-        camera.width_px = w;
-        camera.height_px = h;
+        let (scene, camera) = builtin_at(name, 640, 360);
         let settings = MethodSettings::default_for("splat").unwrap();
         let run = registry::run_scene(
             &settings,
@@ -612,33 +609,14 @@ fn splat_stays_within_its_frame_estimate_and_counted_lists() {
         )
         .unwrap();
         let counted = run.memory_bytes.expect("splat reports its storage") as u64;
-        let estimate = registry::peak_bytes(&settings, w, h) + 2 * counted;
-        let o = defocus(&[
-            "render",
-            "--scene",
-            name,
-            "--method",
-            "splat",
-            "--width",
-            "640",
-            "--height",
-            "360",
-            "--timings",
-            "json",
-            "--out",
-            s(&out),
-        ]);
-        assert!(o.status.success(), "{name}: {}", stderr(&o));
-        let json: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
-        let rss = json["max_rss_bytes"].as_u64().expect("max_rss_bytes");
+        let estimate = registry::peak_bytes(&settings, 640, 360) + 2 * counted;
+        let json = render_timings(name, "splat", &[], &out);
         assert_eq!(
             json["memory_bytes"].as_u64(),
             Some(counted),
             "{name}: the CLI's run is the one estimated"
         );
-        eprintln!("{name} splat: resident peak {rss} bytes, estimate {estimate}");
-        assert!(rss <= estimate, "{name}: {rss} > {estimate}");
-        assert!(rss * 4 >= estimate, "{name}: {rss} is far below {estimate}");
+        assert_peak_within(&format!("{name} splat"), &json, estimate);
     }
     std::fs::remove_dir_all(dir).unwrap();
 }

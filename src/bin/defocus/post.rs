@@ -277,7 +277,7 @@ impl PostArgs {
         let settings = self.settings_of(method, aperture, seed, height_px, lens)?;
         // The flags of the other methods are range-checked too: a bad value is a mistake
         // whichever method runs (`--max-coc nan` with `hammon` is refused, not ignored).
-        for other in FLAGGED_METHODS {
+        for other in defocus::methods::registry::ids() {
             if other == method {
                 continue;
             }
@@ -449,17 +449,6 @@ impl PostArgs {
         Ok(s)
     }
 }
-
-/// The methods with flags of their own, each checked by [`PostArgs::settings`] whichever runs.
-const FLAGGED_METHODS: [&str; 7] = [
-    "hammon",
-    "lowrank",
-    "gaussian",
-    "poisson",
-    "splat",
-    "multiview",
-    "multilayer",
-];
 
 fn check_taps(flag: &str, n: usize) -> Result<()> {
     if !(1..=poisson::MAX_TAPS).contains(&n) {
