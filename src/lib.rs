@@ -9,6 +9,7 @@
 pub mod autofocus;
 pub mod budget;
 pub mod error;
+pub mod frames;
 pub mod image;
 pub mod lens;
 pub mod methods;

@@ -325,6 +325,45 @@ pub fn read_color(path: &Path) -> Result<ColorImage> {
     }
 }
 
+/// The width and height in pixels of an image file (for an OpenEXR file, its data window),
+/// from its header alone: what a read of it would hold, without decoding the pixels.
+pub fn image_size(path: &Path) -> Result<(usize, usize)> {
+    let png_err = |e: image::ImageError| Error::format(path, format!("not a readable image: {e}"));
+    let (w, h) = match input_format(path, "input image path")? {
+        FileFormat::Exr => {
+            let meta = exr::meta::MetaData::read_from_buffered(BufReader::new(open(path)?), false)
+                .map_err(|e| exr_read_error(path, e))?;
+            let header = meta
+                .headers
+                .first()
+                .ok_or_else(|| Error::format(path, "the OpenEXR file has no layers"))?;
+            (header.layer_size.0 as u32, header.layer_size.1 as u32)
+        }
+        FileFormat::Png => image::codecs::png::PngDecoder::new(BufReader::new(open(path)?))
+            .map_err(|e| png_error(path, e))?
+            .dimensions(),
+        FileFormat::Jpeg => image::codecs::jpeg::JpegDecoder::new(BufReader::new(open(path)?))
+            .map_err(png_err)?
+            .dimensions(),
+        FileFormat::Pfm => {
+            let mut r = BufReader::new(open(path)?);
+            let mut consumed = 0u64;
+            pfm_token(path, &mut r, "magic ('PF' or 'Pf')", &mut consumed)?;
+            let mut dimension = |field: &str| -> Result<u32> {
+                let t = pfm_token(path, &mut r, field, &mut consumed)?;
+                t.parse().map_err(|_| {
+                    Error::format(
+                        path,
+                        format!("PFM {field}: expected a whole number of pixels, found '{t}'"),
+                    )
+                })
+            };
+            (dimension("width")?, dimension("height")?)
+        }
+    };
+    Ok((w as usize, h as usize))
+}
+
 /// Every channel of an OpenEXR file, as `f32` planes of one common size.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExrChannels {

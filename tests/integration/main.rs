@@ -18,6 +18,7 @@ mod reliability;
 mod report;
 mod scene_files;
 mod scenes;
+mod sequences;
 mod splat;
 mod untrusted;
 

@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
+use defocus::frames::Keyed;
 
 use crate::common::{method_parser, parse_numbers, TimingFormat};
 
@@ -44,7 +45,7 @@ pub enum Command {
 }
 
 /// Flags of `render`.
-#[derive(Debug, Args)]
+#[derive(Debug, Args, Clone)]
 pub struct RenderArgs {
     /// Built-in scene name (railing, lights, grass, glass, traps) or a scene file (.gltf, .glb,
     /// .obj).
@@ -68,12 +69,14 @@ pub struct RenderArgs {
     pub height: Option<usize>,
     /// Focus distance in metres, along the view axis, or `auto`: the depth at the image centre
     /// (median of a small window of a pinhole render; the distance is printed)
-    /// [default: the scene's].
-    #[arg(long, value_name = "M|auto", value_parser = parse_focus, allow_negative_numbers = true)]
+    /// [default: the scene's]. With --frames, keyframes FRAME:M,... for a rack focus
+    /// (`1:2.0,48:5.0`), interpolated linearly in 1/distance and held outside the keys.
+    #[arg(long, value_name = "M|auto|F:M,...", value_parser = parse_focus, allow_negative_numbers = true)]
     pub focus: Option<Focus>,
-    /// f-number N; the lens radius is focal length / (2 N) [default: the scene's].
-    #[arg(long, value_name = "N", allow_negative_numbers = true)]
-    pub fstop: Option<f32>,
+    /// f-number N; the lens radius is focal length / (2 N) [default: the scene's]. With
+    /// --frames, keyframes FRAME:N,... interpolated in stops (linearly in log N).
+    #[arg(long, value_name = "N|F:N,...", value_parser = parse_fstop, allow_negative_numbers = true)]
+    pub fstop: Option<Keyed>,
     /// Focal length in millimetres [default: the scene's, 50 mm for built-in scenes]. When the
     /// field of view comes from the scene file's camera or --fov, that field of view sets the
     /// projection and the focal length only sets the lens radius F / (2 N).
@@ -100,12 +103,25 @@ pub struct RenderArgs {
     /// cannot read other files of yours and show them in the image or in errors.
     #[arg(long)]
     pub allow_external_files: bool,
-    /// Output image: .exr (linear float RGBA), .png (8-bit sRGB) or .pfm.
+    /// Output image: .exr (linear float RGBA), .png (8-bit sRGB) or .pfm. With --frames, a
+    /// frame pattern: `shot.####.exr` (one digit per #), `shot.%04d.exr` or `shot.@.exr`.
     #[arg(long, default_value = "render.png", value_name = "FILE")]
     pub out: PathBuf,
-    /// Also write the pinhole view-axis depth (metres, pixel centres, channel Z) to this EXR.
+    /// Also write the pinhole view-axis depth (metres, pixel centres, channel Z) to this EXR
+    /// (a frame pattern with --frames).
     #[arg(long, value_name = "FILE.exr")]
     pub depth_out: Option<PathBuf>,
+    /// Render a sequence: these frames (`1-48`, `1001-1100x2`, `1,5,10-20`) into the frame
+    /// pattern of --out, with --focus and --fstop keyframed over them. Frames whose outputs
+    /// exist are kept (an interrupted run resumes) unless --overwrite is given.
+    #[arg(long, value_name = "FRAMES")]
+    pub frames: Option<String>,
+    /// With --frames: render frames whose outputs exist again, replacing them.
+    #[arg(long, requires = "frames")]
+    pub overwrite: bool,
+    /// Set for the frames of a sequence: notes that every frame would repeat are not printed.
+    #[arg(skip)]
+    pub in_sequence: bool,
     /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
     pub timings: Option<TimingFormat>,
@@ -269,23 +285,46 @@ pub struct ViewArgs {
     pub focus_pixel: Option<(usize, usize)>,
 }
 
-/// `--focus`: a distance or `auto`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// `--focus`: a distance, `auto`, or keyframed distances (for a sequence).
+#[derive(Clone, Debug, PartialEq)]
 pub enum Focus {
     /// Focus distance in metres.
     Metres(f32),
     /// The depth at the image centre.
     Auto,
+    /// Distances in metres keyed to frames (a rack focus over a sequence).
+    Keys(Keyed),
 }
 
 pub fn parse_focus(s: &str) -> Result<Focus, String> {
     if s.trim() == "auto" {
         return Ok(Focus::Auto);
     }
+    if s.contains(':') {
+        return Keyed::parse(s, "--focus")
+            .map(Focus::Keys)
+            .map_err(|e| e.to_string());
+    }
     s.trim()
         .parse()
         .map(Focus::Metres)
         .map_err(|_| format!("'{s}': expected a distance in metres or 'auto'"))
+}
+
+/// `--fstop`: an f-number, or keyframes `FRAME:N,...` (for a sequence).
+pub fn parse_fstop(s: &str) -> Result<Keyed, String> {
+    Keyed::parse(s, "--fstop").map_err(|e| e.to_string())
+}
+
+/// The one value of a flag that may hold keyframes; keyframes outside a sequence are refused.
+pub fn single_value(k: &Keyed, flag: &str) -> anyhow::Result<f32> {
+    match k.constant_value() {
+        Some(v) => Ok(v),
+        None => anyhow::bail!(
+            "{flag} has keyframes: they need a frame sequence (a frame pattern such as \
+             shot.####.exr and --frames)"
+        ),
+    }
 }
 
 /// Parses `X,Y,Z` (three finite numbers).

@@ -6,6 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use defocus::autofocus::focus_in_depth;
 use defocus::error::shown;
+use defocus::frames::Keyed;
 use defocus::image::io::{self, DepthRead, Placement};
 use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::{Camera, ThinLens};
@@ -15,7 +16,8 @@ use defocus::methods::MethodOutput;
 use defocus::timing::{self, Timings};
 
 use crate::common::{
-    check_output, method_parser, parse_aperture, report_timings, TimingFormat, IMAGE_EXTENSIONS,
+    check_output, method_parser, parse_aperture, report_timings, FrameDone, TimingFormat,
+    IMAGE_EXTENSIONS,
 };
 use crate::post::PostArgs;
 
@@ -36,11 +38,14 @@ pub enum DepthKind {
 }
 
 /// Flags of `blur`.
-#[derive(Debug, Args)]
+#[derive(Debug, Args, Clone)]
 pub struct BlurArgs {
     /// Colour image: EXR (plain R/G/B/A or a multilayer file's Combined layer), PNG (sRGB) or PFM.
     /// An EXR's data window keeps its place in the display window: depth is cut to it, an EXR
     /// output keeps both windows, and autofocus and --tilt-shift measure from the display window.
+    /// A frame pattern (`shot.####.exr`: one digit per # or @; or `shot.%04d.exr`) blurs a
+    /// sequence: --depth, --out and --coc-out are then patterns too (a depth file without one
+    /// serves every frame).
     #[arg(long, value_name = "FILE")]
     pub color: PathBuf,
     /// Depth image in metres: EXR channel Z / depth / <layer>.Depth.Z (may be the colour file
@@ -70,11 +75,14 @@ pub struct BlurArgs {
     /// (reference, pinhole, and the layered ones) are refused: use `defocus render`.
     #[arg(long, value_parser = method_parser())]
     pub method: Option<String>,
-    /// Focus distance in metres, or `auto` (median depth of a small window at the image centre).
+    /// Focus distance in metres, or `auto` (median depth of a small window at the image centre,
+    /// per frame). In a sequence, keyframes FRAME:M,... for a rack focus (`1001:2.0,1100:5.0`),
+    /// interpolated linearly in 1/distance, the way a focus puller's ring moves the image, and
+    /// held outside the keys.
     #[arg(
         long,
         default_value = "auto",
-        value_name = "M|auto",
+        value_name = "M|auto|F:M,...",
         allow_negative_numbers = true
     )]
     pub focus: String,
@@ -83,14 +91,16 @@ pub struct BlurArgs {
     /// the centre.
     #[arg(long, value_name = "X,Y", value_parser = crate::args::parse_pixel, conflicts_with = "focus")]
     pub focus_pixel: Option<(usize, usize)>,
-    /// f-number N; the lens radius is focal length / (2 N).
+    /// f-number N; the lens radius is focal length / (2 N). In a sequence, keyframes
+    /// FRAME:N,... interpolated in stops (linearly in log N).
     #[arg(
         long,
-        default_value_t = 2.8,
-        value_name = "N",
+        default_value = "2.8",
+        value_name = "N|F:N,...",
+        value_parser = crate::args::parse_fstop,
         allow_negative_numbers = true
     )]
-    pub fstop: f32,
+    pub fstop: Keyed,
     /// Focal length in millimetres.
     #[arg(
         long,
@@ -121,9 +131,22 @@ pub struct BlurArgs {
     /// (distance over which the blur grows, fraction of the height, 0.3).
     #[arg(long, value_name = "KEY=VALUE,...", num_args = 0..=1, default_missing_value = "")]
     pub tilt_shift: Option<String>,
-    /// Output image: .exr (linear float RGBA), .png (8-bit sRGB) or .pfm.
+    /// Output image: .exr (linear float RGBA), .png (8-bit sRGB) or .pfm (a frame pattern for
+    /// a sequence).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
+    /// The frames of a sequence (`1001-1100`, `1-100x2`, `1,5,10-20`) [default: every frame
+    /// of --color's pattern found on disk]. Frames run side by side within the memory budget;
+    /// a frame whose outputs exist is kept (an interrupted run resumes) unless --overwrite is
+    /// given; a missing or bad frame is named and the others still finish.
+    #[arg(long, value_name = "FRAMES")]
+    pub frames: Option<String>,
+    /// In a sequence: blur frames whose outputs exist again, replacing them.
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Set for the frames of a sequence: notes that every frame would repeat are not printed.
+    #[arg(skip)]
+    pub in_sequence: bool,
     /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
     pub timings: Option<TimingFormat>,
@@ -252,7 +275,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
         }
         let mut exr = a.exr.options();
         exr.placement = color_place.filter(|p| !p.is_full(w, h));
-        if exr.placement.is_some() && !has_extension(&a.out, "exr") {
+        if exr.placement.is_some() && !has_extension(&a.out, "exr") && !a.in_sequence {
             eprintln!(
                 "note: {} is not OpenEXR: it holds the colour image's {w}x{h} pixels without \
                  their place in the frame ({}); write .exr to keep it",
@@ -347,7 +370,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             camera_from_world: glam::Affine3A::IDENTITY,
             focal_length_mm: a.focal_length,
             sensor_width_mm: a.sensor_width,
-            fstop: a.fstop,
+            fstop: crate::args::single_value(&a.fstop, "--fstop")?,
             focus_m: 1.0,
             near_m: 1e-6,
             far_m: f32::MAX,
@@ -446,8 +469,22 @@ impl BlurJob {
         Ok(output)
     }
 
-    /// Runs the method and writes the output.
+    /// Runs the method, writes the output and reports the timings.
     pub fn run(self) -> Result<()> {
+        let format = self.timings;
+        let done = self.execute()?;
+        report_timings(
+            format,
+            done.method,
+            done.width,
+            done.height,
+            &done.timings,
+            done.memory_bytes,
+        )
+    }
+
+    /// Runs the method and writes the outputs; what it took.
+    pub fn execute(self) -> Result<FrameDone> {
         let output = self.compute()?;
         let mut timings = output.timings.clone();
         let id = self.settings.id();
@@ -472,14 +509,13 @@ impl BlurJob {
             )?;
         }
         set.commit()?;
-        report_timings(
-            self.timings,
-            id,
-            self.color.width(),
-            self.color.height(),
-            &timings,
-            output.memory_bytes,
-        )
+        Ok(FrameDone {
+            method: id,
+            width: self.color.width(),
+            height: self.color.height(),
+            timings,
+            memory_bytes: output.memory_bytes,
+        })
     }
 }
 
@@ -586,25 +622,37 @@ fn choose_focus(a: &BlurArgs, depth: &GrayImage, frame: &Placement) -> Result<f3
         let pick = focus_in_depth(depth, x as usize, y as usize).with_context(|| {
             format!("--focus-pixel {fx},{fy}: no surface around it (only holes or background); give --focus M")
         })?;
-        eprintln!(
-            "focus: {:.4} m (median depth of the {w}x{w} pixels around ({fx}, {fy}))",
-            pick.depth_m,
-            w = pick.window_px
-        );
+        if !a.in_sequence || a.verbose {
+            eprintln!(
+                "focus: {:.4} m (median depth of the {w}x{w} pixels around ({fx}, {fy}))",
+                pick.depth_m,
+                w = pick.window_px
+            );
+        }
         pick.depth_m
     } else if a.focus.trim() == "auto" {
         let (cx, cy) = frame.frame_centre_in_image(w, h);
         let pick = focus_in_depth(depth, cx, cy)
             .context("--focus auto: the depth image has no surface (only holes or background); give --focus M")?;
-        eprintln!(
-            "focus: {:.4} m (median depth of the {w}x{w} pixels at the image centre)",
-            pick.depth_m,
-            w = pick.window_px
-        );
+        if !a.in_sequence || a.verbose {
+            eprintln!(
+                "focus: {:.4} m (median depth of the {w}x{w} pixels at the image centre)",
+                pick.depth_m,
+                w = pick.window_px
+            );
+        }
         pick.depth_m
     } else {
         a.focus.trim().parse::<f32>().map_err(|_| {
-            anyhow::anyhow!("invalid --focus '{}': expected metres or auto", a.focus)
+            if a.focus.contains(':') {
+                anyhow::anyhow!(
+                    "--focus '{}' has keyframes: they need a frame sequence (a frame pattern \
+                     such as shot.####.exr in --color)",
+                    a.focus
+                )
+            } else {
+                anyhow::anyhow!("invalid --focus '{}': expected metres or auto", a.focus)
+            }
         })?
     })
 }

@@ -18,9 +18,10 @@ use defocus::scene::{builtin, load, Scene};
 use defocus::timing;
 use glam::Vec3;
 
-use crate::args::{Cli, Command, CompareArgs, Focus, RenderArgs};
+use crate::args::{single_value, Cli, Command, CompareArgs, Focus, RenderArgs};
 use crate::common::{
-    check_output, parse_aperture, progress_bar, report_timings, TimingFormat, IMAGE_EXTENSIONS,
+    check_output, parse_aperture, progress_bar, report_timings, FrameDone, TimingFormat,
+    IMAGE_EXTENSIONS,
 };
 
 /// Most worker threads `--threads` accepts (a thread per core of the largest machines, with
@@ -46,10 +47,18 @@ pub fn run(cli: Cli) -> Result<()> {
     }
     match cli.command {
         Command::Render(args) => {
+            if crate::sequence::is_render_sequence(&args)? {
+                return crate::sequence::render(args, cli.quiet);
+            }
             let job = RenderJob::try_from(args)?;
             job.run(cli.quiet)
         }
-        Command::Blur(args) => crate::blur::BlurJob::try_from(args.as_ref())?.run(),
+        Command::Blur(args) => {
+            if crate::sequence::is_blur_sequence(&args)? {
+                return crate::sequence::blur(&args, cli.quiet);
+            }
+            crate::blur::BlurJob::try_from(args.as_ref())?.run()
+        }
         Command::Compare(args) => {
             if args.is_report() {
                 crate::report::run(&args, cli.quiet)
@@ -164,11 +173,13 @@ impl TryFrom<RenderArgs> for RenderJob {
         };
         view.apply(&mut camera, &scene)
             .context("invalid camera view (check --look-from, --look-at, --up, --fov)")?;
-        if let Some(Focus::Metres(f)) = a.focus {
-            camera.focus_m = f;
+        match &a.focus {
+            Some(Focus::Metres(f)) => camera.focus_m = *f,
+            Some(Focus::Keys(k)) => camera.focus_m = single_value(k, "--focus")?,
+            _ => {}
         }
-        if let Some(n) = a.fstop {
-            camera.fstop = n;
+        if let Some(n) = &a.fstop {
+            camera.fstop = single_value(n, "--fstop")?;
         }
         if let Some(f) = a.focal_length {
             camera.focal_length_mm = f;
@@ -177,7 +188,7 @@ impl TryFrom<RenderArgs> for RenderJob {
             camera.sensor_width_mm = s;
         }
         // Autofocus last: it renders with the final pose, size and lens.
-        let focus_pixel = match (a.focus, a.view.focus_pixel) {
+        let focus_pixel = match (&a.focus, a.view.focus_pixel) {
             (Some(Focus::Auto), _) => Some((camera.width_px / 2, camera.height_px / 2)),
             (_, pixel) => pixel,
         };
@@ -188,11 +199,13 @@ impl TryFrom<RenderArgs> for RenderJob {
                     format!("--focus: no surface near pixel ({x}, {y}) to focus on")
                 })?;
             camera.focus_m = pick.depth_m;
-            eprintln!(
-                "focus: {:.4} m (median depth of the {w}x{w} pixels around ({x}, {y}))",
-                pick.depth_m,
-                w = pick.window_px
-            );
+            if !a.in_sequence || a.verbose {
+                eprintln!(
+                    "focus: {:.4} m (median depth of the {w}x{w} pixels around ({x}, {y}))",
+                    pick.depth_m,
+                    w = pick.window_px
+                );
+            }
         }
         // Validate the camera now, with the flag names in the message.
         camera.thin_lens().context(
@@ -282,6 +295,20 @@ impl RenderJob {
     }
 
     fn run(self, quiet: bool) -> Result<()> {
+        let timings = self.timings;
+        let done = self.execute(quiet)?;
+        report_timings(
+            timings,
+            done.method,
+            done.width,
+            done.height,
+            &done.timings,
+            done.memory_bytes,
+        )
+    }
+
+    /// Renders and writes the outputs (a progress bar of views unless `quiet`); what it took.
+    pub(crate) fn execute(self, quiet: bool) -> Result<FrameDone> {
         for input in &self.inputs {
             for out in std::iter::once(&self.out).chain(self.depth_out.as_ref()) {
                 io::ensure_not_same_file(input, out)?;
@@ -331,14 +358,13 @@ impl RenderJob {
                 );
             }
         }
-        report_timings(
-            self.timings,
+        Ok(FrameDone {
             method,
-            self.camera.width_px,
-            self.camera.height_px,
-            &timings,
-            output.memory_bytes,
-        )
+            width: self.camera.width_px,
+            height: self.camera.height_px,
+            timings,
+            memory_bytes: output.memory_bytes,
+        })
     }
 }
 

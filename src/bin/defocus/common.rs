@@ -136,6 +136,20 @@ pub fn resident_peak_bytes() -> Option<u64> {
     Some(kib * 1024)
 }
 
+/// What one run of a method took, once its outputs are written.
+pub struct FrameDone {
+    /// The method's id.
+    pub method: &'static str,
+    /// Image width in pixels.
+    pub width: usize,
+    /// Image height in pixels.
+    pub height: usize,
+    /// Its passes, reading and writing included.
+    pub timings: Timings,
+    /// Peak bytes of the method's own storage, where it tracks them.
+    pub memory_bytes: Option<usize>,
+}
+
 pub fn report_timings(
     format: Option<TimingFormat>,
     method: &str,

@@ -8,6 +8,7 @@ mod common;
 mod kernel;
 mod post;
 mod report;
+mod sequence;
 
 use std::process::ExitCode;
 

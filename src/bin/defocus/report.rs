@@ -279,8 +279,8 @@ fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> Render
         samples: a.samples,
         width: a.width,
         height: a.height,
-        focus: a.focus,
-        fstop: a.fstop,
+        focus: a.focus.clone(),
+        fstop: a.fstop.map(defocus::frames::Keyed::constant),
         focal_length: a.focal_length,
         sensor_width: a.sensor_width,
         aperture: a.aperture.clone(),
@@ -289,6 +289,9 @@ fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> Render
         allow_external_files: a.allow_external_files,
         out: out.to_path_buf(),
         depth_out: None,
+        frames: None,
+        overwrite: false,
+        in_sequence: false,
         timings: None,
         verbose: false,
         exr: crate::common::ExrArgs {
@@ -315,13 +318,16 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
             _ => "auto".to_string(),
         },
         focus_pixel: a.view.focus_pixel,
-        fstop: a.fstop.unwrap_or(2.8),
+        fstop: defocus::frames::Keyed::constant(a.fstop.unwrap_or(2.8)),
         focal_length: a.focal_length.unwrap_or(50.0),
         sensor_width: a.sensor_width.unwrap_or(36.0),
         aperture: a.aperture.clone().unwrap_or_else(|| "disc".to_string()),
         seed: a.seed,
         tilt_shift: None,
         out: out.to_path_buf(),
+        frames: None,
+        overwrite: false,
+        in_sequence: false,
         timings: None,
         coc_out: None,
         verbose: false,
@@ -336,6 +342,9 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
 
 /// Runs the report.
 pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
+    if matches!(a.focus, Some(crate::args::Focus::Keys(_))) {
+        bail!("invalid --focus: keyframes are for sequences (render or blur with --frames); a report takes one distance or auto");
+    }
     let dir = a.out.clone().context(
         "a report needs --out DIR (the folder for index.html, results.json and the images)",
     )?;

@@ -1,0 +1,309 @@
+//! Tests: image sequences in `blur` and `render` (frame patterns, --frames, resuming, keyframed
+//! focus and f-number), run as a compositor would.
+
+use std::path::Path;
+
+use defocus::image::{io, ColorImage, GrayImage};
+
+use crate::cli::{defocus, s, stderr, temp_dir};
+
+const W: usize = 48;
+const H: usize = 24;
+
+/// Depth of the three vertical bands of every test frame, in metres. The middle one is where a
+/// rack focus from the first to the last is halfway in 1/distance: 1/2.4 = (1/1.5 + 1/6) / 2.
+const BANDS_M: [f32; 3] = [1.5, 2.4, 6.0];
+
+/// Writes frames `frames` of a colour pattern `c.####.exr` and a depth pattern `d.####.exr`
+/// into `dir`: a checkerboard over three depth bands.
+fn write_frames(dir: &Path, frames: &[i64]) {
+    for &n in frames {
+        let mut rgba = Vec::with_capacity(W * H);
+        for y in 0..H {
+            for x in 0..W {
+                let v = if (x / 3 + y / 3 + n as usize) % 2 == 0 {
+                    0.9
+                } else {
+                    0.1
+                };
+                rgba.push([v, v, v, 1.0]);
+            }
+        }
+        let color = ColorImage::from_vec(W, H, rgba).unwrap();
+        let depth: Vec<f32> = (0..W * H).map(|i| BANDS_M[(i % W) * 3 / W]).collect();
+        let depth = GrayImage::from_vec(W, H, depth).unwrap();
+        io::write_color(&dir.join(format!("c.{n:04}.exr")), &color).unwrap();
+        io::write_depth_exr(&dir.join(format!("d.{n:04}.exr")), &depth).unwrap();
+    }
+}
+
+/// The CoC radius in pixels at the centre of band `band` of a `--coc-out` file.
+fn coc_at_band(path: &Path, band: usize) -> f32 {
+    let coc = io::read_coc(path, None).unwrap();
+    let x = band * W / 3 + W / 6;
+    coc.pixels()[(H / 2) * W + x]
+}
+
+#[test]
+fn blur_sequence_racks_focus_linearly_in_inverse_distance() {
+    let dir = temp_dir("seq-rack");
+    write_frames(&dir, &[1, 2, 3]);
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.####.exr")),
+        "--depth",
+        s(&dir.join("d.%04d.exr")),
+        "--out",
+        s(&dir.join("o.####.png")),
+        "--coc-out",
+        s(&dir.join("coc.@@@@.exr")),
+        "--frames",
+        "1-3",
+        "--focus",
+        "1:1.5,3:6",
+        "--fstop",
+        "2",
+        // A long lens on a small frame: CoC of several pixels between the bands.
+        "--sensor-width",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for n in 1..=3usize {
+        assert!(dir.join(format!("o.{n:04}.png")).is_file());
+        let coc = dir.join(format!("coc.{n:04}.exr"));
+        // Frame n focuses on band n - 1: zero CoC there, a clear blur on the other bands.
+        for band in 0..3 {
+            let c = coc_at_band(&coc, band);
+            if band == n - 1 {
+                assert!(c.abs() < 0.05, "frame {n} band {band}: CoC {c} px");
+            } else {
+                assert!(c.abs() > 1.0, "frame {n} band {band}: CoC {c} px");
+            }
+        }
+    }
+}
+
+#[test]
+fn blur_sequence_finds_its_frames_on_disk_and_resumes() {
+    let dir = temp_dir("seq-resume");
+    write_frames(&dir, &[7, 8, 9]);
+    let args = |extra: &[&str]| {
+        let mut a = vec![
+            "blur".to_string(),
+            "--color".into(),
+            s(&dir.join("c.####.exr")).into(),
+            "--depth".into(),
+            s(&dir.join("d.####.exr")).into(),
+            "--out".into(),
+            s(&dir.join("o.####.exr")).into(),
+            "--focus".into(),
+            "2".into(),
+        ];
+        a.extend(extra.iter().map(|e| e.to_string()));
+        a
+    };
+    let run = |extra: &[&str]| {
+        let a = args(extra);
+        defocus(&a.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let o = run(&[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for n in 7..=9 {
+        assert!(io::read_color(&dir.join(format!("o.{n:04}.exr"))).is_ok());
+    }
+    // A finished frame is kept as it is: here, a marker file in place of frame 8's output.
+    let marker = dir.join("o.0008.exr");
+    std::fs::write(&marker, b"kept").unwrap();
+    let o = run(&[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&marker).unwrap(), b"kept");
+    // --overwrite renders it again.
+    let o = run(&["--overwrite"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(io::read_color(&marker).is_ok());
+}
+
+#[test]
+fn a_missing_frame_is_named_and_the_others_still_finish() {
+    let dir = temp_dir("seq-missing");
+    write_frames(&dir, &[1, 2, 3, 4]);
+    std::fs::remove_file(dir.join("c.0003.exr")).unwrap();
+    std::fs::write(dir.join("d.0002.exr"), b"not an exr").unwrap();
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.####.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.png")),
+        "--frames",
+        "1-4",
+    ]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains("c.0003.exr"), "{err}");
+    assert!(err.contains("d.0002.exr"), "{err}");
+    assert!(err.contains("2 of 4 frames failed"), "{err}");
+    assert!(dir.join("o.0001.png").is_file());
+    assert!(dir.join("o.0004.png").is_file());
+    assert!(!dir.join("o.0002.png").exists());
+    assert!(!dir.join("o.0003.png").exists());
+}
+
+#[test]
+fn render_sequence_turns_the_aperture_ring_in_stops() {
+    let dir = temp_dir("seq-render");
+    let o = crate::cli::defocus(&[
+        "render",
+        "--scene",
+        "lights",
+        "--method",
+        "pinhole",
+        "--width",
+        "32",
+        "--height",
+        "18",
+        "--focal-length",
+        "40",
+        "--frames",
+        "1-3",
+        "--fstop",
+        "1:2,3:8",
+        "--out",
+        s(&dir.join("r.####.png")),
+        "--depth-out",
+        s(&dir.join("z.####.exr")),
+        "--verbose",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    // f/2, f/4 (halfway in stops) and f/8 of a 40 mm lens: radii 10, 5 and 2.5 mm.
+    let radii: Vec<&str> = err
+        .lines()
+        .filter_map(|l| l.split("lens radius ").nth(1))
+        .filter_map(|r| r.split(' ').next())
+        .map(|r| r.trim_end_matches(','))
+        .collect();
+    assert_eq!(radii, ["0.01000", "0.00500", "0.00250"], "{err}");
+    for n in 1..=3 {
+        assert!(dir.join(format!("r.{n:04}.png")).is_file());
+        assert!(dir.join(format!("z.{n:04}.exr")).is_file());
+    }
+}
+
+#[test]
+fn sequence_flags_without_a_sequence_are_refused_with_the_flag_named() {
+    let dir = temp_dir("seq-refused");
+    write_frames(&dir, &[1]);
+    let c = dir.join("c.0001.exr");
+    let d = dir.join("d.0001.exr");
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            vec![
+                "--color".into(),
+                s(&c).into(),
+                "--depth".into(),
+                s(&d).into(),
+                "--out".into(),
+                s(&dir.join("o.png")).into(),
+                "--focus".into(),
+                "1:2,5:3".into(),
+            ],
+            "--focus",
+        ),
+        (
+            vec![
+                "--color".into(),
+                s(&c).into(),
+                "--depth".into(),
+                s(&d).into(),
+                "--out".into(),
+                s(&dir.join("o.png")).into(),
+                "--fstop".into(),
+                "1:2,5:3".into(),
+            ],
+            "--fstop",
+        ),
+        (
+            vec![
+                "--color".into(),
+                s(&c).into(),
+                "--depth".into(),
+                s(&d).into(),
+                "--out".into(),
+                s(&dir.join("o.png")).into(),
+                "--frames".into(),
+                "1-3".into(),
+            ],
+            "--frames",
+        ),
+        (
+            vec![
+                "--color".into(),
+                s(&c).into(),
+                "--depth".into(),
+                s(&d).into(),
+                "--out".into(),
+                s(&dir.join("o.####.png")).into(),
+            ],
+            "--out",
+        ),
+        (
+            vec![
+                "--color".into(),
+                s(&dir.join("c.####.exr")).into(),
+                "--depth".into(),
+                s(&dir.join("d.####.exr")).into(),
+                "--out".into(),
+                s(&dir.join("o.png")).into(),
+            ],
+            "--out",
+        ),
+        (
+            vec![
+                "--color".into(),
+                s(&dir.join("c.####.exr")).into(),
+                "--depth".into(),
+                s(&dir.join("d.####.exr")).into(),
+                "--out".into(),
+                s(&dir.join("o.####.png")).into(),
+                "--frames".into(),
+                "1-x".into(),
+            ],
+            "--frames",
+        ),
+        (
+            vec![
+                "--color".into(),
+                s(&dir.join("c.####.exr")).into(),
+                "--depth".into(),
+                s(&dir.join("d.####.exr")).into(),
+                "--out".into(),
+                s(&dir.join("c.####.exr")).into(),
+            ],
+            "outputs never overwrite inputs",
+        ),
+    ];
+    for (args, expected) in cases {
+        let mut all = vec!["blur"];
+        all.extend(args.iter().map(String::as_str));
+        let o = defocus(&all);
+        assert!(!o.status.success(), "{all:?}");
+        let err = stderr(&o);
+        assert!(err.contains(expected), "{all:?}: {err}");
+        assert!(!dir.join("o.png").exists());
+    }
+    let o = defocus(&[
+        "render",
+        "--out",
+        s(&dir.join("r.####.png")),
+        "--width",
+        "16",
+        "--height",
+        "9",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--frames"), "{}", stderr(&o));
+}
