@@ -34,6 +34,10 @@ pub enum Error {
         /// What was given and what was expected.
         message: String,
     },
+    /// A method option (a flag of the command line, a keyword of the Python package) is out of
+    /// range or contradicts another; the message names the flag and what was expected.
+    #[error("{0}")]
+    Option(String),
     /// Two inputs disagree (e.g. image and depth sizes).
     #[error("mismatch: {0}")]
     Mismatch(String),

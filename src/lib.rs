@@ -7,6 +7,7 @@
 //! The library never prints; it returns values and typed errors ([`Error`]).
 
 pub mod autofocus;
+pub mod blur;
 pub mod budget;
 pub mod error;
 pub mod frames;
@@ -14,6 +15,7 @@ pub mod image;
 pub mod lens;
 pub mod methods;
 pub mod metrics;
+pub mod options;
 pub mod output;
 pub mod random;
 pub mod raster;

@@ -592,7 +592,7 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
             ),
         ));
     }
-    let (width, height, mut values, what) = match input_format(path, "depth path")? {
+    let (width, height, values, what) = match input_format(path, "depth path")? {
         FileFormat::Exr => {
             let channels = read_exr_channels(path)?;
             let (name, samples) = depth_channel(path, &channels, opts.channel.as_deref())?;
@@ -631,14 +631,69 @@ pub fn read_depth(path: &Path, opts: &DepthRead) -> Result<GrayImage> {
             )
         }
     };
+    depth_from_values(path, &what, width, height, values, opts)
+}
+
+/// Depth in metres from stored depth values (`width` x `height`, row-major), as [`read_depth`]
+/// converts a file's: inverted when `opts.inverse`, times `opts.scale`, then checked (every
+/// depth positive, +inf and, with `opts.zero_is_far`, 0 taken as far). Errors name `source` (a
+/// file, or an array's name) and `what` (its channel). `opts.channel` and `opts.radial` are not
+/// used here.
+pub fn depth_from_values(
+    source: &Path,
+    what: &str,
+    width: usize,
+    height: usize,
+    mut values: Vec<f32>,
+    opts: &DepthRead,
+) -> Result<GrayImage> {
+    if !(opts.scale.is_finite() && opts.scale > 0.0) {
+        return Err(Error::invalid(
+            "depth scale",
+            format!(
+                "{} for {}: expected a finite number > 0",
+                opts.scale,
+                shown(&source)
+            ),
+        ));
+    }
+    if values.len() != width * height {
+        return Err(Error::format(
+            source,
+            format!("{} depth values for a {width}x{height} image", values.len()),
+        ));
+    }
     if opts.inverse {
-        invert_depth(path, &what, width, &mut values)?;
+        invert_depth(source, what, width, &mut values)?;
     }
     if opts.scale != 1.0 {
         values.iter_mut().for_each(|v| *v *= opts.scale);
     }
-    validate_depth(path, &what, width, &mut values, opts.zero_is_far)?;
+    validate_depth(source, what, width, &mut values, opts.zero_is_far)?;
     GrayImage::from_vec(width, height, values)
+}
+
+/// A colour image from 8-bit sRGB samples (`channels` 1 to 4 per pixel: grey, grey-alpha, RGB,
+/// RGBA; alpha straight), decoded as a PNG is: linear light, premultiplied by alpha.
+pub fn color_from_srgb8(
+    width: usize,
+    height: usize,
+    channels: usize,
+    bytes: &[u8],
+) -> Result<ColorImage> {
+    if !(1..=4).contains(&channels) || bytes.len() != width * height * channels {
+        return Err(Error::Mismatch(format!(
+            "{} bytes for a {width}x{height} image of {channels} channels",
+            bytes.len()
+        )));
+    }
+    color_from_png(Png {
+        width,
+        height,
+        channels,
+        bits: 8,
+        samples: bytes.iter().map(|&b| f32::from(b) / 255.0).collect(),
+    })
 }
 
 /// Reads a map of signed CoC radii in pixels (negative in front of the focal plane), as

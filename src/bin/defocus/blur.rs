@@ -3,13 +3,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use clap::{Args, ValueEnum};
-use defocus::autofocus::focus_in_depth;
+use clap::Args;
+use defocus::blur::{describe_placement, frame_lens, FocusChoice, FrameLens, LensSpec};
 use defocus::error::shown;
 use defocus::frames::Keyed;
 use defocus::image::io::{self, DepthRead, Placement};
 use defocus::image::{ColorImage, GrayImage};
-use defocus::lens::{Camera, ThinLens};
+use defocus::lens::ThinLens;
 use defocus::methods::lowrank::{self, tilt_shift_coc_in_frame, TiltShift};
 use defocus::methods::registry::{self, Frame, MethodSettings};
 use defocus::methods::MethodOutput;
@@ -21,21 +21,7 @@ use crate::common::{
 };
 use crate::post::PostArgs;
 
-/// What the depth values measure.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum DepthKind {
-    /// Distance along the view axis (Blender's and most renderers' Z pass).
-    View,
-    /// Distance from the eye along each pixel's ray; converted to view depth.
-    Radial,
-    /// 1 / view depth, 0 for infinitely far (Nuke's ScanlineRender depth); depth =
-    /// --depth-scale / value.
-    Inverse,
-    /// The signed CoC radius in pixels (negative in front of the focus), as --coc-out writes it
-    /// (EXR channel CoC, or PFM), times --depth-scale: the map gives every pixel's blur, and
-    /// --focus is not used.
-    Coc,
-}
+pub use defocus::blur::DepthKind;
 
 /// Flags of `blur`.
 #[derive(Debug, Args, Clone)]
@@ -271,7 +257,10 @@ impl TryFrom<&BlurArgs> for BlurJob {
         let (w, h) = (color.width(), color.height());
         let frame = color_place.unwrap_or_else(|| Placement::full(w, h));
         if a.verbose && !frame.is_full(w, h) {
-            eprintln!("colour: {}", describe_placement(&a.color, w, h, &frame));
+            eprintln!(
+                "colour: {}",
+                describe_placement(&shown(&a.color), w, h, &frame)
+            );
         }
         let mut exr = a.exr.options();
         exr.placement = color_place.filter(|p| !p.is_full(w, h));
@@ -280,7 +269,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 "note: {} is not OpenEXR: it holds the colour image's {w}x{h} pixels without \
                  their place in the frame ({}); write .exr to keep it",
                 shown(&a.out),
-                describe_placement(&a.color, w, h, &frame)
+                describe_placement(&shown(&a.color), w, h, &frame)
             );
         }
         if a.sanitize {
@@ -360,67 +349,46 @@ impl TryFrom<&BlurArgs> for BlurJob {
             Ok(coc)
         })?;
         let depth_place = io::read_exr_placement(depth_path)?;
-        let mut depth = align_depth(
+        let depth = align_depth(
             (&a.color, w, h, color_place),
             (depth_path, depth, depth_place),
         )?;
-        let mut camera = Camera {
-            width_px: color.width(),
-            height_px: color.height(),
-            camera_from_world: glam::Affine3A::IDENTITY,
+        let focus = match (a.focus_pixel, a.focus.trim()) {
+            (Some((x, y)), _) => FocusChoice::Pixel(x, y),
+            (None, "auto") => FocusChoice::Auto,
+            (None, m) => FocusChoice::Metres(m.parse::<f32>().map_err(|_| {
+                if m.contains(':') {
+                    anyhow::anyhow!(
+                        "--focus '{m}' has keyframes: they need a frame sequence (a frame pattern \
+                         such as shot.####.exr in --color)"
+                    )
+                } else {
+                    anyhow::anyhow!("invalid --focus '{m}': expected metres or auto")
+                }
+            })?),
+        };
+        let spec = LensSpec {
+            fstop: crate::args::single_value(&a.fstop, "--fstop")?,
             focal_length_mm: a.focal_length,
             sensor_width_mm: a.sensor_width,
-            fstop: crate::args::single_value(&a.fstop, "--fstop")?,
-            focus_m: 1.0,
-            near_m: 1e-6,
-            far_m: f32::MAX,
-            yfov_rad: None,
         };
-        // Check the lens flags before they are used to convert radial depth.
-        camera
-            .thin_lens()
-            .context("invalid camera (check --fstop, --focal-length, --sensor-width)")?;
-        // The sensor spans the frame (for an EXR, its display window), so the focal length in
-        // pixels is the frame's, whatever part of it the image holds.
-        let f_px =
-            defocus::lens::focal_length_px(a.focal_length, a.sensor_width, frame.display_size.0);
-        if a.depth_kind == DepthKind::Radial {
-            // The principal point is the frame's centre.
-            let (ox, oy) = frame.offset();
-            let (fw, fh) = frame.display_size;
-            let centre = (fw as f64 / 2.0 - ox as f64, fh as f64 / 2.0 - oy as f64);
-            io::radial_to_view_depth_about(&mut depth, f_px, centre);
-        }
-        let lens = if a.depth_kind == DepthKind::Coc {
-            if a.focus.trim() != "auto" || a.focus_pixel.is_some() {
-                bail!(
-                    "--focus and --focus-pixel have no meaning with --depth-kind coc: the CoC map \
-                     gives every pixel's blur"
-                );
-            }
-            // A lens focused at 1 m whose CoC at infinity is twice the largest far radius, so
-            // that every radius of the map is that of some depth, which the methods turn back
-            // into it. Only the CoC function of this lens means anything: it is built directly,
-            // not from the lens flags (it may focus closer than any real focal length).
-            let max_far_px = depth.pixels().iter().fold(1.0f32, |m, &c| m.max(c));
-            let lens = ThinLens {
-                width_px: w,
-                height_px: h,
-                f_px,
-                lens_radius_m: 2.0 * max_far_px / f_px,
-                focus_m: 1.0,
-                near_m: 1e-6,
-                far_m: f32::MAX,
+        let kind = a.depth_kind;
+        let FrameLens {
+            depth,
+            lens,
+            focus_pick,
+        } = frame_lens(depth, kind, focus, &spec, &frame, &shown(&a.color))?;
+        if let Some(pick) = focus_pick.filter(|_| !a.in_sequence || a.verbose) {
+            let place = match focus {
+                FocusChoice::Pixel(x, y) => format!("around ({x}, {y})"),
+                _ => "at the image centre".to_string(),
             };
-            depth = depth.map(|c| lens.depth_for_coc_px(c));
-            lens
-        } else {
-            camera.focus_m = choose_focus(a, &depth, &frame)?;
-            let lens = camera.thin_lens().context(
-                "invalid camera (check --focus, --fstop, --focal-length, --sensor-width)",
-            )?;
-            ThinLens { f_px, ..lens }
-        };
+            eprintln!(
+                "focus: {:.4} m (median depth of the {w}x{w} pixels {place})",
+                pick.depth_m,
+                w = pick.window_px
+            );
+        }
         let settings = a
             .post
             .settings(method, &aperture, a.seed, color.height(), Some(&lens))?;
@@ -525,17 +493,6 @@ fn has_extension(path: &Path, ext: &str) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case(ext))
 }
 
-/// An image's pixels as a rectangle of its file's pixel coordinates, in the frame it belongs to.
-fn describe_placement(path: &Path, w: usize, h: usize, p: &Placement) -> String {
-    let (x, y) = p.data_origin;
-    let (fx, fy) = p.display_origin;
-    let (fw, fh) = p.display_size;
-    format!(
-        "{} holds the {w}x{h} pixels from ({x}, {y}) of the {fw}x{fh} frame from ({fx}, {fy})",
-        shown(&path)
-    )
-}
-
 /// The depth of the colour image's pixels. Same size as the colour image: taken as it is.
 /// Otherwise the two are placed in one frame by their OpenEXR windows (data window inside
 /// display window), an image of another format covering its partner's whole frame, and the
@@ -603,56 +560,4 @@ fn align_depth(
         cropped.extend_from_slice(&row[x0..x0 + w]);
     }
     Ok(GrayImage::from_vec(w, h, cropped)?)
-}
-
-/// The focus distance in metres from the flags: `--focus-pixel` (a pixel of the frame), `--focus
-/// auto` (the frame's centre) or `--focus M`.
-fn choose_focus(a: &BlurArgs, depth: &GrayImage, frame: &Placement) -> Result<f32> {
-    let (w, h) = (depth.width(), depth.height());
-    Ok(if let Some((fx, fy)) = a.focus_pixel {
-        // The frame's pixel as a pixel of the image.
-        let (ox, oy) = frame.offset();
-        let (x, y) = (fx as i64 - ox, fy as i64 - oy);
-        if !(0..w as i64).contains(&x) || !(0..h as i64).contains(&y) {
-            bail!(
-                "--focus-pixel {fx},{fy}: outside the image ({})",
-                describe_placement(&a.color, w, h, frame)
-            );
-        }
-        let pick = focus_in_depth(depth, x as usize, y as usize).with_context(|| {
-            format!("--focus-pixel {fx},{fy}: no surface around it (only holes or background); give --focus M")
-        })?;
-        if !a.in_sequence || a.verbose {
-            eprintln!(
-                "focus: {:.4} m (median depth of the {w}x{w} pixels around ({fx}, {fy}))",
-                pick.depth_m,
-                w = pick.window_px
-            );
-        }
-        pick.depth_m
-    } else if a.focus.trim() == "auto" {
-        let (cx, cy) = frame.frame_centre_in_image(w, h);
-        let pick = focus_in_depth(depth, cx, cy)
-            .context("--focus auto: the depth image has no surface (only holes or background); give --focus M")?;
-        if !a.in_sequence || a.verbose {
-            eprintln!(
-                "focus: {:.4} m (median depth of the {w}x{w} pixels at the image centre)",
-                pick.depth_m,
-                w = pick.window_px
-            );
-        }
-        pick.depth_m
-    } else {
-        a.focus.trim().parse::<f32>().map_err(|_| {
-            if a.focus.contains(':') {
-                anyhow::anyhow!(
-                    "--focus '{}' has keyframes: they need a frame sequence (a frame pattern \
-                     such as shot.####.exr in --color)",
-                    a.focus
-                )
-            } else {
-                anyhow::anyhow!("invalid --focus '{}': expected metres or auto", a.focus)
-            }
-        })?
-    })
 }

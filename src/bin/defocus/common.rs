@@ -34,12 +34,7 @@ pub fn method_parser() -> PossibleValuesParser {
     )
 }
 
-/// Parses comma-separated finite numbers; `None` if any is not one.
-pub fn parse_numbers(s: &str) -> Option<Vec<f32>> {
-    s.split(',')
-        .map(|p| p.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
-        .collect()
-}
+pub use defocus::options::parse_numbers;
 
 pub const IMAGE_EXTENSIONS: &[&str] = &["exr", "png", "pfm"];
 

@@ -6,13 +6,14 @@ mod blur;
 mod commands;
 mod common;
 mod kernel;
-mod post;
 mod report;
 mod sequence;
 
 use std::process::ExitCode;
 
 use clap::Parser;
+/// The methods' flags live in the library, shared with the Python package.
+pub(crate) use defocus::options as post;
 
 fn main() -> ExitCode {
     // Ctrl-C or SIGTERM: remove the temporary files of unfinished outputs, then stop.

@@ -1,21 +1,32 @@
-//! The flags of the methods, shared by `render` and `blur`, turned into the library's validated
-//! [`MethodSettings`] once. Running them is the library's registry.
+//! The methods' options, as the flags of `defocus render` and `defocus blur` name them, turned
+//! into validated [`MethodSettings`] in one place. The command line flattens [`PostArgs`] into
+//! its commands; the Python package parses its keyword arguments with the same struct (as the
+//! flags they name), so both have the same names, units, defaults and checks. Running the
+//! settings is the registry's ([`crate::methods::registry`]).
 
-use anyhow::{bail, Context, Result};
+use crate::lens::{Aperture, ThinLens};
+use crate::methods::coc_map;
+use crate::methods::gaussian::GaussianSettings;
+use crate::methods::hammon::{CocMode, HammonSettings, LerpDistances};
+use crate::methods::lowrank::LowRankSettings;
+use crate::methods::multilayer::{Bokeh, FilterSteps, MultilayerSettings};
+use crate::methods::multiview::{LayerCount, MultiviewSettings};
+use crate::methods::poisson::{self, PoissonSettings};
+use crate::methods::registry::MethodSettings;
+use crate::methods::splat::SplatSettings;
+use crate::raster::LayeredInput;
+use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
-use defocus::lens::{Aperture, ThinLens};
-use defocus::methods::coc_map;
-use defocus::methods::gaussian::GaussianSettings;
-use defocus::methods::hammon::{CocMode, HammonSettings, LerpDistances};
-use defocus::methods::lowrank::LowRankSettings;
-use defocus::methods::multilayer::{Bokeh, FilterSteps, MultilayerSettings};
-use defocus::methods::multiview::{LayerCount, MultiviewSettings};
-use defocus::methods::poisson::{self, PoissonSettings};
-use defocus::methods::registry::MethodSettings;
-use defocus::methods::splat::SplatSettings;
-use defocus::raster::LayeredInput;
 
-use crate::common::parse_numbers;
+/// The result of the checks in this module: an error chain whose messages name the flag.
+type Result<T> = anyhow::Result<T>;
+
+/// Parses comma-separated finite numbers; `None` if any is not one.
+pub fn parse_numbers(s: &str) -> Option<Vec<f32>> {
+    s.split(',')
+        .map(|p| p.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
+        .collect()
+}
 
 /// `--coc` of hammon.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -203,7 +214,7 @@ pub struct PostArgs {
         help_heading = "multilayer",
         help = format!(
             "multilayer: fragments kept per pixel, N (1 to {}; the paper keeps 3 or 4)",
-            defocus::raster::MAX_FRAGMENTS_PER_PIXEL
+            crate::raster::MAX_FRAGMENTS_PER_PIXEL
         )
     )]
     pub fragments: usize,
@@ -273,11 +284,24 @@ impl PostArgs {
         seed: u64,
         height_px: usize,
         lens: Option<&ThinLens>,
+    ) -> crate::Result<MethodSettings> {
+        self.checked_settings(method, aperture, seed, height_px, lens)
+            .map_err(|e| crate::Error::Option(format!("{e:#}")))
+    }
+
+    /// [`PostArgs::settings`], its error as a chain.
+    fn checked_settings(
+        &self,
+        method: &str,
+        aperture: &Aperture,
+        seed: u64,
+        height_px: usize,
+        lens: Option<&ThinLens>,
     ) -> Result<MethodSettings> {
         let settings = self.settings_of(method, aperture, seed, height_px, lens)?;
         // The flags of the other methods are range-checked too: a bad value is a mistake
         // whichever method runs (`--max-coc nan` with `hammon` is refused, not ignored).
-        for other in defocus::methods::registry::ids() {
+        for other in crate::methods::registry::ids() {
             if other == method {
                 continue;
             }
@@ -458,7 +482,7 @@ fn check_taps(flag: &str, n: usize) -> Result<()> {
 }
 
 /// Parses `A,B` (two finite numbers).
-pub fn parse_pair(s: &str) -> Result<(f32, f32), String> {
+pub fn parse_pair(s: &str) -> std::result::Result<(f32, f32), String> {
     match parse_numbers(s).as_deref() {
         Some([a, b]) => Ok((*a, *b)),
         _ => Err(format!("'{s}': expected two numbers A,B")),
@@ -466,7 +490,7 @@ pub fn parse_pair(s: &str) -> Result<(f32, f32), String> {
 }
 
 /// Parses `A,B,C` (three finite numbers).
-pub fn parse_triple(s: &str) -> Result<(f32, f32, f32), String> {
+pub fn parse_triple(s: &str) -> std::result::Result<(f32, f32, f32), String> {
     match parse_numbers(s).as_deref() {
         Some([a, b, c]) => Ok((*a, *b, *c)),
         _ => Err(format!("'{s}': expected three numbers A,B,C")),
