@@ -21,6 +21,33 @@ use clap::{Args, ValueEnum};
 /// The result of the checks in this module: an error chain whose messages name the flag.
 type Result<T> = anyhow::Result<T>;
 
+/// Parses `--aperture`: `disc`, `poly:B[,rot=DEG][,curve=R]`, `star[:N[,INNER]]`, `heart`,
+/// `ring[:INNER]`, or `image:PATH` (a greyscale image read as the aperture's density).
+pub fn parse_aperture(spec: &str) -> crate::Result<Aperture> {
+    use crate::lens::{ApertureImage, CustomShape};
+    let invalid =
+        |e: &dyn std::fmt::Display| crate::Error::Option(format!("invalid --aperture {spec}: {e}"));
+    if let Some(path) = spec.strip_prefix("image:") {
+        // A file that cannot be read stays an I/O error (naming the file).
+        let img =
+            crate::image::io::read_color(std::path::Path::new(path)).map_err(|e| match e {
+                io @ crate::Error::Io { .. } => io,
+                other => invalid(&other),
+            })?;
+        let grey = img.map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]);
+        let grey = crate::image::GrayImage::from_vec(grey.width(), grey.height(), grey.into_vec())?;
+        let density = ApertureImage::new(grey)
+            .map_err(|e| crate::Error::Option(format!("aperture image {path}: {e}")))?;
+        return Ok(Aperture::Image(std::sync::Arc::new(density)));
+    }
+    let name = spec.trim().split(':').next().unwrap_or("");
+    if ["star", "heart", "ring"].contains(&name) {
+        let shape = CustomShape::parse(spec).map_err(|e| invalid(&e))?;
+        return shape.aperture();
+    }
+    Aperture::parse(spec).map_err(|e| invalid(&e))
+}
+
 /// Parses comma-separated finite numbers; `None` if any is not one.
 pub fn parse_numbers(s: &str) -> Option<Vec<f32>> {
     s.split(',')

@@ -1528,8 +1528,8 @@ fn depth_from_png(path: &Path, png: &Png) -> Result<Vec<f32>> {
     Ok(png.samples.iter().step_by(png.channels).copied().collect())
 }
 
-/// 8-bit straight sRGB RGBA samples of `img`, as [`write_color`] writes PNG.
-fn png8_samples(img: &ColorImage) -> Vec<u8> {
+/// 8-bit straight sRGB RGBA samples of `img` (4 bytes a pixel), as [`write_color`] writes PNG.
+pub fn png8_samples(img: &ColorImage) -> Vec<u8> {
     let mut bytes = Vec::with_capacity(img.pixels().len() * 4);
     for p in img.pixels() {
         bytes.extend(straight_srgb(*p).map(|v| quantize(v, 255.0) as u8));

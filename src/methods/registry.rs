@@ -4,7 +4,10 @@
 //! is one module, one entry here (and in [`MethodSettings`]) and its flags.
 
 use crate::image::{ColorImage, GrayImage};
-use crate::lens::{Camera, ThinLens};
+use crate::lens::{Camera, SamplerKind, ThinLens};
+
+/// Most samples a run takes (`--samples`): lens views, rays or pixel samples.
+pub const MAX_SAMPLES: usize = 1 << 20;
 use crate::scene::Scene;
 use crate::{Error, Result};
 
@@ -216,6 +219,52 @@ impl MethodSettings {
             Self::Multilayer(_) => "multilayer",
             Self::Multiview(_) => "multiview",
         }
+    }
+
+    /// The settings of a run on a scene: `samples` (lens views of `reference`, samples per
+    /// pixel of `pinhole`, lens rays per pixel of `multiview`; each method's default when
+    /// `None`), the lens and pixel `sampler`, its `seed` and the `aperture` of `reference`.
+    /// Other methods are returned as they are (their samples are those of the frame they
+    /// blur, [`SceneOptions::frame_samples`]). `samples` must be 1 to 2^20.
+    pub fn with_run(
+        self,
+        samples: Option<usize>,
+        sampler: SamplerKind,
+        seed: u64,
+        aperture: &crate::lens::Aperture,
+    ) -> Result<Self> {
+        if let Some(n) = samples {
+            if n == 0 || n > MAX_SAMPLES {
+                return Err(Error::Option(format!(
+                    "invalid --samples {n}: expected 1 to {MAX_SAMPLES}"
+                )));
+            }
+        }
+        Ok(match self {
+            Self::Reference(r) => Self::Reference(ReferenceSettings {
+                samples: samples.unwrap_or(r.samples),
+                sampler,
+                seed,
+                aperture: aperture.clone(),
+                ..r
+            }),
+            Self::Pinhole(p) => Self::Pinhole(PinholeSettings {
+                samples: samples.unwrap_or(p.samples),
+                sampler,
+                seed,
+            }),
+            Self::Multiview(m) => {
+                let m = MultiviewSettings {
+                    samples: samples.unwrap_or(m.samples),
+                    sampler,
+                    ..m
+                };
+                m.validate()
+                    .map_err(|e| Error::Option(format!("invalid multiview option: {e}")))?;
+                Self::Multiview(m)
+            }
+            other => other,
+        })
     }
 
     /// The method's registry entry.

@@ -72,6 +72,43 @@ pub struct FileCamera {
     pub dof_from_file: bool,
 }
 
+/// A scene by name or path, as `--scene` takes it: a built-in scene
+/// ([`crate::scene::builtin::NAMES`]) or a scene file (.gltf, .glb, .obj), with the file's camera
+/// `camera` (its index or name) made the default. A built-in scene is returned with no cameras
+/// in [`SceneFile::cameras`] (it has one, its default), and refuses `camera`.
+pub fn scene_by_name_or_path(
+    spec: &str,
+    camera: Option<&str>,
+    options: &LoadOptions,
+) -> Result<SceneFile> {
+    if crate::scene::builtin::NAMES.contains(&spec) {
+        if camera.is_some() {
+            return Err(Error::Option(format!(
+                "invalid --camera: the built-in scene '{spec}' has one camera; --camera picks a camera of a scene file"
+            )));
+        }
+        return Ok(SceneFile {
+            scene: crate::scene::builtin::load(spec)?,
+            cameras: Vec::new(),
+            skipped_cameras: Vec::new(),
+        });
+    }
+    let path = Path::new(spec);
+    if !path.exists() {
+        return Err(Error::Option(format!(
+            "unknown scene '{}': not a built-in scene ({}) and no such file",
+            crate::error::shown(spec),
+            crate::scene::builtin::NAMES.join(", ")
+        )));
+    }
+    let mut file = read_scene_file_with(path, options)?;
+    if let Some(c) = camera {
+        file.use_camera(c)
+            .map_err(|e| Error::Option(format!("invalid --camera: {e}")))?;
+    }
+    Ok(file)
+}
+
 /// A loaded scene file: the scene and every camera it has.
 #[derive(Clone, Debug)]
 pub struct SceneFile {

@@ -7,14 +7,10 @@ use defocus::autofocus;
 use defocus::error::shown;
 use defocus::image::io;
 use defocus::lens::{Camera, SamplerKind};
-use defocus::methods::multiview::MultiviewSettings;
-use defocus::methods::reference::ReferenceSettings;
-use defocus::methods::registry::{
-    self, MethodSettings, PinholeSettings, SceneOptions, DEFAULT_FRAME_SAMPLES,
-};
+use defocus::methods::registry::{self, MethodSettings, SceneOptions, DEFAULT_FRAME_SAMPLES};
 use defocus::methods::MethodOutput;
 use defocus::metrics;
-use defocus::scene::{builtin, load, Scene};
+use defocus::scene::{load, Scene};
 use defocus::timing;
 use glam::Vec3;
 
@@ -93,36 +89,20 @@ struct TwoImages {
 }
 
 fn load_scene(spec: &str, camera: Option<&str>, options: &load::LoadOptions) -> Result<Scene> {
-    if builtin::NAMES.contains(&spec) {
-        if camera.is_some() {
-            bail!("invalid --camera: the built-in scene '{spec}' has one camera; --camera picks a camera of a scene file");
-        }
-        return Ok(builtin::load(spec)?);
+    let file = load::scene_by_name_or_path(spec, camera, options)?;
+    if !file.skipped_cameras.is_empty() {
+        eprintln!(
+            "note: {}: {} skipped: the thin-lens model is perspective{}",
+            shown(spec),
+            file.skipped_cameras.join(", "),
+            if file.cameras.is_empty() && camera.is_none() {
+                " (the default view frames the whole scene; --look-from and --fov place a camera)"
+            } else {
+                ""
+            }
+        );
     }
-    let path = Path::new(spec);
-    if path.exists() {
-        let mut file = load::read_scene_file_with(path, options)?;
-        if !file.skipped_cameras.is_empty() {
-            eprintln!(
-                "note: {}: {} skipped: the thin-lens model is perspective{}",
-                shown(&path),
-                file.skipped_cameras.join(", "),
-                if file.cameras.is_empty() && camera.is_none() {
-                    " (the default view frames the whole scene; --look-from and --fov place a camera)"
-                } else {
-                    ""
-                }
-            );
-        }
-        if let Some(c) = camera {
-            file.use_camera(c).context("invalid --camera")?;
-        }
-        return Ok(file.scene);
-    }
-    bail!(
-        "unknown scene '{spec}': not a built-in scene ({}) and no such file",
-        builtin::NAMES.join(", ")
-    )
+    Ok(file.scene)
 }
 
 impl TryFrom<RenderArgs> for RenderJob {
@@ -215,41 +195,12 @@ impl TryFrom<RenderArgs> for RenderJob {
             Some(spec) => parse_aperture(spec)?,
             None => defaults.aperture,
         };
-        if let Some(n) = a.samples {
-            if n == 0 || n > 1 << 20 {
-                bail!("invalid --samples {n}: expected 1 to {}", 1 << 20);
-            }
-        }
         let sampler = SamplerKind::parse(&a.sampler).context("invalid --sampler")?;
         let lens = camera.thin_lens()?;
-        let settings =
-            match a
-                .post
-                .settings(&a.method, &aperture, a.seed, camera.height_px, Some(&lens))?
-            {
-                MethodSettings::Reference(r) => MethodSettings::Reference(ReferenceSettings {
-                    samples: a.samples.unwrap_or(r.samples),
-                    sampler,
-                    seed: a.seed,
-                    aperture,
-                    ..r
-                }),
-                MethodSettings::Pinhole(p) => MethodSettings::Pinhole(PinholeSettings {
-                    samples: a.samples.unwrap_or(p.samples),
-                    sampler,
-                    seed: a.seed,
-                }),
-                MethodSettings::Multiview(m) => {
-                    let m = MultiviewSettings {
-                        samples: a.samples.unwrap_or(m.samples),
-                        sampler,
-                        ..m
-                    };
-                    m.validate().context("invalid multiview option")?;
-                    MethodSettings::Multiview(m)
-                }
-                other => other,
-            };
+        let settings = a
+            .post
+            .settings(&a.method, &aperture, a.seed, camera.height_px, Some(&lens))?
+            .with_run(a.samples, sampler, a.seed, &aperture)?;
         let options = SceneOptions {
             frame_samples: a.samples.unwrap_or(DEFAULT_FRAME_SAMPLES),
             seed: a.seed,

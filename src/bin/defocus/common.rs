@@ -5,13 +5,11 @@
 
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Args, ValueEnum};
 use defocus::error::shown;
-use defocus::image::io::{self, ExrCompression, ExrOptions};
-use defocus::image::GrayImage;
-use defocus::lens::{Aperture, ApertureImage, CustomShape};
+use defocus::image::io::{ExrCompression, ExrOptions};
 use defocus::methods::registry::METHODS;
 use defocus::timing::Timings;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -75,24 +73,7 @@ pub fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> 
     Ok(())
 }
 
-/// Parses `--aperture`, loading the image for `image:PATH`.
-pub fn parse_aperture(spec: &str) -> Result<Aperture> {
-    if let Some(path) = spec.strip_prefix("image:") {
-        let img = io::read_color(Path::new(path))
-            .with_context(|| format!("invalid --aperture {spec}"))?;
-        let grey = img.map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]);
-        let grey = GrayImage::from_vec(grey.width(), grey.height(), grey.into_vec())?;
-        let density = ApertureImage::new(grey).with_context(|| format!("aperture image {path}"))?;
-        return Ok(Aperture::Image(std::sync::Arc::new(density)));
-    }
-    let name = spec.trim().split(':').next().unwrap_or("");
-    if ["star", "heart", "ring"].contains(&name) {
-        let shape =
-            CustomShape::parse(spec).with_context(|| format!("invalid --aperture {spec}"))?;
-        return Ok(shape.aperture()?);
-    }
-    Aperture::parse(spec).with_context(|| format!("invalid --aperture {spec}"))
-}
+pub use defocus::options::parse_aperture;
 
 pub fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
     if quiet || total <= 1 {

@@ -1,0 +1,46 @@
+"""Type stubs of the native module (the public API, with docs, is in ``defocus/__init__.py``)."""
+
+from typing import Any, Dict, List, Optional, Tuple, Union
+
+import numpy as np
+
+__version__: str
+
+def blur(
+    color: np.ndarray,
+    depth: np.ndarray,
+    method: str,
+    depth_kind: str,
+    depth_scale: float,
+    zero_depth_is_far: bool,
+    focus: Union[float, str, None],
+    focus_pixel: Optional[Tuple[int, int]],
+    fstop: float,
+    focal_length: float,
+    sensor_width: float,
+    aperture: str,
+    seed: int,
+    flags: List[str],
+) -> np.ndarray: ...
+def render(
+    scene: str,
+    method: str,
+    width: Optional[int],
+    height: Optional[int],
+    samples: Optional[int],
+    seed: int,
+    sampler: str,
+    focus: Union[float, str, None],
+    focus_pixel: Optional[Tuple[int, int]],
+    fstop: Optional[float],
+    focal_length: Optional[float],
+    sensor_width: Optional[float],
+    aperture: Optional[str],
+    camera: Optional[str],
+    allow_external_files: bool,
+    with_depth: bool,
+    flags: List[str],
+) -> Tuple[np.ndarray, Optional[np.ndarray]]: ...
+def compare(a: np.ndarray, b: np.ndarray) -> Dict[str, float]: ...
+def methods() -> List[Dict[str, Any]]: ...
+def scenes() -> List[str]: ...

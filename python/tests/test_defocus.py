@@ -1,0 +1,194 @@
+"""Tests of the Python package: analytic cases, agreement with ``reference``, layouts, batches,
+errors and the augmentation. Run with ``pytest python/tests`` after ``pip install ./python``."""
+
+import threading
+
+import numpy as np
+import pytest
+
+import defocus
+
+W, H = 96, 64
+
+
+def checkerboard(cell=4, channels=3):
+    y, x = np.mgrid[0:H, 0:W]
+    v = np.where((x // cell + y // cell) % 2 == 0, 0.9, 0.1).astype(np.float32)
+    img = np.repeat(v[..., None], channels, axis=-1)
+    if channels == 4:
+        img[..., 3] = 1.0
+    return img
+
+
+def two_planes(near=1.0, far=4.0):
+    depth = np.full((H, W), far, dtype=np.float32)
+    depth[:, : W // 2] = near
+    return depth
+
+
+@pytest.mark.parametrize("method", ["lowrank", "hammon", "gaussian", "poisson"])
+def test_constant_image_stays_constant(method):
+    img = np.full((H, W, 3), 0.37, dtype=np.float32)
+    out = defocus.blur(img, two_planes(), method, focus=1.5, fstop=1.4)
+    assert out.shape == img.shape and out.dtype == np.float32
+    assert np.abs(out - 0.37).max() < 1e-3
+
+
+@pytest.mark.parametrize("method", ["lowrank", "hammon", "poisson"])
+def test_in_focus_plane_stays_sharp(method):
+    img = checkerboard()
+    depth = np.full((H, W), 2.0, dtype=np.float32)
+    out = defocus.blur(img, depth, method, focus=2.0, fstop=1.4)
+    assert np.abs(out - img).max() < 1e-3
+
+
+def test_out_of_focus_half_is_blurred_and_in_focus_half_is_not():
+    img = checkerboard(cell=2)
+    out = defocus.blur(img, two_planes(1.0, 4.0), "lowrank", focus=1.0, fstop=1.4)
+    sharp, soft = out[8:-8, 8 : W // 2 - 12], out[8:-8, W // 2 + 12 : -8]
+    # The in-focus half keeps the checkerboard's contrast; the far half loses it.
+    assert sharp.std() > 0.35
+    assert soft.std() < 0.1
+
+
+def test_uint8_srgb_in_gives_uint8_out_and_rgba_keeps_alpha():
+    img = (checkerboard() * 255).astype(np.uint8)
+    out = defocus.blur(img, two_planes(), "hammon", focus=1.0)
+    assert out.dtype == np.uint8 and out.shape == img.shape
+    rgba = checkerboard(channels=4)
+    out = defocus.blur(rgba, two_planes(), "lowrank", focus=1.0)
+    assert out.shape == (H, W, 4)
+    assert np.abs(out[..., 3] - 1.0).max() < 1e-3
+
+
+def test_batch_equals_one_call_per_image_and_non_contiguous_input_is_read():
+    imgs = np.stack([checkerboard(2), checkerboard(5)])
+    depths = np.stack([two_planes(), two_planes(2.0, 8.0)])
+    batch = defocus.blur(imgs, depths, "lowrank", focus=1.5, fstop=2.0)
+    assert batch.shape == imgs.shape
+    for i in range(2):
+        one = defocus.blur(imgs[i], depths[i], "lowrank", focus=1.5, fstop=2.0)
+        np.testing.assert_array_equal(batch[i], one)
+    # A view with strides (every other column) is read as the image it shows.
+    wide = np.repeat(checkerboard(2), 2, axis=1)
+    view = wide[:, ::2]
+    a = defocus.blur(view, two_planes(), "hammon", focus=1.5)
+    b = defocus.blur(np.ascontiguousarray(view), two_planes(), "hammon", focus=1.5)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_threads_can_blur_at_once():
+    img, depth = checkerboard(), two_planes()
+    want = defocus.blur(img, depth, "lowrank", focus=1.5)
+    results = [None] * 4
+
+    def run(i):
+        results[i] = defocus.blur(img, depth, "lowrank", focus=1.5)
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for r in results:
+        np.testing.assert_array_equal(r, want)
+
+
+def test_point_light_becomes_a_disc_of_diameter_two_coc():
+    # A single bright pixel far behind the focus, on a black background.
+    n = 81
+    img = np.zeros((n, n, 3), dtype=np.float32)
+    img[n // 2, n // 2] = 1000.0
+    depth = np.full((n, n), 100.0, dtype=np.float32)
+    # A 50 mm lens at f/2 (lens radius E = 12.5 mm) on a sensor 4.05 mm wide over 81 pixels:
+    # f_px = 1000. Focused at 1 m, a point at 100 m has the thin-lens CoC radius
+    # C = f_px E (1/1 - 1/100) = 12.375 px.
+    out = defocus.blur(
+        img, depth, "lowrank", focus=1.0, fstop=2.0, focal_length=50.0, sensor_width=4.05
+    )
+    coc = 1000.0 * 0.0125 * (1.0 - 1.0 / 100.0)
+    lit = out[..., 0] > out[..., 0].max() * 0.5
+    row = np.nonzero(lit[n // 2])[0]
+    width = row.max() - row.min() + 1
+    assert abs(width - 2 * coc) <= 2.0, (width, 2 * coc)
+    # Energy is kept by the normalised kernel.
+    assert abs(out[..., 0].sum() / 1000.0 - 1.0) < 0.02
+
+
+def test_blur_of_a_rendered_frame_is_the_command_lines_and_near_the_reference():
+    # The pinhole frame and depth of `glass` (16 samples a pixel), blurred from arrays by
+    # lowrank, is exactly what `render --method lowrank` gives (the same frame, lens and
+    # method), and against `reference` (256 lens views) through the same lens it measured
+    # 28.7 dB at 160x90; the tolerance leaves 2 dB for sampling noise across machines.
+    lens = dict(focus=3.0, fstop=1.4, focal_length=50.0, sensor_width=36.0)
+    size = dict(width=160, height=90)
+    color, depth = defocus.render(
+        "glass", method="pinhole", samples=16, return_depth=True, **size, **lens
+    )
+    ours = defocus.blur(color, depth, "lowrank", **lens)
+    np.testing.assert_array_equal(ours, defocus.render("glass", method="lowrank", **size, **lens))
+    truth = defocus.render("glass", samples=256, **size, **lens)
+    m = defocus.compare(ours, truth)
+    assert m["psnr"] > 26.7, m
+
+
+def test_methods_list_the_registry_with_options_and_defaults():
+    ms = {m["id"]: m for m in defocus.methods()}
+    assert {"reference", "hammon", "lowrank", "splat", "multilayer", "multiview"} <= set(ms)
+    assert ms["multiview"]["needs_scene"] and not ms["lowrank"]["needs_scene"]
+    rank = {o["name"]: o for o in ms["lowrank"]["options"]}["rank"]
+    assert rank["default"] == "3" and rank["flag"] == "--rank"
+    assert "layers" in {o["name"] for o in ms["multiview"]["options"]}
+
+
+def test_bad_arguments_raise_value_error_with_the_flag_named():
+    img, depth = checkerboard(), two_planes()
+    cases = [
+        (dict(rank=0), "rank"),
+        (dict(no_such_option=1), "--no-such-option"),
+        (dict(fstop=-1.0), "f-number"),
+        (dict(depth_kind="furlongs"), "depth_kind"),
+        (dict(aperture="poly:2"), "--aperture"),
+    ]
+    for kwargs, named in cases:
+        with pytest.raises(ValueError, match=named):
+            defocus.blur(img, depth, "lowrank", focus=1.5, **kwargs)
+    with pytest.raises(ValueError, match="size mismatch"):
+        defocus.blur(img, depth[:, :-1], "lowrank", focus=1.5)
+    with pytest.raises(ValueError, match="not positive depths"):
+        defocus.blur(img, -depth, "lowrank", focus=1.5)
+    with pytest.raises(ValueError, match="render"):
+        defocus.blur(img, depth, "multiview")
+    with pytest.raises(OSError, match="no-such-aperture.png"):
+        defocus.blur(img, depth, "lowrank", focus=1.5, aperture="image:no-such-aperture.png")
+
+
+def test_render_returns_colour_and_depth_of_the_asked_size():
+    color, depth = defocus.render("glass", method="pinhole", width=64, height=36, return_depth=True)
+    assert color.shape == (36, 64, 4) and depth.shape == (36, 64)
+    assert np.all(depth > 0)
+
+
+def test_random_defocus_is_seeded_and_p_zero_leaves_the_image():
+    img, depth = checkerboard(), two_planes()
+    a = defocus.RandomDefocus(seed=3, fstop_range=(1.4, 4.0))
+    b = defocus.RandomDefocus(seed=3, fstop_range=(1.4, 4.0))
+    for _ in range(3):
+        np.testing.assert_array_equal(a(img, depth), b(img, depth))
+        assert a.last_params == b.last_params
+        assert 1.4 <= a.last_params["fstop"] <= 4.0
+        # Without a focus range, the focus is a depth of the image.
+        assert a.last_params["focus"] in (1.0, 4.0)
+    ranged = defocus.RandomDefocus(focus_range=(0.5, 5.0), seed=1)
+    ranged(img, depth)
+    assert 0.5 <= ranged.last_params["focus"] <= 5.0
+    never = defocus.RandomDefocus(p=0.0, seed=0)
+    assert never(img, depth) is img
+
+
+def test_random_defocus_takes_torch_tensors_in_chw():
+    torch = pytest.importorskip("torch")
+    img = torch.from_numpy(np.moveaxis(checkerboard(), -1, 0).copy())
+    depth = torch.from_numpy(two_planes())
+    out = defocus.RandomDefocus(seed=0)(img, depth)
+    assert isinstance(out, torch.Tensor) and out.shape == img.shape
