@@ -207,3 +207,124 @@ pub fn describe_placement(image: &str, w: usize, h: usize, p: &Placement) -> Str
         "{image} holds the {w}x{h} pixels from ({x}, {y}) of the {fw}x{fh} frame from ({fx}, {fy})"
     )
 }
+
+/// Highlight recovery for low-dynamic-range input (`blur --highlights THRESHOLD,GAIN[,KNEE]`):
+/// in an 8-bit photo a street light clips at 1.0, so its bokeh would come out a dull grey disc
+/// instead of a bright one. Before the blur, in linear light, each pixel whose brightest
+/// channel `m` (of the colour without its alpha) exceeds `threshold` is scaled by
+/// `1 + (gain - 1) s`, where `s` rises smoothly (smoothstep) from 0 at `m = threshold` to 1 at
+/// `m = threshold + knee`. A clipped pixel (`m = 1` with the default knee `1 - threshold`)
+/// gets the whole gain; pixels at or below the threshold are unchanged. The gain stands for
+/// the light's true brightness over the clip level, which the 8-bit file lost.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Highlights {
+    /// Linear brightness (0 to 1) above which pixels are lifted.
+    pub threshold: f32,
+    /// Factor applied to fully clipped pixels (at least 1).
+    pub gain: f32,
+    /// Width of the ramp from the threshold to the full gain, in linear brightness (> 0).
+    pub knee: f32,
+}
+
+impl Highlights {
+    /// Parses `THRESHOLD,GAIN[,KNEE]` (the knee defaults to `1 - THRESHOLD`).
+    pub fn parse(spec: &str) -> Result<Highlights> {
+        let bad = |why: &str| {
+            Error::Option(format!(
+                "invalid --highlights '{spec}': {why}; expected THRESHOLD,GAIN[,KNEE], e.g. 0.9,20"
+            ))
+        };
+        let v = crate::options::parse_numbers(spec).ok_or_else(|| bad("not numbers"))?;
+        let (threshold, gain, knee) = match v.as_slice() {
+            [t, g] => (*t, *g, 1.0 - *t),
+            [t, g, k] => (*t, *g, *k),
+            _ => return Err(bad("two or three numbers")),
+        };
+        if !(0.0..1.0).contains(&threshold) {
+            return Err(bad(
+                "the threshold must be at least 0 and below 1 (linear light)",
+            ));
+        }
+        if !(1.0..=1e6).contains(&gain) {
+            return Err(bad("the gain must be 1 to 1e6"));
+        }
+        if !(knee > 0.0 && knee <= 1.0) {
+            return Err(bad("the knee must be above 0 and at most 1"));
+        }
+        Ok(Highlights {
+            threshold,
+            gain,
+            knee,
+        })
+    }
+
+    /// The factor applied to a pixel whose brightest channel is `m`.
+    #[inline]
+    pub fn factor(&self, m: f32) -> f32 {
+        let t = ((m - self.threshold) / self.knee).clamp(0.0, 1.0);
+        1.0 + (self.gain - 1.0) * t * t * (3.0 - 2.0 * t)
+    }
+
+    /// Lifts the highlights of `image` (linear, premultiplied alpha) in place; returns how many
+    /// pixels were lifted.
+    pub fn apply(&self, image: &mut crate::image::ColorImage) -> usize {
+        let mut lifted = 0;
+        for p in image.pixels_mut() {
+            if p[3] <= 0.0 {
+                continue;
+            }
+            let m = p[0].max(p[1]).max(p[2]) / p[3];
+            if m > self.threshold {
+                let f = self.factor(m);
+                p[0] *= f;
+                p[1] *= f;
+                p[2] *= f;
+                lifted += 1;
+            }
+        }
+        lifted
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn highlights_lift_clipped_pixels_by_the_gain_and_leave_the_rest() {
+        let h = Highlights::parse("0.8,10").unwrap();
+        assert!((h.knee - 0.2).abs() < 1e-6);
+        assert_eq!(h.factor(0.5), 1.0);
+        assert_eq!(h.factor(0.8), 1.0);
+        assert!((h.factor(1.0) - 10.0).abs() < 1e-4);
+        // Smooth and increasing between.
+        let mid = h.factor(0.9);
+        assert!((mid - 5.5).abs() < 1e-3, "{mid}");
+        let mut img = crate::image::ColorImage::from_vec(
+            3,
+            1,
+            vec![
+                [0.2, 0.3, 0.4, 1.0],
+                [1.0, 1.0, 1.0, 1.0],
+                [0.5, 0.5, 0.5, 0.5],
+            ],
+        )
+        .unwrap();
+        assert_eq!(h.apply(&mut img), 2);
+        assert_eq!(img.pixels()[0], [0.2, 0.3, 0.4, 1.0]);
+        assert!((img.pixels()[1][0] - 10.0).abs() < 1e-4);
+        // Premultiplied: a half-covered white pixel is clipped white, lifted by the gain.
+        assert!((img.pixels()[2][0] - 5.0).abs() < 1e-4 && img.pixels()[2][3] == 0.5);
+        for bad in [
+            "",
+            "1.0,10",
+            "0.9,0.5",
+            "0.9,10,0",
+            "0.9",
+            "0.9,10,1,2",
+            "a,b",
+        ] {
+            assert!(Highlights::parse(bad).is_err(), "{bad}");
+        }
+    }
+}

@@ -4,7 +4,7 @@
 //! flags they name), so both have the same names, units, defaults and checks. Running the
 //! settings is the registry's ([`crate::methods::registry`]).
 
-use crate::lens::{Aperture, ThinLens};
+use crate::lens::{Aperture, LensEffects, ThinLens};
 use crate::methods::coc_map;
 use crate::methods::gaussian::GaussianSettings;
 use crate::methods::hammon::{CocMode, HammonSettings, LerpDistances};
@@ -12,6 +12,7 @@ use crate::methods::lowrank::LowRankSettings;
 use crate::methods::multilayer::{Bokeh, FilterSteps, MultilayerSettings};
 use crate::methods::multiview::{LayerCount, MultiviewSettings};
 use crate::methods::poisson::{self, PoissonSettings};
+use crate::methods::reference::ReferenceSettings;
 use crate::methods::registry::MethodSettings;
 use crate::methods::splat::SplatSettings;
 use crate::raster::LayeredInput;
@@ -285,6 +286,39 @@ pub struct PostArgs {
         help_heading = "multilayer"
     )]
     pub ml_bokeh: String,
+
+    /// Anamorphic aperture: the bokeh's width over its height, its area kept (0.5: the tall
+    /// ovals of a 2x anamorphic lens; 1: round). Exact in reference; other methods refuse it.
+    #[arg(
+        long,
+        default_value_t = 1.0,
+        value_name = "ASPECT",
+        help_heading = "Lens effects (reference; other methods refuse them)"
+    )]
+    pub anamorphic: f32,
+    /// Cat's eye (optical vignetting): the lens barrel's front opening DIST millimetres in front
+    /// of the aperture, of radius RADIUS millimetres [default: the lens radius at this
+    /// f-number]. Towards the corners the bokeh is clipped into a lemon, its long side
+    /// tangential; stopping down inside a larger opening fades it. Exact in reference; other
+    /// methods refuse it.
+    #[arg(
+        long,
+        value_name = "DIST[,RADIUS]",
+        value_parser = parse_cats_eye,
+        help_heading = "Lens effects (reference; other methods refuse them)"
+    )]
+    pub cats_eye: Option<(f32, Option<f32>)>,
+}
+
+/// Parses `--cats-eye DIST[,RADIUS]` (millimetres).
+pub fn parse_cats_eye(s: &str) -> std::result::Result<(f32, Option<f32>), String> {
+    match parse_numbers(s).as_deref() {
+        Some([d]) => Ok((*d, None)),
+        Some([d, r]) => Ok((*d, Some(*r))),
+        _ => Err(format!(
+            "'{s}': expected the barrel's distance in millimetres, and optionally its radius: DIST[,RADIUS]"
+        )),
+    }
 }
 
 impl PostArgs {
@@ -294,6 +328,18 @@ impl PostArgs {
             coverage: !self.no_coverage,
             guard_band: !self.no_guard_band,
         }
+    }
+
+    /// The lens effects of `--anamorphic` and `--cats-eye`, checked.
+    pub fn lens_effects(&self) -> crate::Result<LensEffects> {
+        let (distance_mm, radius_mm) = self.cats_eye.unwrap_or((0.0, None));
+        let effects = LensEffects {
+            aspect: self.anamorphic,
+            barrel_distance_m: distance_mm / 1000.0,
+            barrel_radius_m: radius_mm.map(|r| r / 1000.0),
+        };
+        effects.validate()?;
+        Ok(effects)
     }
 
     /// True when `--large-blur-coc auto` is given (resolved against the run's lens).
@@ -326,6 +372,26 @@ impl PostArgs {
         lens: Option<&ThinLens>,
     ) -> Result<MethodSettings> {
         let settings = self.settings_of(method, aperture, seed, height_px, lens)?;
+        let effects = self.lens_effects()?;
+        let info = crate::methods::registry::find(method)?;
+        let unsupported: Vec<&str> = effects
+            .active()
+            .into_iter()
+            .filter(|e| !info.effects.contains(e))
+            .collect();
+        if !unsupported.is_empty() {
+            let supported: Vec<&str> = crate::methods::registry::METHODS
+                .iter()
+                .filter(|m| unsupported.iter().all(|e| m.effects.contains(e)))
+                .map(|m| m.id)
+                .collect();
+            bail!(
+                "method {method} does not support the lens effect {} (--{}); {} support it",
+                unsupported.join(", "),
+                unsupported.join(", --"),
+                supported.join(", ")
+            );
+        }
         // The flags of the other methods are range-checked too: a bad value is a mistake
         // whichever method runs (`--max-coc nan` with `hammon` is refused, not ignored).
         for other in crate::methods::registry::ids() {
@@ -495,6 +561,10 @@ impl PostArgs {
                 m.validate().context("invalid multilayer option")?;
                 MethodSettings::Multilayer(m)
             }
+            "reference" => MethodSettings::Reference(ReferenceSettings {
+                effects: self.lens_effects()?,
+                ..ReferenceSettings::default()
+            }),
             other => MethodSettings::default_for(other)?,
         };
         Ok(s)

@@ -14,7 +14,7 @@
 use std::path::Path;
 
 use clap::{CommandFactory, Parser};
-use defocus::blur::{frame_lens, DepthKind, FocusChoice, LensSpec};
+use defocus::blur::{frame_lens, DepthKind, FocusChoice, Highlights, LensSpec};
 use defocus::image::io::{self, DepthRead, Placement};
 use defocus::image::{ColorImage, GrayImage, Rgba};
 use defocus::lens::SamplerKind;
@@ -277,7 +277,7 @@ fn focus_choice(
 
 /// Depth of field for colour images with their depth (see `defocus.blur`).
 #[pyfunction]
-#[pyo3(signature = (color, depth, method, depth_kind, depth_scale, zero_depth_is_far, focus, focus_pixel, fstop, focal_length, sensor_width, aperture, seed, flags))]
+#[pyo3(signature = (color, depth, method, depth_kind, depth_scale, zero_depth_is_far, focus, focus_pixel, fstop, focal_length, sensor_width, aperture, seed, flags, highlights=None))]
 #[expect(
     clippy::too_many_arguments,
     reason = "the keyword arguments of defocus.blur"
@@ -298,8 +298,14 @@ fn blur(
     aperture: String,
     seed: u64,
     flags: Vec<String>,
+    highlights: Option<String>,
 ) -> PyResult<Py<PyAny>> {
     let batch = ColorBatch::from_numpy(color, "color")?;
+    let highlights = highlights
+        .as_deref()
+        .map(Highlights::parse)
+        .transpose()
+        .map_err(py_err)?;
     let (dshape, dvalues) = depth_batch(depth)?;
     let want: Vec<usize> = if batch.batched {
         vec![batch.n, batch.h, batch.w]
@@ -357,7 +363,11 @@ fn blur(
             .into_par_iter()
             .map(|i| {
                 let values = dvalues[i * per_image..(i + 1) * per_image].to_vec();
-                blur_one(batch.image(i)?, values, &params).map_err(|e| match e {
+                let mut image = batch.image(i)?;
+                if let Some(h) = &highlights {
+                    h.apply(&mut image);
+                }
+                blur_one(image, values, &params).map_err(|e| match e {
                     e if batch.batched => {
                         defocus::Error::Option(format!("image {i} of the batch: {e}"))
                     }
@@ -573,6 +583,7 @@ fn methods(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
         d.set_item("paper", m.paper)?;
         d.set_item("input", m.input.describe())?;
         d.set_item("needs_scene", m.input.needs_scene())?;
+        d.set_item("effects", m.effects.to_vec())?;
         let opts = PyList::empty(py);
         for (name, flag, help, default, applies, takes_value) in &options {
             if !applies.iter().any(|a| a == m.id) {

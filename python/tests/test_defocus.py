@@ -192,3 +192,18 @@ def test_random_defocus_takes_torch_tensors_in_chw():
     depth = torch.from_numpy(two_planes())
     out = defocus.RandomDefocus(seed=0)(img, depth)
     assert isinstance(out, torch.Tensor) and out.shape == img.shape
+
+
+def test_highlights_lift_clipped_lights_before_the_blur():
+    img = np.full((H, W, 3), 0.2, dtype=np.float32)
+    img[H // 2, W // 2] = 1.0  # a light clipped at 1.0
+    depth = np.full((H, W), 50.0, dtype=np.float32)
+    plain = defocus.blur(img, depth, "lowrank", focus=1.0, fstop=2.0)
+    lifted = defocus.blur(img, depth, "lowrank", focus=1.0, fstop=2.0, highlights=(0.9, 11.0))
+    # The light's extra energy (gain 11 on 0.8 above the background) spreads into its bokeh;
+    # the background, below the threshold, is unchanged.
+    extra = (lifted - plain)[..., 0].sum()
+    assert abs(extra - 10.0) < 0.2, extra
+    assert abs(lifted[2, 2, 0] - plain[2, 2, 0]) < 1e-6
+    with pytest.raises(ValueError, match="--highlights"):
+        defocus.blur(img, depth, "lowrank", focus=1.0, highlights="1.5,2")

@@ -7,12 +7,14 @@
 
 mod aperture;
 mod camera;
+mod effects;
 mod sampler;
 mod shapes;
 mod taps;
 
 pub use aperture::{Aperture, ApertureImage, APERTURE_SPECS};
 pub use camera::{Camera, ThinLens};
+pub use effects::{LensEffects, EFFECT_NAMES};
 pub(crate) use sampler::SAMPLER_SEED_SALT;
 pub use sampler::{LensSample, SampleSet, SamplerKind};
 pub(crate) use shapes::check_aberration;

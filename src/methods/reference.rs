@@ -18,8 +18,8 @@
 //! view is the plain pinhole image at pixel centres, returned exactly.
 
 use crate::image::GrayImage;
-use crate::lens::{Aperture, Camera, SampleSet, SamplerKind};
-use crate::raster::{accumulate_views, render_view, PreparedScene, View, ViewPassLabels};
+use crate::lens::{Aperture, Camera, LensEffects, SampleSet, SamplerKind};
+use crate::raster::{accumulate_views_clipped, render_view, PreparedScene, View, ViewPassLabels};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::Result;
@@ -74,6 +74,10 @@ pub struct ReferenceSettings {
     pub use_lens: bool,
     /// Also return the pinhole depth at pixel centres.
     pub with_depth: bool,
+    /// The real lens's departures from the ideal one (anamorphic aperture, cat's eye); the
+    /// ideal lens by default. Exact here: each lens point is squeezed, and each pixel takes
+    /// only the lens points that reach it through the barrel.
+    pub effects: LensEffects,
 }
 
 impl Default for ReferenceSettings {
@@ -85,6 +89,7 @@ impl Default for ReferenceSettings {
             aperture: Aperture::Disc,
             use_lens: true,
             with_depth: false,
+            effects: LensEffects::default(),
         }
     }
 }
@@ -132,6 +137,11 @@ pub fn render(
         for s in &mut set.samples {
             s.lens = glam::Vec2::ZERO;
         }
+    } else if !settings.effects.is_ideal() {
+        settings.effects.validate()?;
+        for s in &mut set.samples {
+            s.lens = settings.effects.squeeze(s.lens);
+        }
     }
     let prepared = timings.time(prepare, || {
         PreparedScene::new(scene, &camera.camera_from_world)
@@ -146,10 +156,12 @@ pub fn render(
         progress(1, 1);
         (g.color, settings.with_depth.then_some(g.depth))
     } else {
-        let image = accumulate_views(
+        let clip = settings.use_lens.then_some(&settings.effects);
+        let image = accumulate_views_clipped(
             &prepared,
             lens,
             &set.samples,
+            clip,
             &labels,
             &mut timings,
             progress,

@@ -63,6 +63,8 @@ pub struct MethodInfo {
     pub paper: &'static str,
     /// What it reads.
     pub input: InputKind,
+    /// The lens effects ([`crate::lens::EFFECT_NAMES`]) it renders; it refuses the others.
+    pub effects: &'static [&'static str],
 }
 
 /// Every method, in the order reports list them.
@@ -72,54 +74,63 @@ pub const METHODS: &[MethodInfo] = &[
         description: "no blur: the scene through the lens centre (supersampled with --samples)",
         paper: "",
         input: InputKind::SceneViews,
+        effects: &[],
     },
     MethodInfo {
         id: "reference",
         description: "ground truth: the mean of many views through points on the lens",
         paper: "Haeberli & Akeley 1990, The accumulation buffer",
         input: InputKind::SceneViews,
+        effects: &crate::lens::EFFECT_NAMES,
     },
     MethodInfo {
         id: "hammon",
         description: "post-process gather: blend of small / medium / large blurs with a blurred near CoC",
         paper: "Hammon 2007, GPU Gems 3 ch. 28",
         input: InputKind::PinholeFrame,
+        effects: &[],
     },
     MethodInfo {
         id: "lowrank",
         description: "aperture kernel as a sum of separable filters (SVD), depth-edge mask with a 2D fallback",
         paper: "McGraw 2015, Fast bokeh effects using low-rank linear filters",
         input: InputKind::PinholeFrame,
+        effects: &[],
     },
     MethodInfo {
         id: "gaussian",
         description: "baseline: separable Gaussian gather sized by the CoC",
         paper: "after Zhou et al. 2007",
         input: InputKind::PinholeFrame,
+        effects: &[],
     },
     MethodInfo {
         id: "poisson",
         description: "baseline: Poisson-disc gather in the aperture shape with depth rejection",
         paper: "after Scheuermann 2004",
         input: InputKind::PinholeFrame,
+        effects: &[],
     },
     MethodInfo {
         id: "splat",
         description: "tiled scatter: every fragment splatted in the aperture's shape, blended in depth order per tile (--layers N: from fragment lists)",
         paper: "Fast depth of field rendering (poster; tiled DoF splatting)",
         input: InputKind::PinholeFrame,
+        effects: &[],
     },
     MethodInfo {
         id: "multilayer",
         description: "per-pixel fragment lists filtered into levels of growing blur, blended by CoC: sees behind near blur",
         paper: "Selgrad et al. 2015, Real-time depth of field using multi-layer filtering",
         input: InputKind::FragmentLists,
+        effects: &[],
     },
     MethodInfo {
         id: "multiview",
         description: "lens rays traced through CoC-spaced depth layers rendered once: reference-like, cost independent of the scene",
         paper: "Lee, Eisemann, Seidel 2009, Depth-of-field rendering with multiview synthesis",
         input: InputKind::DepthLayers,
+        effects: &[],
     },
 ];
 

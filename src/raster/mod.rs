@@ -43,7 +43,9 @@ pub use fragments::{
 pub use gbuffer::{GBuffer, GBufferTile};
 pub use layers::{DepthLayers, LayerSpacing, LayersTile};
 pub use setup::{SetupTriangle, COVERAGE_PATTERN, COVERAGE_SAMPLES, FULL_COVERAGE};
-pub use views::{accumulate_views, render_view, sample_view, ViewPassLabels};
+pub use views::{
+    accumulate_views, accumulate_views_clipped, render_view, sample_view, ViewPassLabels,
+};
 
 use crate::image::Rgba;
 use crate::lens::ThinLens;

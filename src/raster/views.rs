@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::{BinnedView, GBuffer, PreparedScene, SetupTriangle, TileRect, TileSink, View};
 use crate::image::{ColorImage, Rgba};
-use crate::lens::{LensSample, ThinLens};
+use crate::lens::{LensEffects, LensSample, ThinLens};
 use crate::timing::Timings;
 use crate::Result;
 
@@ -77,13 +77,31 @@ pub fn accumulate_views(
     timings: &mut Timings,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ColorImage> {
+    accumulate_views_clipped(prepared, lens, samples, None, labels, timings, progress)
+}
+
+/// [`accumulate_views`] where each pixel takes only the views whose lens point reaches it
+/// through the lens barrel of `clip` (the cat's eye, [`LensEffects::barrel`]), and is their
+/// mean (black where none does). With `clip` `None` or without a barrel, the plain mean.
+pub fn accumulate_views_clipped(
+    prepared: &PreparedScene,
+    lens: ThinLens,
+    samples: &[LensSample],
+    clip: Option<&LensEffects>,
+    labels: &ViewPassLabels,
+    timings: &mut Timings,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<ColorImage> {
+    let clip = clip.filter(|e| e.has_cats_eye());
     let (w, h) = (lens.width_px, lens.height_px);
     let total = samples.len();
     // Setup triangles and bin entries of one view, at most.
     let view_bytes = prepared.triangle_count().max(1) * (std::mem::size_of::<SetupTriangle>() + 16);
     let chunk = (CHUNK_BYTES / view_bytes).clamp(1, VIEWS_PER_CHUNK);
-    // Per tile: its rectangle and the sum of its pixels, row-major within the tile.
+    // Per tile: its rectangle and the sum of its pixels, row-major within the tile; with a
+    // clip, also each pixel's count of views that reach it.
     let mut sums: Vec<(TileRect, Vec<Rgba>)> = Vec::new();
+    let mut counts: Vec<Vec<u32>> = Vec::new();
     let mut done = 0;
     for views in samples.chunks(chunk) {
         let binned: Vec<BinnedView> = views
@@ -99,9 +117,13 @@ pub fn accumulate_views(
                 .into_iter()
                 .map(|r| (r, vec![[0.0; 4]; r.width() * r.height()]))
                 .collect();
+            if clip.is_some() {
+                counts = sums.iter().map(|(_, s)| vec![0; s.len()]).collect();
+            }
         }
-        timings.time(labels.raster, || {
-            sums.par_iter_mut()
+        timings.time(labels.raster, || match clip {
+            None => sums
+                .par_iter_mut()
                 .enumerate()
                 .for_each(|(i, (rect, sum))| {
                     let mut tile = GBuffer::tile(*rect);
@@ -111,7 +133,20 @@ pub fn accumulate_views(
                         tile.finish();
                         add_tile(sum, tile.color());
                     }
-                });
+                }),
+            Some(effects) => sums
+                .par_iter_mut()
+                .zip(counts.par_iter_mut())
+                .enumerate()
+                .for_each(|(i, ((rect, sum), count))| {
+                    let mut tile = GBuffer::tile(*rect);
+                    for (view, sample) in binned.iter().zip(views) {
+                        tile.reset(*rect);
+                        view.rasterize_tile(prepared, i, rect, &mut tile);
+                        tile.finish();
+                        add_tile_clipped(sum, count, tile.color(), rect, &lens, effects, sample);
+                    }
+                }),
         });
         done += views.len();
         progress(done, total);
@@ -119,17 +154,54 @@ pub fn accumulate_views(
     timings.time(labels.resolve, || {
         let inv_n = 1.0 / total.max(1) as f32;
         let mut data = vec![[0.0; 4]; w * h];
-        for (rect, sum) in &sums {
+        for (t, (rect, sum)) in sums.iter().enumerate() {
             for (row, y) in (rect.y0..rect.y1).enumerate() {
                 let dst = &mut data[y * w + rect.x0..][..rect.width()];
                 let src = &sum[row * rect.width()..][..rect.width()];
-                for (d, s) in dst.iter_mut().zip(src) {
-                    *d = s.map(|v| v * inv_n);
+                match counts.get(t) {
+                    None => {
+                        for (d, s) in dst.iter_mut().zip(src) {
+                            *d = s.map(|v| v * inv_n);
+                        }
+                    }
+                    Some(count) => {
+                        let n = &count[row * rect.width()..][..rect.width()];
+                        for ((d, s), &k) in dst.iter_mut().zip(src).zip(n) {
+                            let inv = if k > 0 { 1.0 / k as f32 } else { 0.0 };
+                            *d = s.map(|v| v * inv);
+                        }
+                    }
                 }
             }
         }
         ColorImage::from_vec(w, h, data)
     })
+}
+
+/// Adds a view's tile to the pixels its lens point reaches through the lens barrel, counting
+/// them (the cat's eye of [`accumulate_views_clipped`]).
+fn add_tile_clipped(
+    sum: &mut [Rgba],
+    count: &mut [u32],
+    tile: &[Rgba],
+    rect: &TileRect,
+    lens: &ThinLens,
+    effects: &LensEffects,
+    sample: &LensSample,
+) {
+    let width = rect.width();
+    for (k, ((s, n), t)) in sum.iter_mut().zip(count.iter_mut()).zip(tile).enumerate() {
+        let p = glam::Vec2::new(
+            (rect.x0 + k % width) as f32 + 0.5,
+            (rect.y0 + k / width) as f32 + 0.5,
+        );
+        if effects.passes(effects.barrel(lens, p), sample.lens) {
+            for c in 0..4 {
+                s[c] += t[c];
+            }
+            *n += 1;
+        }
+    }
 }
 
 /// `sum += tile`, pixel by pixel: the accumulation of `reference`'s views. Compiled for several

@@ -1173,3 +1173,85 @@ fn blur_reads_zero_depth_as_far_when_told() {
     assert_eq!(io::read_color(&a).unwrap(), io::read_color(&b).unwrap());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// On an 8-bit sRGB frame of `lights`, where every light clips at 1.0, `--highlights` brings
+/// the bokeh's energy back: against the blur of the HDR frame, the blur of the 8-bit frame
+/// gains in PSNR and its energy comes closer.
+#[test]
+fn highlights_bring_back_the_energy_of_clipped_lights() {
+    let dir = temp_dir("highlights");
+    let (hdr, png, depth) = (dir.join("hdr.exr"), dir.join("ldr.png"), dir.join("z.exr"));
+    let o = defocus(&[
+        "render",
+        "--scene",
+        "lights",
+        "--method",
+        "pinhole",
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--samples",
+        "4",
+        "--out",
+        s(&hdr),
+        "--depth-out",
+        s(&depth),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // The same frame as an 8-bit photo: every light clips at 1.0.
+    let frame = io::read_color(&hdr).unwrap();
+    let brightest = frame
+        .pixels()
+        .iter()
+        .map(|p| p[0].max(p[1]).max(p[2]))
+        .fold(0.0, f32::max);
+    assert!(brightest > 4.0, "the lights are HDR: {brightest}");
+    io::write_color(&png, &frame).unwrap();
+    let blur = |input: &Path, out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "blur",
+            "--color",
+            s(input),
+            "--depth",
+            s(&depth),
+            "--method",
+            "lowrank",
+            "--focus",
+            "auto",
+            "--fstop",
+            "1.4",
+            "--out",
+            s(out),
+        ];
+        args.extend_from_slice(extra);
+        let o = defocus(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        io::read_color(out).unwrap()
+    };
+    let truth = blur(&hdr, &dir.join("t.exr"), &[]);
+    let plain = blur(&png, &dir.join("a.exr"), &[]);
+    let lifted = blur(&png, &dir.join("b.exr"), &["--highlights", "0.9,8"]);
+    let psnr = |img: &ColorImage| defocus::metrics::compare(img, &truth).unwrap().psnr_db;
+    let (e_truth, e_plain, e_lifted) = (sum_rgb(&truth), sum_rgb(&plain), sum_rgb(&lifted));
+    eprintln!(
+        "psnr plain {:.2} lifted {:.2}; energy truth {e_truth:.0} plain {e_plain:.0} lifted {e_lifted:.0}",
+        psnr(&plain),
+        psnr(&lifted)
+    );
+    assert!(psnr(&lifted) > psnr(&plain) + 1.0);
+    assert!((e_lifted - e_truth).abs() < 0.5 * (e_plain - e_truth).abs());
+    // A threshold of 1 or more is refused, naming the flag.
+    let bad = defocus(&[
+        "blur",
+        "--color",
+        s(&png),
+        "--depth",
+        s(&depth),
+        "--highlights",
+        "1.5,2",
+        "--out",
+        s(&dir.join("c.exr")),
+    ]);
+    assert!(!bad.status.success() && stderr(&bad).contains("--highlights"));
+}

@@ -7,6 +7,7 @@ mod hammon;
 mod image_io;
 mod layered;
 mod lens;
+mod lens_effects;
 mod lowrank;
 mod metrics;
 mod multilayer;

@@ -97,6 +97,7 @@ def blur(
     depth_scale: float = 1.0,
     zero_depth_is_far: bool = False,
     seed: int = 0,
+    highlights: Optional[Union[str, Sequence[float]]] = None,
     **method_options: Any,
 ) -> np.ndarray:
     """Depth of field for a colour image and its depth, through a thin lens.
@@ -124,6 +125,11 @@ def blur(
             depth = depth_scale / value).
         zero_depth_is_far: read a depth of exactly 0 as "no surface" (infinitely far).
         seed: seed of the methods that draw random taps.
+        highlights: ``(threshold, gain[, knee])`` or ``"0.9,20"``: lift clipped highlights of
+            low-dynamic-range input before the blur, in linear light (pixels whose brightest
+            channel is above ``threshold`` are scaled by up to ``gain``, reached at
+            ``threshold + knee``, by default 1), so the bokeh of lights clipped at 1.0 comes
+            out bright.
         **method_options: the method's options, named as the command line's flags with
             underscores (``rank=3``, ``max_coc=32``, ``no_mask=True``).
 
@@ -149,6 +155,11 @@ def blur(
         aperture,
         int(seed),
         _flags(method_options),
+        None
+        if highlights is None
+        else highlights
+        if isinstance(highlights, str)
+        else ",".join(str(float(v)) for v in highlights),
     )
 
 
@@ -229,7 +240,8 @@ def compare(a: Any, b: Any) -> Dict[str, float]:
 
 def methods() -> List[Dict[str, Any]]:
     """Every method of the registry: ``id``, ``description``, ``paper``, ``input``,
-    ``needs_scene`` (``render`` only) and ``options`` (each with ``name``, the keyword
+    ``needs_scene`` (``render`` only), ``effects`` (the lens effects it renders, such as
+    ``anamorphic`` and ``cats-eye``; the others it refuses) and ``options`` (each with ``name``, the keyword
     argument; ``flag``, the command line's; ``help`` with units; ``default``; ``switch`` for
     on/off options)."""
     return _defocus.methods()

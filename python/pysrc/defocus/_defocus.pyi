@@ -21,6 +21,7 @@ def blur(
     aperture: str,
     seed: int,
     flags: List[str],
+    highlights: Optional[str] = ...,
 ) -> np.ndarray: ...
 def render(
     scene: str,

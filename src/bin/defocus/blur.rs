@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use defocus::blur::{describe_placement, frame_lens, FocusChoice, FrameLens, LensSpec};
+use defocus::blur::{describe_placement, frame_lens, FocusChoice, FrameLens, Highlights, LensSpec};
 use defocus::error::shown;
 use defocus::frames::Keyed;
 use defocus::image::io::{self, DepthRead, Placement};
@@ -146,6 +146,13 @@ pub struct BlurArgs {
     /// Replace NaN and infinite colour values by 0 (and say how many) instead of refusing them.
     #[arg(long)]
     pub sanitize: bool,
+    /// Lift clipped highlights of low-dynamic-range input (an 8-bit photo) back towards their
+    /// true brightness before the blur, in linear light: pixels whose brightest channel is
+    /// above THRESHOLD (0 to 1) are scaled by up to GAIN, reached at THRESHOLD + KNEE
+    /// [default KNEE: 1 - THRESHOLD, so a clipped pixel gets the whole gain], e.g. `0.9,20`.
+    /// Bokeh of street lights then comes out bright instead of grey.
+    #[arg(long, value_name = "THRESHOLD,GAIN[,KNEE]")]
+    pub highlights: Option<String>,
     /// EXR output options.
     #[command(flatten)]
     pub exr: crate::common::ExrArgs,
@@ -282,6 +289,12 @@ impl TryFrom<&BlurArgs> for BlurJob {
             }
         } else {
             io::check_finite_color(&a.color, &color)?;
+        }
+        if let Some(spec) = &a.highlights {
+            let lifted = Highlights::parse(spec)?.apply(&mut color);
+            if a.verbose {
+                eprintln!("highlights: {lifted} pixel(s) lifted");
+            }
         }
         if let Some(ts) = tilt_shift {
             let mut post = a.post.clone();

@@ -332,6 +332,7 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
         coc_out: None,
         verbose: false,
         sanitize: false,
+        highlights: None,
         exr: crate::common::ExrArgs {
             exr_compression: crate::common::ExrCompressionArg::None,
             half: false,

@@ -1,0 +1,216 @@
+//! How a real lens departs from the ideal thin lens, shared by every method: an anamorphic
+//! (squeezed) aperture and the cat's eye (optical vignetting). All are off by default, and then
+//! every method gives exactly the ideal lens's image.
+//!
+//! - **Anamorphic.** The aperture is stretched to `aspect` times as wide as it is high, its area
+//!   kept: a lens point `v` of the unit aperture lies at `(v.x sqrt(aspect), v.y /
+//!   sqrt(aspect))` lens radii. A far point light's bokeh is the aperture so stretched: an
+//!   ellipse of axes `2|C| sqrt(aspect)` across and `2|C| / sqrt(aspect)` up for a disc. A 2x
+//!   anamorphic lens's tall ovals are `aspect = 0.5`.
+//! - **Cat's eye.** A second opening, the front of the lens barrel, lies `barrel_distance_m` in
+//!   front of the aperture, of radius `barrel_radius_m` (by default the lens radius `E`). Seen
+//!   from a pixel at field angle `theta` (`tan theta = r_px / f_px`, `r_px` its distance from
+//!   the image centre), the opening is shifted against the aperture by `barrel_distance_m tan
+//!   theta`. In aperture radii, a lens point `v` reaches that pixel when `|v + d| <= R`, with
+//!   `d = barrel_distance_m (p - c) / (f_px E)` and `R = barrel_radius_m / E`. At the image
+//!   centre nothing is cut; towards the corners the bokeh becomes the lemon where the two
+//!   discs overlap, its long axis tangential: two unit discs `|d|` apart overlap over `2 - |d|`
+//!   radii along the offset and `2 sqrt(1 - |d|^2 / 4)` across it. With a barrel radius given
+//!   in millimetres, stopping down shrinks the aperture inside the opening and the cat's eye
+//!   fades, as with a real lens.
+
+use glam::Vec2;
+
+use super::ThinLens;
+use crate::{Error, Result};
+
+/// Departures from the ideal thin lens (see the module doc). [`LensEffects::default`] is the
+/// ideal lens.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LensEffects {
+    /// Bokeh width over height (anamorphic squeeze, area kept); 1 is round.
+    pub aspect: f32,
+    /// Distance in metres from the aperture to the lens barrel's front opening (0: no cat's
+    /// eye).
+    pub barrel_distance_m: f32,
+    /// Radius of the barrel's opening in metres; `None`: the lens radius (as large as the
+    /// aperture at the f-number of the run).
+    pub barrel_radius_m: Option<f32>,
+}
+
+impl Default for LensEffects {
+    fn default() -> Self {
+        Self {
+            aspect: 1.0,
+            barrel_distance_m: 0.0,
+            barrel_radius_m: None,
+        }
+    }
+}
+
+/// The effects by name, as the registry and messages call them.
+pub const EFFECT_NAMES: [&str; 2] = ["anamorphic", "cats-eye"];
+
+impl LensEffects {
+    /// Whether this is the ideal lens (every effect off).
+    pub fn is_ideal(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// The effects that are on, by name ([`EFFECT_NAMES`]).
+    pub fn active(&self) -> Vec<&'static str> {
+        let mut on = Vec::new();
+        if self.aspect != 1.0 {
+            on.push("anamorphic");
+        }
+        if self.barrel_distance_m != 0.0 {
+            on.push("cats-eye");
+        }
+        on
+    }
+
+    /// Checks the ranges: aspect 0.1 to 10, barrel distance 0 to 10 m, barrel radius above 0
+    /// and at most 10 m.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.aspect.is_finite() && (0.1..=10.0).contains(&self.aspect)) {
+            return Err(Error::Option(format!(
+                "invalid --anamorphic {}: expected the bokeh's width over height, 0.1 to 10 (0.5: a 2x anamorphic's tall ovals)",
+                self.aspect
+            )));
+        }
+        if !(self.barrel_distance_m.is_finite() && (0.0..=10.0).contains(&self.barrel_distance_m)) {
+            return Err(Error::Option(format!(
+                "invalid --cats-eye: barrel distance {} m: expected 0 to 10 m (in the flag, millimetres)",
+                self.barrel_distance_m
+            )));
+        }
+        if let Some(r) = self.barrel_radius_m {
+            if !(r.is_finite() && r > 0.0 && r <= 10.0) {
+                return Err(Error::Option(format!(
+                    "invalid --cats-eye: barrel radius {r} m: expected above 0 and at most 10 m (in the flag, millimetres)"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The lens point, in lens radii, of the point `v` of the unit aperture: stretched by the
+    /// anamorphic aspect.
+    #[inline]
+    pub fn squeeze(&self, v: Vec2) -> Vec2 {
+        if self.aspect == 1.0 {
+            return v;
+        }
+        let s = self.aspect.sqrt();
+        Vec2::new(v.x * s, v.y / s)
+    }
+
+    /// Whether the cat's eye clips anything (a barrel at some distance).
+    #[inline]
+    pub fn has_cats_eye(&self) -> bool {
+        self.barrel_distance_m != 0.0
+    }
+
+    /// The barrel seen from the pixel centre `p_px` (pixel coordinates, y down) through `lens`:
+    /// its shift `d` and its radius `R`, both in aperture radii.
+    #[inline]
+    pub fn barrel(&self, lens: &ThinLens, p_px: Vec2) -> (Vec2, f32) {
+        let c = Vec2::new(lens.width_px as f32, lens.height_px as f32) * 0.5;
+        let e = lens.lens_radius_m;
+        let shift = (p_px - c) * (self.barrel_distance_m / (lens.f_px * e));
+        (shift, self.barrel_radius_m.map_or(1.0, |r| r / e))
+    }
+
+    /// Whether the lens point `v_lens` (in lens radii, after [`LensEffects::squeeze`]) reaches
+    /// the pixel that sees the barrel `(shift, radius)` ([`LensEffects::barrel`]).
+    #[inline]
+    pub fn passes(&self, (shift, radius): (Vec2, f32), v_lens: Vec2) -> bool {
+        (v_lens + shift).length_squared() <= radius * radius
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lens() -> ThinLens {
+        ThinLens {
+            width_px: 200,
+            height_px: 100,
+            f_px: 100.0,
+            lens_radius_m: 0.01,
+            focus_m: 1.0,
+            near_m: 0.01,
+            far_m: 100.0,
+        }
+    }
+
+    #[test]
+    fn squeeze_keeps_the_area_and_sets_the_aspect() {
+        let e = LensEffects {
+            aspect: 0.5,
+            ..LensEffects::default()
+        };
+        let x = e.squeeze(Vec2::X);
+        let y = e.squeeze(Vec2::Y);
+        assert!((x.x / y.y - 0.5).abs() < 1e-6);
+        assert!((x.x * y.y - 1.0).abs() < 1e-6);
+        assert_eq!(
+            LensEffects::default().squeeze(Vec2::new(0.3, -0.7)),
+            Vec2::new(0.3, -0.7)
+        );
+    }
+
+    #[test]
+    fn the_barrel_cuts_nothing_at_the_centre_and_a_lemon_at_the_edge() {
+        let l = lens();
+        let e = LensEffects {
+            barrel_distance_m: 0.005,
+            ..LensEffects::default()
+        };
+        // Centre: no shift, the whole unit disc passes.
+        let b0 = e.barrel(&l, Vec2::new(100.0, 50.0));
+        assert_eq!(b0, (Vec2::ZERO, 1.0));
+        // 100 px right of the centre: tan theta = 1, shift 0.005 / 0.01 = 0.5 radii (pointing
+        // outward); the lens points passing form the overlap of two unit discs 0.5 apart.
+        let b = e.barrel(&l, Vec2::new(200.0, 50.0));
+        assert!((b.0 - Vec2::new(0.5, 0.0)).length() < 1e-6);
+        assert!(e.passes(b, Vec2::new(-0.7, 0.0)));
+        assert!(!e.passes(b, Vec2::new(0.6, 0.0)));
+        assert!(e.passes(b, Vec2::new(-0.25, 0.96)));
+        assert!(!e.passes(b, Vec2::new(0.0, 0.99)));
+        // A barrel of 20 mm radius around a 10 mm lens radius: no cut at this angle.
+        let wide = LensEffects {
+            barrel_radius_m: Some(0.02),
+            ..e
+        };
+        let b = wide.barrel(&l, Vec2::new(200.0, 50.0));
+        assert!(wide.passes(b, Vec2::new(0.99, 0.0)));
+    }
+
+    #[test]
+    fn ranges_are_checked() {
+        for bad in [
+            LensEffects {
+                aspect: 0.0,
+                ..LensEffects::default()
+            },
+            LensEffects {
+                aspect: f32::NAN,
+                ..LensEffects::default()
+            },
+            LensEffects {
+                barrel_distance_m: -0.01,
+                ..LensEffects::default()
+            },
+            LensEffects {
+                barrel_radius_m: Some(0.0),
+                ..LensEffects::default()
+            },
+        ] {
+            assert!(bad.validate().is_err(), "{bad:?}");
+        }
+        assert!(LensEffects::default().validate().is_ok());
+        assert!(LensEffects::default().is_ideal());
+    }
+}

@@ -1,0 +1,251 @@
+//! Tests: the real lens's departures from the thin lens in `reference` (anamorphic aperture,
+//! cat's eye), against their analytic shapes, and the methods that refuse them.
+
+use defocus::image::ColorImage;
+use defocus::lens::{Camera, LensEffects};
+use defocus::methods::reference::{self, ReferenceSettings};
+use defocus::scene::{Material, Scene};
+use glam::Vec2;
+
+use crate::cli::{defocus, stderr};
+
+const W: usize = 160;
+const H: usize = 96;
+/// Depth of the light, far behind the focus (1 m).
+const LIGHT_M: f32 = 50.0;
+/// Edges found at half the bokeh's level lie within this many pixels of the analytic shape's
+/// (the light is 2 px wide and the pixels quantise the extent).
+const EXTENT_TOLERANCE_PX: f32 = 2.0;
+
+/// A 150 mm f/4 lens focused at 1 m on a 160x96 image (f_px 666.7, lens radius 18.75 mm), and a
+/// small light at `LIGHT_M` whose centre is at pixel `at`. Returns the scene, the camera and
+/// the light's CoC radius (12.25 px).
+fn light_at(at: Vec2) -> (Scene, Camera, f32) {
+    let camera = Camera {
+        focal_length_mm: 150.0,
+        ..crate::test_camera(W, H, 1.0, 4.0)
+    };
+    let coc = camera.thin_lens().unwrap().coc_px(LIGHT_M);
+    let mut scene = Scene::default();
+    let m = scene.add_material(Material::emissive("light", [1.0; 3], 1000.0));
+    crate::add_screen_rect(
+        &mut scene,
+        &camera,
+        (at.x - 1.0, at.y - 1.0, at.x + 1.0, at.y + 1.0),
+        LIGHT_M,
+        m,
+    );
+    (scene, camera, coc)
+}
+
+fn render(scene: &Scene, camera: &Camera, effects: LensEffects) -> ColorImage {
+    reference::render(
+        scene,
+        camera,
+        &ReferenceSettings {
+            samples: 1024,
+            effects,
+            ..ReferenceSettings::default()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap()
+    .image
+}
+
+/// The lit pixels' extent (min x, max x, min y, max y), in pixel-centre coordinates, at half
+/// the bokeh's level (the median of the clearly lit pixels).
+fn lit_extent(img: &ColorImage) -> (f32, f32, f32, f32) {
+    let v: Vec<f32> = img.pixels().iter().map(|p| p[0]).collect();
+    let max = v.iter().copied().fold(0.0, f32::max);
+    let mut bright: Vec<f32> = v.iter().copied().filter(|&x| x > 0.2 * max).collect();
+    bright.sort_by(f32::total_cmp);
+    let level = bright[bright.len() / 2];
+    let (mut x0, mut x1, mut y0, mut y1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+    for (i, &x) in v.iter().enumerate() {
+        if x > 0.5 * level {
+            let (px, py) = ((i % W) as f32 + 0.5, (i / W) as f32 + 0.5);
+            x0 = x0.min(px);
+            x1 = x1.max(px);
+            y0 = y0.min(py);
+            y1 = y1.max(py);
+        }
+    }
+    (x0, x1, y0, y1)
+}
+
+/// The extent of the set of points `q + C u` whose `u` satisfies `inside(u)`, found on a fine
+/// grid of `u` over the unit square around the aperture (independent of the renderer).
+fn analytic_extent(q: Vec2, coc: f32, inside: impl Fn(Vec2) -> bool) -> (f32, f32, f32, f32) {
+    let n = 800;
+    let (mut x0, mut x1, mut y0, mut y1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+    for j in 0..=n {
+        for i in 0..=n {
+            let u = Vec2::new(i as f32, j as f32) * (4.0 / n as f32) - Vec2::splat(2.0);
+            if inside(u) {
+                let p = q + coc * u;
+                x0 = x0.min(p.x);
+                x1 = x1.max(p.x);
+                y0 = y0.min(p.y);
+                y1 = y1.max(p.y);
+            }
+        }
+    }
+    (x0, x1, y0, y1)
+}
+
+fn assert_extents_close(what: &str, got: (f32, f32, f32, f32), want: (f32, f32, f32, f32)) {
+    let (gw, gh) = (got.1 - got.0 + 1.0, got.3 - got.2 + 1.0);
+    let (ww, wh) = (want.1 - want.0, want.3 - want.2);
+    eprintln!("{what}: lit {gw:.1} x {gh:.1} px, analytic {ww:.1} x {wh:.1} px");
+    assert!(
+        (gw - ww).abs() <= EXTENT_TOLERANCE_PX,
+        "{what}: width {gw} vs {ww}"
+    );
+    assert!(
+        (gh - wh).abs() <= EXTENT_TOLERANCE_PX,
+        "{what}: height {gh} vs {wh}"
+    );
+    let (gc, wc) = ((got.0 + got.1) / 2.0, (want.0 + want.1) / 2.0);
+    assert!(
+        (gc - wc).abs() <= EXTENT_TOLERANCE_PX,
+        "{what}: centre x {gc} vs {wc}"
+    );
+}
+
+#[test]
+fn anamorphic_bokeh_is_an_ellipse_of_the_squeezed_axes() {
+    let q = Vec2::new(W as f32 / 2.0, H as f32 / 2.0);
+    let (scene, camera, coc) = light_at(q);
+    assert!((coc - 12.25).abs() < 0.05, "{coc}");
+    for aspect in [0.5f32, 1.6] {
+        let img = render(
+            &scene,
+            &camera,
+            LensEffects {
+                aspect,
+                ..LensEffects::default()
+            },
+        );
+        // The unit disc stretched to sqrt(aspect) across and 1 / sqrt(aspect) up.
+        let s = aspect.sqrt();
+        let want = analytic_extent(q, coc, |u| (u.x / s).powi(2) + (u.y * s).powi(2) <= 1.0);
+        assert_extents_close(&format!("aspect {aspect}"), lit_extent(&img), want);
+    }
+}
+
+#[test]
+fn cats_eye_clips_the_bokeh_into_a_lemon_away_from_the_centre_only() {
+    let camera = light_at(Vec2::ZERO).1;
+    let lens = camera.thin_lens().unwrap();
+    // A barrel 200 mm in front of the aperture: 50 px right of the centre it is shifted by
+    // 0.2 * 50 / (f_px E) = 0.8 aperture radii.
+    let effects = LensEffects {
+        barrel_distance_m: 0.2,
+        ..LensEffects::default()
+    };
+    let centre = Vec2::new(W as f32 / 2.0, H as f32 / 2.0);
+    for (what, q) in [("centre", centre), ("edge", centre + Vec2::new(50.0, 0.0))] {
+        let (scene, camera, coc) = light_at(q);
+        let img = render(&scene, &camera, effects);
+        // Pixel p = q + C u takes the lens point u when it is in the aperture and
+        // |u + d(p)| <= 1, with d(p) the barrel's shift seen from p (it changes across the
+        // bokeh, which the shape follows).
+        let want = analytic_extent(q, coc, |u| {
+            let p = q + coc * u;
+            u.length() <= 1.0 && effects.passes(effects.barrel(&lens, p), u)
+        });
+        assert_extents_close(what, lit_extent(&img), want);
+    }
+    // The edge's lemon is narrower along the radius than across it: its long side is
+    // tangential.
+    let (scene, camera, _) = light_at(centre + Vec2::new(50.0, 0.0));
+    let e = lit_extent(&render(&scene, &camera, effects));
+    assert!(e.1 - e.0 < 0.8 * (e.3 - e.2), "{e:?}");
+}
+
+/// A barrel far wider than the aperture cuts nothing: the clipped accumulation (each pixel
+/// counting the views that reach it) gives the ideal lens's image bit for bit.
+#[test]
+fn a_barrel_that_cuts_nothing_gives_the_ideal_lens_exactly() {
+    let q = Vec2::new(W as f32 / 2.0 + 30.0, H as f32 / 2.0);
+    let (scene, camera, _) = light_at(q);
+    let run = |effects| {
+        reference::render(
+            &scene,
+            &camera,
+            &ReferenceSettings {
+                samples: 64,
+                effects,
+                ..ReferenceSettings::default()
+            },
+            &mut |_, _| {},
+        )
+        .unwrap()
+        .image
+    };
+    let ideal = run(LensEffects::default());
+    let wide = run(LensEffects {
+        barrel_distance_m: 0.01,
+        barrel_radius_m: Some(1.0),
+        ..LensEffects::default()
+    });
+    assert_eq!(ideal.pixels(), wide.pixels());
+}
+
+#[test]
+fn methods_without_an_effect_refuse_it_naming_it_and_who_has_it() {
+    let dir = crate::cli::temp_dir("effects");
+    let out = dir.join("o.png");
+    for (method, flag, value, effect) in [
+        ("lowrank", "--anamorphic", "0.5", "anamorphic"),
+        ("multilayer", "--cats-eye", "50", "cats-eye"),
+        ("hammon", "--cats-eye", "50,20", "cats-eye"),
+    ] {
+        let o = defocus(&[
+            "render",
+            "--scene",
+            "lights",
+            "--method",
+            method,
+            "--width",
+            "32",
+            "--height",
+            "18",
+            flag,
+            value,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(!o.status.success(), "{method} {flag}");
+        let err = stderr(&o);
+        assert!(err.contains(effect) && err.contains("reference"), "{err}");
+        assert!(!out.exists());
+    }
+    let o = defocus(&[
+        "render",
+        "--scene",
+        "lights",
+        "--width",
+        "32",
+        "--height",
+        "18",
+        "--samples",
+        "16",
+        "--anamorphic",
+        "0.5",
+        "--cats-eye",
+        "100",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bad = defocus(&[
+        "render",
+        "--anamorphic",
+        "0",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(stderr(&bad).contains("--anamorphic"), "{}", stderr(&bad));
+}
