@@ -39,11 +39,16 @@ fn light_at(at: Vec2) -> (Scene, Camera, f32) {
 }
 
 fn render(scene: &Scene, camera: &Camera, effects: LensEffects) -> ColorImage {
+    render_with(scene, camera, effects, 1024)
+}
+
+/// `reference` with `samples` lens samples and `effects`.
+fn render_with(scene: &Scene, camera: &Camera, effects: LensEffects, samples: usize) -> ColorImage {
     reference::render(
         scene,
         camera,
         &ReferenceSettings {
-            samples: 1024,
+            samples,
             effects,
             ..ReferenceSettings::default()
         },
@@ -170,20 +175,7 @@ fn cats_eye_clips_the_bokeh_into_a_lemon_away_from_the_centre_only() {
 fn a_barrel_that_cuts_nothing_gives_the_ideal_lens_exactly() {
     let q = Vec2::new(W as f32 / 2.0 + 30.0, H as f32 / 2.0);
     let (scene, camera, _) = light_at(q);
-    let run = |effects| {
-        reference::render(
-            &scene,
-            &camera,
-            &ReferenceSettings {
-                samples: 64,
-                effects,
-                ..ReferenceSettings::default()
-            },
-            &mut |_, _| {},
-        )
-        .unwrap()
-        .image
-    };
+    let run = |effects| render_with(&scene, &camera, effects, 64);
     let ideal = run(LensEffects::default());
     let wide = run(LensEffects {
         barrel_distance_m: 0.01,
