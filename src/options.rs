@@ -308,6 +308,29 @@ pub struct PostArgs {
         help_heading = "Lens effects (reference; other methods refuse them)"
     )]
     pub cats_eye: Option<(f32, Option<f32>)>,
+    /// Chromatic aberration: red in focus DPT dioptres (1/m) nearer than green and blue as much
+    /// farther (longitudinal: behind the focus the bokeh fringes red, in front of it blue), and
+    /// red's aperture SCALE times green's, blue's 1/SCALE times (lateral) [default SCALE: 1].
+    /// Exact in reference (a pass per channel); other methods refuse it.
+    #[arg(
+        long,
+        value_name = "DPT[,SCALE]",
+        value_parser = parse_chromatic,
+        allow_negative_numbers = true,
+        help_heading = "Lens effects (reference; other methods refuse them)"
+    )]
+    pub chromatic: Option<(f32, f32)>,
+}
+
+/// Parses `--chromatic DPT[,SCALE]`.
+pub fn parse_chromatic(s: &str) -> std::result::Result<(f32, f32), String> {
+    match parse_numbers(s).as_deref() {
+        Some([d]) => Ok((*d, 1.0)),
+        Some([d, k]) => Ok((*d, *k)),
+        _ => Err(format!(
+            "'{s}': expected the focus shift in dioptres, and optionally the aperture scale: DPT[,SCALE]"
+        )),
+    }
 }
 
 /// Parses `--cats-eye DIST[,RADIUS]` (millimetres).
@@ -330,13 +353,16 @@ impl PostArgs {
         }
     }
 
-    /// The lens effects of `--anamorphic` and `--cats-eye`, checked.
+    /// The lens effects of `--anamorphic`, `--cats-eye` and `--chromatic`, checked.
     pub fn lens_effects(&self) -> crate::Result<LensEffects> {
         let (distance_mm, radius_mm) = self.cats_eye.unwrap_or((0.0, None));
+        let (chroma_dpt, chroma_scale) = self.chromatic.unwrap_or((0.0, 1.0));
         let effects = LensEffects {
             aspect: self.anamorphic,
             barrel_distance_m: distance_mm / 1000.0,
             barrel_radius_m: radius_mm.map(|r| r / 1000.0),
+            chroma_dpt,
+            chroma_scale,
         };
         effects.validate()?;
         Ok(effects)

@@ -7,6 +7,11 @@
 //!   sqrt(aspect))` lens radii. A far point light's bokeh is the aperture so stretched: an
 //!   ellipse of axes `2|C| sqrt(aspect)` across and `2|C| / sqrt(aspect)` up for a disc. A 2x
 //!   anamorphic lens's tall ovals are `aspect = 0.5`.
+//! - **Chromatic aberration.** Longitudinal: the red channel is in focus `chroma_dpt` dioptres
+//!   nearer than green (`1/z_r = 1/z_f + D`), the blue one as much farther (`1/z_b = 1/z_f -
+//!   D`). Behind the focus red then has the largest blur and fringes the bokeh; in front of it,
+//!   blue. Lateral: the red channel's aperture is `chroma_scale` times green's, blue's `1 /
+//!   chroma_scale` times.
 //! - **Cat's eye.** A second opening, the front of the lens barrel, lies `barrel_distance_m` in
 //!   front of the aperture, of radius `barrel_radius_m` (by default the lens radius `E`). Seen
 //!   from a pixel at field angle `theta` (`tan theta = r_px / f_px`, `r_px` its distance from
@@ -36,6 +41,12 @@ pub struct LensEffects {
     /// Radius of the barrel's opening in metres; `None`: the lens radius (as large as the
     /// aperture at the f-number of the run).
     pub barrel_radius_m: Option<f32>,
+    /// Longitudinal chromatic aberration: red in focus this many dioptres (1/m) nearer than
+    /// green, blue as much farther (0: none).
+    pub chroma_dpt: f32,
+    /// Lateral chromatic aberration: red's aperture radius over green's, blue's being its
+    /// inverse (1: none).
+    pub chroma_scale: f32,
 }
 
 impl Default for LensEffects {
@@ -44,12 +55,14 @@ impl Default for LensEffects {
             aspect: 1.0,
             barrel_distance_m: 0.0,
             barrel_radius_m: None,
+            chroma_dpt: 0.0,
+            chroma_scale: 1.0,
         }
     }
 }
 
 /// The effects by name, as the registry and messages call them.
-pub const EFFECT_NAMES: [&str; 2] = ["anamorphic", "cats-eye"];
+pub const EFFECT_NAMES: [&str; 3] = ["anamorphic", "cats-eye", "chromatic"];
 
 impl LensEffects {
     /// Whether this is the ideal lens (every effect off).
@@ -66,7 +79,36 @@ impl LensEffects {
         if self.barrel_distance_m != 0.0 {
             on.push("cats-eye");
         }
+        if self.is_chromatic() {
+            on.push("chromatic");
+        }
         on
+    }
+
+    /// Whether the channels see different lenses (chromatic aberration).
+    pub fn is_chromatic(&self) -> bool {
+        self.chroma_dpt != 0.0 || self.chroma_scale != 1.0
+    }
+
+    /// The focus distance in metres and the lens-radius factor of channel `c` (0 red, 1 green,
+    /// 2 blue) of a lens focused at `focus_m`; an error when a channel would focus beyond
+    /// infinity.
+    pub fn channel_lens(&self, c: usize, focus_m: f32) -> Result<(f32, f32)> {
+        let (dpt, scale) = match c {
+            0 => (self.chroma_dpt, self.chroma_scale),
+            2 => (-self.chroma_dpt, 1.0 / self.chroma_scale),
+            _ => (0.0, 1.0),
+        };
+        let inverse = 1.0 / focus_m + dpt;
+        if !(inverse > 0.0 && inverse.is_finite()) {
+            return Err(Error::Option(format!(
+                "invalid --chromatic {}: focused at {focus_m} m, the {} channel would be in focus beyond infinity; expected at most {} dioptres",
+                self.chroma_dpt,
+                ["red", "green", "blue"][c],
+                1.0 / focus_m
+            )));
+        }
+        Ok((1.0 / inverse, scale))
     }
 
     /// Checks the ranges: aspect 0.1 to 10, barrel distance 0 to 10 m, barrel radius above 0
@@ -82,6 +124,18 @@ impl LensEffects {
             return Err(Error::Option(format!(
                 "invalid --cats-eye: barrel distance {} m: expected 0 to 10 m (in the flag, millimetres)",
                 self.barrel_distance_m
+            )));
+        }
+        if !(self.chroma_dpt.is_finite() && self.chroma_dpt.abs() <= 10.0) {
+            return Err(Error::Option(format!(
+                "invalid --chromatic {}: expected a focus shift of -10 to 10 dioptres",
+                self.chroma_dpt
+            )));
+        }
+        if !(self.chroma_scale.is_finite() && (0.5..=2.0).contains(&self.chroma_scale)) {
+            return Err(Error::Option(format!(
+                "invalid --chromatic: aperture scale {}: expected 0.5 to 2",
+                self.chroma_scale
             )));
         }
         if let Some(r) = self.barrel_radius_m {

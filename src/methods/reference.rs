@@ -102,6 +102,9 @@ pub fn render(
     settings: &ReferenceSettings,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<MethodOutput> {
+    if settings.use_lens && settings.effects.is_chromatic() {
+        return render_chromatic(scene, camera, settings, progress);
+    }
     let (prepare, labels, depth_label) = if settings.use_lens {
         (
             pass::PREPARE,
@@ -174,6 +177,59 @@ pub fn render(
     Ok(MethodOutput {
         image,
         depth,
+        timings,
+        memory_bytes: None,
+    })
+}
+
+/// Chromatic aberration: each channel rendered through its own lens (its focus distance and
+/// lens radius, [`LensEffects::channel_lens`]) with the same lens and pixel samples, and taken
+/// from that render; alpha and depth are green's.
+fn render_chromatic(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &ReferenceSettings,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<MethodOutput> {
+    settings.effects.validate()?;
+    let mono = ReferenceSettings {
+        effects: LensEffects {
+            chroma_dpt: 0.0,
+            chroma_scale: 1.0,
+            ..settings.effects
+        },
+        ..settings.clone()
+    };
+    let mut timings = Timings::default();
+    let mut channels = Vec::with_capacity(3);
+    for c in 0..3 {
+        let (focus_m, scale) = settings.effects.channel_lens(c, camera.focus_m)?;
+        let channel_camera = Camera {
+            focus_m,
+            fstop: camera.fstop / scale,
+            ..camera.clone()
+        };
+        let out = render(scene, &channel_camera, &mono, &mut |done, total| {
+            progress(c * total + done, 3 * total)
+        })?;
+        timings.extend(&out.timings);
+        channels.push(out);
+    }
+    let green = channels.swap_remove(1);
+    let (red, blue) = (&channels[0], &channels[1]);
+    let mut image = green.image;
+    for ((p, r), b) in image
+        .pixels_mut()
+        .iter_mut()
+        .zip(red.image.pixels())
+        .zip(blue.image.pixels())
+    {
+        p[0] = r[0];
+        p[2] = b[2];
+    }
+    Ok(MethodOutput {
+        image,
+        depth: green.depth,
         timings,
         memory_bytes: None,
     })

@@ -21,18 +21,23 @@ const EXTENT_TOLERANCE_PX: f32 = 2.0;
 /// small light at `LIGHT_M` whose centre is at pixel `at`. Returns the scene, the camera and
 /// the light's CoC radius (12.25 px).
 fn light_at(at: Vec2) -> (Scene, Camera, f32) {
+    light_at_depth(at, LIGHT_M)
+}
+
+/// [`light_at`] with the light at depth `z_m`.
+fn light_at_depth(at: Vec2, z_m: f32) -> (Scene, Camera, f32) {
     let camera = Camera {
         focal_length_mm: 150.0,
         ..crate::test_camera(W, H, 1.0, 4.0)
     };
-    let coc = camera.thin_lens().unwrap().coc_px(LIGHT_M);
+    let coc = camera.thin_lens().unwrap().coc_px(z_m);
     let mut scene = Scene::default();
     let m = scene.add_material(Material::emissive("light", [1.0; 3], 1000.0));
     crate::add_screen_rect(
         &mut scene,
         &camera,
         (at.x - 1.0, at.y - 1.0, at.x + 1.0, at.y + 1.0),
-        LIGHT_M,
+        z_m,
         m,
     );
     (scene, camera, coc)
@@ -61,7 +66,12 @@ fn render_with(scene: &Scene, camera: &Camera, effects: LensEffects, samples: us
 /// The lit pixels' extent (min x, max x, min y, max y), in pixel-centre coordinates, at half
 /// the bokeh's level (the median of the clearly lit pixels).
 fn lit_extent(img: &ColorImage) -> (f32, f32, f32, f32) {
-    let v: Vec<f32> = img.pixels().iter().map(|p| p[0]).collect();
+    lit_extent_of(img, 0)
+}
+
+/// [`lit_extent`] of channel `c`.
+fn lit_extent_of(img: &ColorImage, c: usize) -> (f32, f32, f32, f32) {
+    let v: Vec<f32> = img.pixels().iter().map(|p| p[c]).collect();
     let max = v.iter().copied().fold(0.0, f32::max);
     let mut bright: Vec<f32> = v.iter().copied().filter(|&x| x > 0.2 * max).collect();
     bright.sort_by(f32::total_cmp);
@@ -169,6 +179,37 @@ fn cats_eye_clips_the_bokeh_into_a_lemon_away_from_the_centre_only() {
     assert!(e.1 - e.0 < 0.8 * (e.3 - e.2), "{e:?}");
 }
 
+/// Longitudinal chromatic aberration: each channel's bokeh has the diameter of its own lens's
+/// CoC, so behind the focus red (in focus nearer) has the largest and fringes the bokeh, and in
+/// front of it blue.
+#[test]
+fn chromatic_bokeh_fringes_red_behind_the_focus_and_blue_in_front() {
+    let q = Vec2::new(W as f32 / 2.0, H as f32 / 2.0);
+    let effects = LensEffects {
+        chroma_dpt: 0.2,
+        ..LensEffects::default()
+    };
+    for (z, fringe) in [(LIGHT_M, 0), (0.6, 2)] {
+        let (scene, camera, _) = light_at_depth(q, z);
+        let img = render(&scene, &camera, effects);
+        let lens = camera.thin_lens().unwrap();
+        let mut widths = [0.0; 3];
+        for (c, width) in widths.iter_mut().enumerate() {
+            // The channel's CoC: f_px E (1/z_c - 1/z), with 1/z_c = 1/z_f + (0.2, 0, -0.2).
+            let inv_focus = 1.0 / lens.focus_m + [0.2, 0.0, -0.2][c];
+            let coc = lens.f_px * lens.lens_radius_m * (inv_focus - 1.0 / z);
+            let want = analytic_extent(q, coc.abs(), |u| u.length() <= 1.0);
+            let got = lit_extent_of(&img, c);
+            assert_extents_close(&format!("z {z} channel {c}"), got, want);
+            *width = got.1 - got.0;
+        }
+        let widest = (0..3)
+            .max_by(|&a, &b| widths[a].total_cmp(&widths[b]))
+            .unwrap();
+        assert_eq!(widest, fringe, "z {z}: widths {widths:?}");
+    }
+}
+
 /// A barrel far wider than the aperture cuts nothing: the clipped accumulation (each pixel
 /// counting the views that reach it) gives the ideal lens's image bit for bit.
 #[test]
@@ -193,6 +234,7 @@ fn methods_without_an_effect_refuse_it_naming_it_and_who_has_it() {
         ("lowrank", "--anamorphic", "0.5", "anamorphic"),
         ("multilayer", "--cats-eye", "50", "cats-eye"),
         ("hammon", "--cats-eye", "50,20", "cats-eye"),
+        ("splat", "--chromatic", "0.5", "chromatic"),
     ] {
         let o = defocus(&[
             "render",
