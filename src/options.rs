@@ -287,15 +287,24 @@ pub struct PostArgs {
     )]
     pub ml_bokeh: String,
 
+    /// A lens preset: `vintage-swirl` (strong cat's eye), `anamorphic-2x` (tall oval bokeh),
+    /// `apochromat` (nearly ideal), or a JSON file of your own with `description` and any of
+    /// `anamorphic`, `cats_eye_mm` and `chromatic` (the flags below, in their units; see
+    /// `presets/`). The flags below override it.
+    #[arg(
+        long,
+        value_name = "PRESET|FILE.json",
+        help_heading = "Lens effects (reference; other methods refuse them)"
+    )]
+    pub lens: Option<String>,
     /// Anamorphic aperture: the bokeh's width over its height, its area kept (0.5: the tall
     /// ovals of a 2x anamorphic lens; 1: round). Exact in reference; other methods refuse it.
     #[arg(
         long,
-        default_value_t = 1.0,
         value_name = "ASPECT",
         help_heading = "Lens effects (reference; other methods refuse them)"
     )]
-    pub anamorphic: f32,
+    pub anamorphic: Option<f32>,
     /// Cat's eye (optical vignetting): the lens barrel's front opening DIST millimetres in front
     /// of the aperture, of radius RADIUS millimetres [default: the lens radius at this
     /// f-number]. Towards the corners the bokeh is clipped into a lemon, its long side
@@ -353,17 +362,24 @@ impl PostArgs {
         }
     }
 
-    /// The lens effects of `--anamorphic`, `--cats-eye` and `--chromatic`, checked.
+    /// The lens effects of `--lens`, then `--anamorphic`, `--cats-eye` and `--chromatic`
+    /// over it, checked.
     pub fn lens_effects(&self) -> crate::Result<LensEffects> {
-        let (distance_mm, radius_mm) = self.cats_eye.unwrap_or((0.0, None));
-        let (chroma_dpt, chroma_scale) = self.chromatic.unwrap_or((0.0, 1.0));
-        let effects = LensEffects {
-            aspect: self.anamorphic,
-            barrel_distance_m: distance_mm / 1000.0,
-            barrel_radius_m: radius_mm.map(|r| r / 1000.0),
-            chroma_dpt,
-            chroma_scale,
+        let mut effects = match &self.lens {
+            Some(spec) => LensEffects::preset(spec)?.0,
+            None => LensEffects::default(),
         };
+        if let Some(a) = self.anamorphic {
+            effects.aspect = a;
+        }
+        if let Some((distance_mm, radius_mm)) = self.cats_eye {
+            effects.barrel_distance_m = distance_mm / 1000.0;
+            effects.barrel_radius_m = radius_mm.map(|r| r / 1000.0);
+        }
+        if let Some((dpt, scale)) = self.chromatic {
+            effects.chroma_dpt = dpt;
+            effects.chroma_scale = scale;
+        }
         effects.validate()?;
         Ok(effects)
     }

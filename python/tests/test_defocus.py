@@ -207,3 +207,12 @@ def test_highlights_lift_clipped_lights_before_the_blur():
     assert abs(lifted[2, 2, 0] - plain[2, 2, 0]) < 1e-6
     with pytest.raises(ValueError, match="--highlights"):
         defocus.blur(img, depth, "lowrank", focus=1.0, highlights="1.5,2")
+
+
+def test_lens_presets_and_effects_reach_python_through_the_same_options():
+    img = defocus.render("lights", width=32, height=18, samples=8, lens="anamorphic-2x")
+    assert img.shape == (18, 32, 4)
+    ids = {m["id"]: m for m in defocus.methods()}
+    assert "anamorphic" in ids["reference"]["effects"] and not ids["lowrank"]["effects"]
+    with pytest.raises(ValueError, match="anamorphic"):
+        defocus.blur(checkerboard(), two_planes(), "lowrank", focus=1.5, anamorphic=0.5)

@@ -64,7 +64,107 @@ impl Default for LensEffects {
 /// The effects by name, as the registry and messages call them.
 pub const EFFECT_NAMES: [&str; 3] = ["anamorphic", "cats-eye", "chromatic"];
 
+/// The built-in lens presets, by name: plain JSON files in `presets/` of the repository, read
+/// as [`LensEffects::preset`] reads a user's own file.
+pub const PRESETS: &[(&str, &str)] = &[
+    (
+        "vintage-swirl",
+        include_str!("../../presets/vintage-swirl.json"),
+    ),
+    (
+        "anamorphic-2x",
+        include_str!("../../presets/anamorphic-2x.json"),
+    ),
+    ("apochromat", include_str!("../../presets/apochromat.json")),
+];
+
+/// A lens preset file: a description and any of the effects, in the units of the flags.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PresetFile {
+    /// What the lens looks like.
+    description: String,
+    /// `--anamorphic ASPECT`.
+    anamorphic: Option<f32>,
+    /// `--cats-eye DIST[,RADIUS]` in millimetres.
+    cats_eye_mm: Option<Vec<f32>>,
+    /// `--chromatic DPT[,SCALE]`.
+    chromatic: Option<Vec<f32>>,
+}
+
 impl LensEffects {
+    /// A lens preset: a built-in name ([`PRESETS`]) or a JSON file with the fields
+    /// `description`, and any of `anamorphic` (aspect), `cats_eye_mm` ([distance] or
+    /// [distance, radius]) and `chromatic` ([dioptres] or [dioptres, scale]). Returns the effects
+    /// and the description.
+    pub fn preset(spec: &str) -> Result<(LensEffects, String)> {
+        let (source, text) = match PRESETS.iter().find(|(name, _)| *name == spec) {
+            Some((name, json)) => (
+                std::path::PathBuf::from(format!("preset {name}")),
+                json.to_string(),
+            ),
+            None => {
+                let path = std::path::Path::new(spec);
+                if !path.is_file() {
+                    return Err(Error::Unknown {
+                        kind: "lens preset",
+                        name: spec.to_string(),
+                        expected: format!(
+                            "{}, or a preset file (.json)",
+                            PRESETS.iter().map(|p| p.0).collect::<Vec<_>>().join(", ")
+                        ),
+                    });
+                }
+                let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+                (path.to_path_buf(), text)
+            }
+        };
+        let file: PresetFile = serde_json::from_str(&text).map_err(|e| {
+            Error::format(
+                &source,
+                format!(
+                    "not a lens preset: {e}; expected a JSON object with \"description\" and any of \"anamorphic\", \"cats_eye_mm\", \"chromatic\""
+                ),
+            )
+        })?;
+        let mut effects = LensEffects::default();
+        if let Some(a) = file.anamorphic {
+            effects.aspect = a;
+        }
+        match file.cats_eye_mm.as_deref() {
+            None => {}
+            Some([d]) => effects.barrel_distance_m = d / 1000.0,
+            Some([d, r]) => {
+                effects.barrel_distance_m = d / 1000.0;
+                effects.barrel_radius_m = Some(r / 1000.0);
+            }
+            Some(_) => {
+                return Err(Error::format(
+                    &source,
+                    "cats_eye_mm: expected [distance] or [distance, radius] in millimetres",
+                ))
+            }
+        }
+        match file.chromatic.as_deref() {
+            None => {}
+            Some([d]) => effects.chroma_dpt = *d,
+            Some([d, k]) => {
+                effects.chroma_dpt = *d;
+                effects.chroma_scale = *k;
+            }
+            Some(_) => {
+                return Err(Error::format(
+                    &source,
+                    "chromatic: expected [dioptres] or [dioptres, aperture scale]",
+                ))
+            }
+        }
+        effects
+            .validate()
+            .map_err(|e| Error::format(&source, e.to_string()))?;
+        Ok((effects, file.description))
+    }
+
     /// Whether this is the ideal lens (every effect off).
     pub fn is_ideal(&self) -> bool {
         *self == Self::default()
@@ -240,6 +340,18 @@ mod tests {
         };
         let b = wide.barrel(&l, Vec2::new(200.0, 50.0));
         assert!(wide.passes(b, Vec2::new(0.99, 0.0)));
+    }
+
+    #[test]
+    fn every_built_in_preset_reads_and_has_an_effect() {
+        for (name, _) in PRESETS {
+            let (effects, description) = LensEffects::preset(name).unwrap();
+            assert!(!effects.is_ideal(), "{name}");
+            assert!(!description.is_empty(), "{name}");
+        }
+        let (anamorphic, _) = LensEffects::preset("anamorphic-2x").unwrap();
+        assert_eq!(anamorphic.aspect, 0.5);
+        assert!(LensEffects::preset("no-such-lens").is_err());
     }
 
     #[test]

@@ -14,7 +14,7 @@ mod taps;
 
 pub use aperture::{Aperture, ApertureImage, APERTURE_SPECS};
 pub use camera::{Camera, ThinLens};
-pub use effects::{LensEffects, EFFECT_NAMES};
+pub use effects::{LensEffects, EFFECT_NAMES, PRESETS};
 pub(crate) use sampler::SAMPLER_SEED_SALT;
 pub use sampler::{LensSample, SampleSet, SamplerKind};
 pub(crate) use shapes::check_aberration;

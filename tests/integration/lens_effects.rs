@@ -283,3 +283,56 @@ fn methods_without_an_effect_refuse_it_naming_it_and_who_has_it() {
     ]);
     assert!(stderr(&bad).contains("--anamorphic"), "{}", stderr(&bad));
 }
+
+#[test]
+fn lens_presets_are_data_files_a_user_can_add() {
+    let dir = crate::cli::temp_dir("presets");
+    let out = dir.join("o.png");
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "render",
+            "--scene",
+            "lights",
+            "--width",
+            "32",
+            "--height",
+            "18",
+            "--samples",
+            "16",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        defocus(&args)
+    };
+    for name in ["vintage-swirl", "anamorphic-2x", "apochromat"] {
+        let o = run(&["--lens", name]);
+        assert!(o.status.success(), "{name}: {}", stderr(&o));
+    }
+    // A user's own preset, and one with a field it does not know.
+    let mine = dir.join("mine.json");
+    std::fs::write(
+        &mine,
+        r#"{"description": "squeezed", "anamorphic": 0.7, "cats_eye_mm": [20, 15]}"#,
+    )
+    .unwrap();
+    let o = run(&["--lens", mine.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bad = dir.join("bad.json");
+    std::fs::write(&bad, r#"{"description": "x", "aspect": 0.5}"#).unwrap();
+    let o = run(&["--lens", bad.to_str().unwrap()]);
+    let err = stderr(&o);
+    assert!(
+        !o.status.success() && err.contains("bad.json") && err.contains("aspect"),
+        "{err}"
+    );
+    let o = run(&["--lens", "no-such-lens"]);
+    assert!(stderr(&o).contains("vintage-swirl"), "{}", stderr(&o));
+    // A preset's effects are refused by a method without them, naming them.
+    let o = run(&["--lens", "anamorphic-2x", "--method", "lowrank"]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("anamorphic"),
+        "{}",
+        stderr(&o)
+    );
+}
