@@ -34,7 +34,7 @@ use rayon::prelude::*;
 use super::coc_map::{check_frame, coc};
 use super::MethodOutput;
 use crate::image::{ColorImage, GrayImage, Rgba};
-use crate::lens::{Aperture, ThinLens};
+use crate::lens::{Aperture, LensEffects, ThinLens};
 pub use crate::lens::{Taps, CANDIDATES, MAX_TAPS};
 use crate::timing::Timings;
 use crate::Result;
@@ -51,6 +51,10 @@ pub struct PoissonSettings {
     pub seed: u64,
     /// Largest CoC radius in pixels; larger blurs are clamped to it. Default 64.
     pub max_coc_px: f32,
+    /// Anamorphic squeeze of the aperture ([`LensEffects::aspect`]): the taps are stretched by
+    /// it, so the gather's footprint, and a far light's bokeh, is the squeezed aperture. 1 (the
+    /// default): round.
+    pub aspect: f32,
 }
 
 impl Default for PoissonSettings {
@@ -60,6 +64,7 @@ impl Default for PoissonSettings {
             taps: 32,
             seed: 0,
             max_coc_px: 64.0,
+            aspect: 1.0,
         }
     }
 }
@@ -73,7 +78,17 @@ pub fn render(
 ) -> Result<MethodOutput> {
     check_frame(color, depth, lens)?;
     let mut timings = Timings::default();
-    let taps = Taps::poisson_disc(&settings.aperture, settings.taps, settings.seed, 0.0)?;
+    let mut taps = Taps::poisson_disc(&settings.aperture, settings.taps, settings.seed, 0.0)?;
+    if settings.aspect != 1.0 {
+        let effects = LensEffects {
+            aspect: settings.aspect,
+            ..LensEffects::default()
+        };
+        effects.validate()?;
+        for p in &mut taps.points {
+            *p = effects.squeeze(*p);
+        }
+    }
     let coc_px = timings.time("poisson/coc", || coc(depth, lens, settings.max_coc_px))?;
     let image = timings.time("poisson/gather", || gather(color, &coc_px, &taps));
     Ok(MethodOutput {
