@@ -409,3 +409,41 @@ fn poisson_with_the_anamorphic_aperture_agrees_with_reference_on_lights() {
     eprintln!("poisson --anamorphic 0.5 against reference: {psnr:.2} dB");
     assert!(psnr > 24.45, "{psnr}");
 }
+
+#[test]
+fn the_report_marks_methods_that_do_not_render_a_lens_effect() {
+    let dir = crate::cli::temp_dir("effects-report");
+    let o = defocus(&[
+        "compare",
+        "--scene",
+        "lights",
+        "--width",
+        "64",
+        "--height",
+        "36",
+        "--reference-samples",
+        "16",
+        "--methods",
+        "reference,poisson,lowrank",
+        "--anamorphic",
+        "0.5",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let results: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("results.json")).unwrap()).unwrap();
+    let status = |label: &str| {
+        results["runs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["label"] == label)
+            .map(|r| r["status"].as_str().unwrap().to_string())
+            .unwrap()
+    };
+    assert_eq!(status("poisson"), "ok");
+    assert_eq!(status("lowrank"), "unsupported");
+    let page = std::fs::read_to_string(dir.join("index.html")).unwrap();
+    assert!(page.contains("unsupported: does not render the lens effect anamorphic"));
+}

@@ -243,6 +243,10 @@ fn apply_setting(
 /// Checks the flags of `run` (its sweep value applied) as the run itself would, without
 /// reading or rendering anything: a bad sweep value fails the report before its first render.
 fn check_run(a: &CompareArgs, run: &Run) -> Result<()> {
+    // A method that does not render a lens effect given is marked in the report, not checked.
+    if !unsupported_effects(a, run.info)?.is_empty() {
+        return Ok(());
+    }
     let mut post = a.post.clone();
     let mut samples = a.samples;
     apply_setting(&mut post, &mut samples, &run.setting)?;
@@ -269,6 +273,16 @@ fn check_run(a: &CompareArgs, run: &Run) -> Result<()> {
     )
     .with_context(what)?;
     Ok(())
+}
+
+/// The lens effects given (`--lens`, `--anamorphic`, ...) that `method` does not render.
+fn unsupported_effects(a: &CompareArgs, method: &MethodInfo) -> Result<Vec<&'static str>> {
+    Ok(a.post
+        .lens_effects()?
+        .active()
+        .into_iter()
+        .filter(|e| !method.effects.contains(e))
+        .collect())
 }
 
 /// The `render` flags of a run on a scene.
@@ -474,6 +488,16 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     if !a.sweep.is_empty() {
         parameters.push(("sweeps".to_string(), a.sweep.join(" ")));
     }
+    let effects = a.post.lens_effects()?.active();
+    if !effects.is_empty() {
+        parameters.push((
+            "lens effects".to_string(),
+            format!(
+                "{} (methods that do not render them are marked unsupported)",
+                effects.join(", ")
+            ),
+        ));
+    }
     bar.inc(1);
     // Every file of the report is staged and renamed into the folder at the end, all together.
     let mut files = ReportFiles::new(&dir);
@@ -488,6 +512,13 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
         let label = run.label();
         let out_path = dir.join(format!("{label}.exr"));
         let outcome: Result<MethodOutput> = (|| {
+            let missing = unsupported_effects(a, run.info)?;
+            if !missing.is_empty() {
+                bail!(
+                    "unsupported: does not render the lens effect {}",
+                    missing.join(", ")
+                );
+            }
             if a.scene.is_some() {
                 let mut args =
                     render_args(a, a.scene.as_deref().unwrap_or(""), run.info.id, &out_path);
@@ -553,6 +584,8 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
                 let text = shown(&format!("{e:#}"));
                 r.status = if text.starts_with("not applicable") {
                     "not applicable".to_string()
+                } else if text.starts_with("unsupported") {
+                    "unsupported".to_string()
                 } else {
                     "failed".to_string()
                 };
@@ -972,7 +1005,7 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
                 );
             }
             Some(e) => {
-                let class = if r.status == "not applicable" {
+                let class = if r.status == "not applicable" || r.status == "unsupported" {
                     "na"
                 } else {
                     "err"
