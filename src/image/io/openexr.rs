@@ -1,0 +1,566 @@
+//! OpenEXR: reading colour, channels and windows (data and display), writing RGBA and named
+//! layers.
+
+use super::*;
+
+/// The placement of the image in an OpenEXR file (its first layer's data window in the display
+/// window), read from the header alone; `None` when the file is not OpenEXR by its content.
+pub fn read_exr_placement(path: &Path) -> Result<Option<Placement>> {
+    if input_format(path, "input image")? != FileFormat::Exr {
+        return Ok(None);
+    }
+    check_exr_windows(path)?;
+    let meta = exr::meta::MetaData::read_from_buffered(BufReader::new(open(path)?), false)
+        .map_err(|e| exr_read_error(path, e))?;
+    let Some(header) = meta.headers.first() else {
+        return Err(Error::format(path, "the OpenEXR file has no layers"));
+    };
+    let display = header.shared_attributes.display_window;
+    let data = header.own_attributes.layer_position;
+    Ok(Some(Placement {
+        data_origin: (data.0, data.1),
+        display_origin: (display.position.0, display.position.1),
+        display_size: (display.size.0, display.size.1),
+    }))
+}
+/// How far into an OpenEXR file its headers are searched for their windows (headers come first
+/// and are small; a window past this is left to the decoder).
+pub(super) const EXR_HEADER_SEARCH_BYTES: u64 = 1 << 16;
+
+/// Refuses an OpenEXR file whose data or display window is inverted (a maximum below its
+/// minimum), naming the window and its corners, which the decoder would turn into a wrong
+/// size. The windows are `box2i` attributes: the name, `box2i`, the size 16, then xMin, yMin,
+/// xMax, yMax as little-endian 32-bit integers.
+pub(super) fn check_exr_windows(path: &Path) -> Result<()> {
+    let mut head = Vec::new();
+    open(path)?
+        .take(EXR_HEADER_SEARCH_BYTES)
+        .read_to_end(&mut head)
+        .map_err(|e| Error::io(path, e))?;
+    for name in ["dataWindow", "displayWindow"] {
+        let key = format!("{name}\0box2i\0");
+        let key = key.as_bytes();
+        let mut from = 0;
+        while let Some(at) = head[from..].windows(key.len()).position(|w| w == key) {
+            let start = from + at + key.len();
+            from = start;
+            let Some(b) = head.get(start..start + 20) else {
+                break;
+            };
+            if b[..4] != 16u32.to_le_bytes() {
+                continue;
+            }
+            let v = |k: usize| {
+                i32::from_le_bytes([b[4 + 4 * k], b[5 + 4 * k], b[6 + 4 * k], b[7 + 4 * k]])
+            };
+            let (x0, y0, x1, y1) = (v(0), v(1), v(2), v(3));
+            if x1 < x0 || y1 < y0 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "{name} from ({x0}, {y0}) to ({x1}, {y1}) is inverted: expected its maximum corner at or after its minimum"
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Every channel of an OpenEXR file, as `f32` planes of one common size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExrChannels {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// (full name, row-major samples). The full name includes the layer, e.g.
+    /// `ViewLayer.Depth.Z`; `f16` and `u32` samples are converted to `f32`.
+    pub channels: Vec<(String, Vec<f32>)>,
+}
+
+impl ExrChannels {
+    /// The samples of the channel whose full name is exactly `name`.
+    pub fn find(&self, name: &str) -> Option<&[f32]> {
+        self.channels
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+
+    /// The channels that `name` can refer to: the channel named exactly `name` if there is one;
+    /// otherwise every channel whose full name equals `name` or ends with `.name`, ignoring ASCII
+    /// case (so `Z` finds `ViewLayer.Depth.Z` and `depth.z` finds `Layer.Depth.Z`). Returned in
+    /// file order; more than one result means the name is ambiguous.
+    pub fn find_by_suffix(&self, name: &str) -> Vec<(&str, &[f32])> {
+        if let Some((n, v)) = self.channels.iter().find(|(n, _)| n == name) {
+            return vec![(n.as_str(), v.as_slice())];
+        }
+        self.channels
+            .iter()
+            .filter(|(n, _)| ends_with_component(n, name))
+            .map(|(n, v)| (n.as_str(), v.as_slice()))
+            .collect()
+    }
+
+    /// All full channel names, in file order.
+    pub fn names(&self) -> Vec<&str> {
+        self.channels.iter().map(|(n, _)| n.as_str()).collect()
+    }
+
+    /// The channel names as one comma-separated list, for error messages.
+    pub(super) fn name_list(&self) -> String {
+        if self.channels.is_empty() {
+            "none".to_string()
+        } else {
+            self.names().join(", ")
+        }
+    }
+
+    /// The channel named `prefix` + `component`, the component compared ignoring ASCII case.
+    fn component(&self, prefix: &str, component: &str) -> Option<&[f32]> {
+        self.channels
+            .iter()
+            .find(|(n, _)| {
+                n.len() == prefix.len() + component.len()
+                    && n.starts_with(prefix)
+                    && n[prefix.len()..].eq_ignore_ascii_case(component)
+            })
+            .map(|(_, v)| v.as_slice())
+    }
+}
+
+/// True when `name` equals `suffix` or ends with `.suffix`, ignoring ASCII case.
+pub(super) fn ends_with_component(name: &str, suffix: &str) -> bool {
+    let (n, s) = (name.as_bytes(), suffix.as_bytes());
+    if n.len() < s.len() || !n[n.len() - s.len()..].eq_ignore_ascii_case(s) {
+        return false;
+    }
+    n.len() == s.len() || n[n.len() - s.len() - 1] == b'.'
+}
+
+/// Reads every channel of an OpenEXR file, converted to `f32`.
+///
+/// Only the largest resolution level is read (mip and rip maps are ignored). The image size is the
+/// data window of the first layer (part); other layers of the same size are included, with the
+/// layer name and a dot prefixed to their channel names, and layers of other sizes are skipped.
+/// Subsampled channels (x or y sampling other than 1, as in luminance-chroma files) are skipped.
+/// Deep files are refused.
+pub fn read_exr_channels(path: &Path) -> Result<ExrChannels> {
+    check_exr_windows(path)?;
+    let chunks = exr::block::read(BufReader::new(open(path)?), false)
+        .map_err(|e| exr_read_error(path, e))?;
+    exr_channels_from(path, chunks)
+}
+
+/// [`read_exr_channels`] of chunks already read from `path`.
+pub(super) fn exr_channels_from<R: Read + std::io::Seek>(
+    path: &Path,
+    chunks: exr::block::reader::Reader<R>,
+) -> Result<ExrChannels> {
+    for header in chunks.headers() {
+        check_file_size(path, header.layer_size.0, header.layer_size.1)?;
+        if header.deep {
+            return Err(Error::format(
+                path,
+                "deep OpenEXR data is not supported: expected flat (scanline or tiled) images",
+            ));
+        }
+    }
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .from_chunks(chunks)
+        .map_err(|e| exr_read_error(path, e))?;
+
+    let Some(first) = image.layer_data.first() else {
+        return Err(Error::format(path, "the OpenEXR file has no layers"));
+    };
+    let size = first.size;
+    let mut channels = Vec::new();
+    // The decoded samples are moved out, not copied: at 4K a colour plane set is 133 MB.
+    for layer in image.layer_data.into_iter().filter(|l| l.size == size) {
+        let prefix = match layer.attributes.layer_name.as_ref().map(|n| n.to_string()) {
+            Some(name) if !name.is_empty() => format!("{name}."),
+            _ => String::new(),
+        };
+        for channel in layer.channel_data.list {
+            if channel.sampling != Vec2(1, 1) {
+                continue;
+            }
+            let samples: Vec<f32> = match channel.sample_data {
+                FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+                FlatSamples::F32(v) => v,
+                FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+            };
+            if samples.len() != size.0 * size.1 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "channel '{prefix}{}': expected {} samples for {}x{} pixels, found {}",
+                        channel.name,
+                        size.0 * size.1,
+                        size.0,
+                        size.1,
+                        samples.len()
+                    ),
+                ));
+            }
+            channels.push((format!("{prefix}{}", channel.name), samples));
+        }
+    }
+    Ok(ExrChannels {
+        width: size.0,
+        height: size.1,
+        channels,
+    })
+}
+
+/// Names the channels [`read_color`] and [`read_depth`] would use in an EXR file, for
+/// verbose output: `(colour channels, depth channel)`. Either is an error when no channel fits,
+/// listing those available.
+pub fn exr_channel_choice(
+    path: &Path,
+    depth_channel_name: Option<&str>,
+) -> Result<(Result<Vec<String>>, Result<String>)> {
+    let ch = read_exr_channels(path)?;
+    let color = color_prefix(path, &ch).map(|prefix| {
+        ["R", "G", "B", "A", "Y"]
+            .iter()
+            .filter(|c| ch.component(&prefix, c).is_some())
+            .map(|c| format!("{prefix}{c}"))
+            .collect()
+    });
+    let depth = depth_channel(path, &ch, depth_channel_name).map(|(name, _)| name.to_string());
+    Ok((color, depth))
+}
+
+// ---------------------------------------------------------------------------------------------
+// EXR internals
+// ---------------------------------------------------------------------------------------------
+
+/// An OpenEXR reading error, with the path.
+pub(super) fn exr_read_error(path: &Path, err: exr::error::Error) -> Error {
+    match err {
+        exr::error::Error::Io(e) if e.kind() != std::io::ErrorKind::UnexpectedEof => {
+            Error::io(path, e)
+        }
+        other => Error::format(
+            path,
+            format!("not a readable OpenEXR file (corrupt or truncated?): {other}"),
+        ),
+    }
+}
+
+/// The RGBA image in an EXR file's channels; see [`read_color`] for the rules.
+/// Reads the colour of an OpenEXR file. A file of one part whose only channels are R, G, B
+/// and perhaps A (the common case: a render's beauty pass) is decoded straight into the
+/// image's pixels; any other (named layers, Y, more channels) goes through
+/// [`read_exr_channels`] and [`color_from_exr`], which pick the colour layer.
+pub(super) fn read_exr_color(path: &Path) -> Result<ColorImage> {
+    check_exr_windows(path)?;
+    let chunks = exr::block::read(BufReader::new(open(path)?), false)
+        .map_err(|e| exr_read_error(path, e))?;
+    let plain = match chunks.headers() {
+        [header] => {
+            let names: Vec<String> = header
+                .channels
+                .list
+                .iter()
+                .map(|c| c.name.to_string())
+                .collect();
+            let subsampled = header
+                .channels
+                .list
+                .iter()
+                .any(|c| c.sampling != Vec2(1, 1));
+            !header.deep
+                && !subsampled
+                && (names == ["B", "G", "R"] || names == ["A", "B", "G", "R"])
+        }
+        _ => false,
+    };
+    if !plain {
+        return color_from_exr(path, &exr_channels_from(path, chunks)?);
+    }
+    for header in chunks.headers() {
+        check_file_size(path, header.layer_size.0, header.layer_size.1)?;
+    }
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |size, _| (size.0, vec![[0.0f32; 4]; size.0 * size.1]),
+            |(w, pixels): &mut (usize, Vec<Rgba>), p, (r, g, b, a): (f32, f32, f32, f32)| {
+                pixels[p.1 * *w + p.0] = [r, g, b, a];
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_chunks(chunks)
+        .map_err(|e| exr_read_error(path, e))?;
+    let size = image.layer_data.size;
+    let (_, pixels) = image.layer_data.channel_data.pixels;
+    ColorImage::from_vec(size.0, size.1, pixels)
+}
+
+pub(super) fn color_from_exr(path: &Path, ch: &ExrChannels) -> Result<ColorImage> {
+    let prefix = color_prefix(path, ch)?;
+    let n = ch.width * ch.height;
+    let ones = vec![1.0; n];
+    let alpha = ch.component(&prefix, "A").unwrap_or(&ones);
+    let pixels: Vec<Rgba> = match (
+        ch.component(&prefix, "R"),
+        ch.component(&prefix, "G"),
+        ch.component(&prefix, "B"),
+    ) {
+        (Some(r), Some(g), Some(b)) => (0..n).map(|i| [r[i], g[i], b[i], alpha[i]]).collect(),
+        _ => {
+            let y = ch.component(&prefix, "Y").unwrap_or(&ones);
+            (0..n).map(|i| [y[i], y[i], y[i], alpha[i]]).collect()
+        }
+    };
+    ColorImage::from_vec(ch.width, ch.height, pixels)
+}
+
+/// The prefix (`""` or `"Layer.Pass."`) of the colour channels: R, G, B, or failing that, Y.
+pub(super) fn color_prefix(path: &Path, ch: &ExrChannels) -> Result<String> {
+    let prefixes_with = |last: &str| -> Vec<String> {
+        ch.channels
+            .iter()
+            .filter(|(n, _)| ends_with_component(n, last))
+            .map(|(n, _)| n[..n.len() - last.len()].to_string())
+            .collect()
+    };
+    let rgb: Vec<String> = prefixes_with("R")
+        .into_iter()
+        .filter(|p| ch.component(p, "G").is_some() && ch.component(p, "B").is_some())
+        .collect();
+    if !rgb.is_empty() {
+        if rgb.iter().any(|p| p.is_empty()) {
+            return Ok(String::new());
+        }
+        let mut combined: Vec<&String> = rgb
+            .iter()
+            .filter(|p| {
+                p.trim_end_matches('.')
+                    .rsplit('.')
+                    .next()
+                    .is_some_and(|last| last.eq_ignore_ascii_case("combined"))
+            })
+            .collect();
+        combined.sort();
+        if let Some(p) = combined.first() {
+            return Ok(p.to_string());
+        }
+        if rgb.len() == 1 {
+            return Ok(rgb[0].clone());
+        }
+        return Err(Error::format(
+            path,
+            format!(
+                "several RGB layers ({}) and none is plain R, G, B or a 'Combined' layer; \
+                 expected one colour layer",
+                rgb.join(", ")
+            ),
+        ));
+    }
+    let grey = prefixes_with("Y");
+    match grey.as_slice() {
+        [p] => Ok(p.clone()),
+        [] => Err(Error::format(
+            path,
+            format!(
+                "no colour channels: expected R, G, B (optionally A), a layer such as \
+                 'ViewLayer.Combined.R', or a grey Y channel; found: {}",
+                ch.name_list()
+            ),
+        )),
+        _ => Err(Error::format(
+            path,
+            format!(
+                "several grey Y channels ({}) and no RGB: expected one colour layer",
+                ch.names()
+                    .into_iter()
+                    .filter(|n| ends_with_component(n, "Y"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )),
+    }
+}
+
+/// The depth channel of an EXR file: see [`read_depth`] for the search order.
+pub(super) fn depth_channel<'a>(
+    path: &Path,
+    ch: &'a ExrChannels,
+    requested: Option<&str>,
+) -> Result<(&'a str, &'a [f32])> {
+    let unique = |found: Vec<(&'a str, &'a [f32])>, what: &str| -> Result<_> {
+        match found.as_slice() {
+            [one] => Ok(Some(*one)),
+            [] => Ok(None),
+            many => Err(Error::format(
+                path,
+                format!(
+                    "several depth channels match {what} ({}): choose one with the depth channel \
+                     option",
+                    many.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ")
+                ),
+            )),
+        }
+    };
+    if let Some(name) = requested {
+        return unique(ch.find_by_suffix(name), &format!("'{name}'"))?.ok_or_else(|| {
+            Error::format(
+                path,
+                format!(
+                    "no depth channel '{name}'; available channels: {}",
+                    ch.name_list()
+                ),
+            )
+        });
+    }
+    let exact = |want: &str| -> Vec<(&'a str, &'a [f32])> {
+        ch.channels
+            .iter()
+            .filter(|(n, _)| n.eq_ignore_ascii_case(want))
+            .map(|(n, v)| (n.as_str(), v.as_slice()))
+            .collect()
+    };
+    let suffix = |want: &str| -> Vec<(&'a str, &'a [f32])> {
+        ch.channels
+            .iter()
+            .filter(|(n, _)| {
+                n.len() > want.len()
+                    && n.as_bytes()[n.len() - want.len()..].eq_ignore_ascii_case(want.as_bytes())
+            })
+            .map(|(n, v)| (n.as_str(), v.as_slice()))
+            .collect()
+    };
+    let candidates = [
+        (exact("Z"), "'Z'"),
+        (exact("depth"), "'depth'"),
+        (suffix(".Depth.Z"), "'*.Depth.Z'"),
+        (suffix(".Z"), "'*.Z'"),
+        (suffix(".depth"), "'*.depth'"),
+    ];
+    for (found, what) in candidates {
+        if let Some(one) = unique(found, what)? {
+            return Ok(one);
+        }
+    }
+    Err(Error::format(
+        path,
+        format!(
+            "no depth channel: expected Z, depth, *.Depth.Z, *.Z or *.depth (or name one with the \
+             depth channel option); available channels: {}",
+            ch.name_list()
+        ),
+    ))
+}
+
+/// Writes named float channels as a one-part scanline EXR, atomically, compressed as `options`
+/// says (blocks are compressed in parallel), as 16-bit halves with `options.half`.
+pub(super) fn write_exr(
+    set: &mut OutputSet,
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: Vec<(String, Vec<f32>)>,
+    options: &ExrOptions,
+) -> Result<()> {
+    if channels.is_empty() {
+        return Err(Error::invalid(
+            "EXR channels",
+            format!("{}: at least one channel is needed", shown(&path)),
+        ));
+    }
+    let mut list = SmallVec::new();
+    for (i, (name, data)) in channels.into_iter().enumerate() {
+        if data.len() != width * height {
+            return Err(Error::Mismatch(format!(
+                "{}: channel '{name}' has {} samples, expected {} for {width}x{height} pixels",
+                shown(&path),
+                data.len(),
+                width * height
+            )));
+        }
+        let text = Text::new_or_none(&name).filter(|_| !name.is_empty());
+        let Some(text) = text else {
+            return Err(Error::invalid(
+                "EXR channel name",
+                format!(
+                    "{}: channel {i} is named '{name}': expected a non-empty Latin-1 name",
+                    shown(&path)
+                ),
+            ));
+        };
+        let samples = if options.half {
+            FlatSamples::F16(data.iter().map(|&v| half::f16::from_f32(v)).collect())
+        } else {
+            FlatSamples::F32(data)
+        };
+        list.push(AnyChannel::new(text, samples));
+    }
+    let channels = AnyChannels::sort(list);
+    if let Some(pair) = channels.list.windows(2).find(|p| p[0].name == p[1].name) {
+        return Err(Error::invalid(
+            "EXR channel name",
+            format!(
+                "{}: channel '{}' is given twice: expected unique names",
+                shown(&path),
+                pair[0].name
+            ),
+        ));
+    }
+    let (attributes, encoding, frame) = exr_frame(width, height, options);
+    let layer = exr::prelude::Layer::new((width, height), attributes, encoding, channels);
+    let image = ExrImage::new(frame, layer);
+    set.write(path, |out| {
+        image
+            .write()
+            .to_buffered(out)
+            .map_err(|e| exr_write_error(path, e))
+    })
+}
+
+/// What a one-part scanline EXR of a `width` x `height` image is written with besides its
+/// channels: the data window's attributes, the encoding and the image attributes (display
+/// window), as `options` says.
+pub(super) fn exr_frame(
+    width: usize,
+    height: usize,
+    options: &ExrOptions,
+) -> (
+    LayerAttributes,
+    Encoding,
+    exr::meta::header::ImageAttributes,
+) {
+    let placement = options
+        .placement
+        .unwrap_or_else(|| Placement::full(width, height));
+    let (x, y) = placement.data_origin;
+    let attributes = LayerAttributes {
+        layer_position: Vec2(x, y),
+        ..LayerAttributes::default()
+    };
+    let display =
+        exr::meta::attribute::IntegerBounds::new(placement.display_origin, placement.display_size);
+    (
+        attributes,
+        options.compression.encoding(),
+        exr::meta::header::ImageAttributes::new(display),
+    )
+}
+
+/// An error of the EXR encoder while writing `path`.
+pub(super) fn exr_write_error(path: &Path, e: exr::error::Error) -> Error {
+    match e {
+        exr::error::Error::Io(e) => Error::io(path, e),
+        other => Error::format(path, format!("could not write OpenEXR: {other}")),
+    }
+}
