@@ -75,7 +75,7 @@ pub struct BlurArgs {
     /// Focus on the depth at pixel X,Y (column, row from the top left of the frame: for an EXR,
     /// of its display window), the median of a small window around it, as --focus auto does at
     /// the centre.
-    #[arg(long, value_name = "X,Y", value_parser = crate::args::parse_pixel, conflicts_with = "focus")]
+    #[arg(long, value_name = "X,Y", value_parser = crate::common::parse_pixel, conflicts_with = "focus")]
     pub focus_pixel: Option<(usize, usize)>,
     /// f-number N; the lens radius is focal length / (2 N). In a sequence, keyframes
     /// FRAME:N,... interpolated in stops (linearly in log N).
@@ -83,7 +83,7 @@ pub struct BlurArgs {
         long,
         default_value = "2.8",
         value_name = "N|F:N,...",
-        value_parser = crate::args::parse_fstop,
+        value_parser = crate::common::parse_fstop,
         allow_negative_numbers = true
     )]
     pub fstop: Keyed,
@@ -381,7 +381,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             })?),
         };
         let spec = LensSpec {
-            fstop: crate::args::single_value(&a.fstop, "--fstop")?,
+            fstop: crate::common::single_value(&a.fstop, "--fstop")?,
             focal_length_mm: a.focal_length,
             sensor_width_mm: a.sensor_width,
         };

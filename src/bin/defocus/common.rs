@@ -1,7 +1,7 @@
-//! Helpers every command shares: output checks, the aperture flag, the method flag, progress
-//! bars and timing reports. This file imports no other file of the binary, so the modules form
-//! no import circle: `common` <- `post` <- `blur`, `common` <- `kernel`, and `args` and
-//! `commands` on top.
+//! Helpers every command shares: output checks, the aperture, focus, f-number and pixel flags,
+//! the method flag, progress bars and timing reports. This file imports no other file of the
+//! binary, so the modules form no import circle: `common` <- `blur`, `render`, `kernel` <-
+//! `report`, `sequence` <- `args` <- `commands`.
 
 use std::path::Path;
 
@@ -9,6 +9,7 @@ use anyhow::{bail, Result};
 use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Args, ValueEnum};
 use defocus::error::shown;
+use defocus::frames::Keyed;
 use defocus::image::io::{ExrCompression, ExrOptions};
 use defocus::methods::registry::METHODS;
 use defocus::timing::Timings;
@@ -223,3 +224,69 @@ impl ExrArgs {
         }
     }
 }
+
+/// `--focus`: a distance, `auto`, or keyframed distances (for a sequence).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Focus {
+    /// Focus distance in metres.
+    Metres(f32),
+    /// The depth at the image centre.
+    Auto,
+    /// Distances in metres keyed to frames (a rack focus over a sequence).
+    Keys(Keyed),
+}
+
+pub fn parse_focus(s: &str) -> Result<Focus, String> {
+    if s.trim() == "auto" {
+        return Ok(Focus::Auto);
+    }
+    if s.contains(':') {
+        return Keyed::parse(s, "--focus")
+            .map(Focus::Keys)
+            .map_err(|e| e.to_string());
+    }
+    s.trim()
+        .parse()
+        .map(Focus::Metres)
+        .map_err(|_| format!("'{s}': expected a distance in metres or 'auto'"))
+}
+
+/// `--fstop`: an f-number, or keyframes `FRAME:N,...` (for a sequence).
+pub fn parse_fstop(s: &str) -> Result<Keyed, String> {
+    Keyed::parse(s, "--fstop").map_err(|e| e.to_string())
+}
+
+/// The one value of a flag that may hold keyframes; keyframes outside a sequence are refused.
+pub fn single_value(k: &Keyed, flag: &str) -> anyhow::Result<f32> {
+    match k.constant_value() {
+        Some(v) => Ok(v),
+        None => anyhow::bail!(
+            "{flag} has keyframes: they need a frame sequence (a frame pattern such as \
+             shot.####.exr and --frames)"
+        ),
+    }
+}
+
+/// Parses `X,Y,Z` (three finite numbers).
+pub fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
+    parse_numbers(s)
+        .and_then(|v| <[f32; 3]>::try_from(v).ok())
+        .ok_or_else(|| format!("'{s}': expected three numbers X,Y,Z"))
+}
+
+/// Parses `X,Y` (two pixel indices).
+pub(crate) fn parse_pixel(s: &str) -> Result<(usize, usize), String> {
+    let (x, y) = s
+        .split_once(',')
+        .ok_or_else(|| format!("'{s}': expected a pixel column and row X,Y"))?;
+    match (x.trim().parse(), y.trim().parse()) {
+        (Ok(x), Ok(y)) => Ok((x, y)),
+        _ => Err(format!(
+            "'{s}': expected a pixel column and row X,Y (whole numbers from 0)"
+        )),
+    }
+}
+
+/// Most worker threads `--threads` accepts (a thread per core of the largest machines, with
+/// room; more only adds start-up time and memory).
+pub const MAX_THREADS: usize = 512;

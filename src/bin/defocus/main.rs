@@ -6,6 +6,7 @@ mod blur;
 mod commands;
 mod common;
 mod kernel;
+mod render;
 mod report;
 mod sequence;
 

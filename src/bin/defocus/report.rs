@@ -21,10 +21,10 @@ use defocus::metrics;
 use defocus::timing::Timings;
 use serde::Serialize;
 
-use crate::args::{CompareArgs, RenderArgs};
 use crate::blur::{BlurArgs, BlurJob, DepthKind};
-use crate::commands::RenderJob;
-use crate::common::progress_bar;
+use crate::common::{parse_focus, progress_bar, Focus};
+use crate::render::{RenderArgs, RenderJob, ViewArgs};
+use clap::Args;
 
 /// Sweep keys and the methods each applies to (the flag of that name changes their settings).
 const SWEEPS: &[(&str, &[&str])] = &[
@@ -49,6 +49,120 @@ const SWEEPS: &[(&str, &[&str])] = &[
     ("taps", &["poisson"]),
     ("layer-spacing", &["multiview"]),
 ];
+
+/// Flags of `compare`: two images, or a report of every method against the reference.
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// Test image (EXR, PNG or PFM).
+    pub a: Option<PathBuf>,
+    /// Reference image (EXR, PNG or PFM), same size.
+    pub b: Option<PathBuf>,
+    /// Write a false-colour map of the absolute sRGB difference.
+    #[arg(long, value_name = "FILE.png")]
+    pub diff: Option<PathBuf>,
+    /// Print one JSON object instead of `name: value` lines.
+    #[arg(long)]
+    pub json: bool,
+
+    /// Report: render `reference` and every method on this scene (built-in name or file) and
+    /// write DIR/index.html, DIR/results.json and every image.
+    #[arg(long, value_name = "NAME|PATH", help_heading = "Report", conflicts_with_all = ["a", "b"])]
+    pub scene: Option<String>,
+    /// Report on a rendered frame: its colour image (with --depth and --truth).
+    #[arg(long, value_name = "FILE", help_heading = "Report", requires_all = ["depth", "truth"], conflicts_with = "scene")]
+    pub color: Option<PathBuf>,
+    /// Report on a rendered frame: its depth pass (metres, view-axis; EXR, PFM or PNG).
+    #[arg(long, value_name = "FILE", help_heading = "Report", requires = "color")]
+    pub depth: Option<PathBuf>,
+    /// Report on a rendered frame: the ground truth to compare with (e.g. from another renderer).
+    #[arg(long, value_name = "FILE", help_heading = "Report", requires = "color")]
+    pub truth: Option<PathBuf>,
+    /// Report: the methods, `all` or a comma-separated list of ids.
+    #[arg(
+        long,
+        default_value = "all",
+        value_name = "all|ID,...",
+        help_heading = "Report"
+    )]
+    pub methods: String,
+    /// Report: lens samples of the reference.
+    #[arg(long, default_value_t = 256, value_name = "N", help_heading = "Report")]
+    pub reference_samples: usize,
+    /// Report: run each method that has this setting once per value, e.g. `samples=8,16,32`,
+    /// `merge=1,2,4`, `layers=1,4`, `fragments=4,16`, `rank=1,3,5`, `taps=16,64`,
+    /// `filter-steps=1/3,2/2,4/0`, `layer-spacing=2,4,8` (repeatable).
+    #[arg(long, value_name = "KEY=V1,V2,...", help_heading = "Report")]
+    pub sweep: Vec<String>,
+    /// Report: let a scene file read files outside its own folder (glTF URIs, OBJ mtllib, MTL maps
+    /// that are absolute, use ../ or a link out). Off by default, so that a downloaded scene
+    /// cannot read other files of yours and show them in the image or in errors.
+    #[arg(long, help_heading = "Report")]
+    pub allow_external_files: bool,
+    /// Report: the output folder (created if absent).
+    #[arg(long, value_name = "DIR", help_heading = "Report")]
+    pub out: Option<PathBuf>,
+    /// Report: image width in pixels [default: the scene's].
+    #[arg(long, value_name = "PX", help_heading = "Report")]
+    pub width: Option<usize>,
+    /// Report: image height in pixels [default: the scene's].
+    #[arg(long, value_name = "PX", help_heading = "Report")]
+    pub height: Option<usize>,
+    /// Report: focus distance in metres or `auto` [default: the scene's; `auto` for frames].
+    #[arg(long, value_name = "M|auto", value_parser = parse_focus, allow_negative_numbers = true, help_heading = "Report")]
+    pub focus: Option<Focus>,
+    /// Report: f-number [default: the scene's; 2.8 for frames].
+    #[arg(
+        long,
+        value_name = "N",
+        allow_negative_numbers = true,
+        help_heading = "Report"
+    )]
+    pub fstop: Option<f32>,
+    /// Report: focal length in millimetres [default: the scene's; 50 for frames].
+    #[arg(
+        long,
+        value_name = "MM",
+        allow_negative_numbers = true,
+        help_heading = "Report"
+    )]
+    pub focal_length: Option<f32>,
+    /// Report: sensor width in millimetres [default: the scene's; 36 for frames].
+    #[arg(
+        long,
+        value_name = "MM",
+        allow_negative_numbers = true,
+        help_heading = "Report"
+    )]
+    pub sensor_width: Option<f32>,
+    /// Report: aperture (as `render --aperture`) [default: the scene's; disc for frames].
+    #[arg(long, value_name = "SPEC", help_heading = "Report")]
+    pub aperture: Option<String>,
+    /// Report: also run `reference` at 4, 8, 16, 32, 64 and 128 lens samples (fewer than
+    /// --reference-samples; another seed than the ground truth's) and mark each method as on
+    /// the time-quality frontier or behind it (some `reference --samples N` is both faster and
+    /// at least as good). Needs --scene.
+    #[arg(long, help_heading = "Report", requires = "scene")]
+    pub frontier: bool,
+    /// Report: samples of the methods (as `render --samples`) [default: each method's].
+    #[arg(long, value_name = "N", help_heading = "Report")]
+    pub samples: Option<usize>,
+    /// Report: seed of every sampler.
+    #[arg(long, default_value_t = 0, help_heading = "Report")]
+    pub seed: u64,
+    /// Camera choice and placement (scene reports).
+    #[command(flatten)]
+    pub view: Box<ViewArgs>,
+    /// Options of the methods.
+    #[command(flatten)]
+    pub post: Box<crate::post::PostArgs>,
+}
+
+impl CompareArgs {
+    /// True for a report (a scene or a frame), false for two images.
+    pub fn is_report(&self) -> bool {
+        self.scene.is_some() || self.color.is_some()
+    }
+}
 
 /// One method run of the report, with the sweep setting it has (if any).
 struct Run {
@@ -328,7 +442,7 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
         zero_depth_is_far: false,
         method: Some(method.to_string()),
         focus: match a.focus {
-            Some(crate::args::Focus::Metres(m)) => m.to_string(),
+            Some(crate::common::Focus::Metres(m)) => m.to_string(),
             _ => "auto".to_string(),
         },
         focus_pixel: a.view.focus_pixel,
@@ -357,7 +471,7 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
 
 /// Runs the report.
 pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
-    if matches!(a.focus, Some(crate::args::Focus::Keys(_))) {
+    if matches!(a.focus, Some(crate::common::Focus::Keys(_))) {
         bail!("invalid --focus: keyframes are for sequences (render or blur with --frames); a report takes one distance or auto");
     }
     let dir = a.out.clone().context(

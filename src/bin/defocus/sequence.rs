@@ -17,10 +17,10 @@ use defocus::image::io;
 use defocus::timing::Timings;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::args::{Focus, RenderArgs};
 use crate::blur::{BlurArgs, BlurJob};
-use crate::commands::RenderJob;
+use crate::common::Focus;
 use crate::common::{check_output, resident_peak_bytes, FrameDone, TimingFormat};
+use crate::render::{RenderArgs, RenderJob};
 
 /// Bytes a frame of `blur` may take at its peak, per pixel: the largest frame method's
 /// estimate (`lowrank`, 100) and the decoder's (32).
