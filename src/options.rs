@@ -294,16 +294,16 @@ pub struct PostArgs {
     #[arg(
         long,
         value_name = "PRESET|FILE.json",
-        help_heading = "Lens effects (reference; poisson: anamorphic; other methods refuse them)"
+        help_heading = "Lens effects (reference; poisson, multiview: anamorphic; other methods refuse them)"
     )]
     pub lens: Option<String>,
     /// Anamorphic aperture: the bokeh's width over its height, its area kept (0.5: the tall
-    /// ovals of a 2x anamorphic lens; 1: round). Exact in reference; poisson stretches its taps;
-    /// other methods refuse it.
+    /// ovals of a 2x anamorphic lens; 1: round). Exact in reference; multiview stretches its lens
+    /// samples and poisson its taps; other methods refuse it.
     #[arg(
         long,
         value_name = "ASPECT",
-        help_heading = "Lens effects (reference; poisson: anamorphic; other methods refuse them)"
+        help_heading = "Lens effects (reference; poisson, multiview: anamorphic; other methods refuse them)"
     )]
     pub anamorphic: Option<f32>,
     /// Cat's eye (optical vignetting): the lens barrel's front opening DIST millimetres in front
@@ -315,7 +315,7 @@ pub struct PostArgs {
         long,
         value_name = "DIST[,RADIUS]",
         value_parser = parse_cats_eye,
-        help_heading = "Lens effects (reference; poisson: anamorphic; other methods refuse them)"
+        help_heading = "Lens effects (reference; poisson, multiview: anamorphic; other methods refuse them)"
     )]
     pub cats_eye: Option<(f32, Option<f32>)>,
     /// Chromatic aberration: red in focus DPT dioptres (1/m) nearer than green and blue as much
@@ -327,7 +327,7 @@ pub struct PostArgs {
         value_name = "DPT[,SCALE]",
         value_parser = parse_chromatic,
         allow_negative_numbers = true,
-        help_heading = "Lens effects (reference; poisson: anamorphic; other methods refuse them)"
+        help_heading = "Lens effects (reference; poisson, multiview: anamorphic; other methods refuse them)"
     )]
     pub chromatic: Option<(f32, f32)>,
 }
@@ -585,6 +585,7 @@ impl PostArgs {
                     jitter: !self.no_jitter,
                     culling: !self.no_culling,
                     input: self.layered_input(),
+                    aspect: self.lens_effects()?.aspect,
                     ..MultiviewSettings::default()
                 };
                 mv.validate().context("invalid multiview option")?;

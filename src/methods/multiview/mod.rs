@@ -40,7 +40,7 @@ pub mod trace;
 use glam::Vec2;
 
 use crate::image::{ColorImage, GrayImage};
-use crate::lens::{Aperture, Camera, SampleSet, SamplerKind, ThinLens};
+use crate::lens::{Aperture, Camera, LensEffects, SampleSet, SamplerKind, ThinLens};
 use crate::random::SplitMix64;
 use crate::raster::{DepthLayers, LayerSpacing, LayeredInput, PreparedScene, View};
 use crate::scene::Scene;
@@ -107,6 +107,10 @@ pub struct MultiviewSettings {
     /// Coverage masks and guard band of the layers (default both on; off: pixel centres over
     /// the frame, as the paper).
     pub input: LayeredInput,
+    /// Anamorphic squeeze of the aperture ([`LensEffects::aspect`]): every lens sample is
+    /// stretched by it, as in `reference`, so each ray leaves through the squeezed aperture.
+    /// 1 (the default): round.
+    pub aspect: f32,
 }
 
 impl Default for MultiviewSettings {
@@ -122,6 +126,7 @@ impl Default for MultiviewSettings {
             jitter: true,
             culling: true,
             input: LayeredInput::default(),
+            aspect: 1.0,
         }
     }
 }
@@ -238,7 +243,17 @@ pub fn sample_sets(settings: &MultiviewSettings) -> Result<(Vec<Vec<Vec2>>, Vec<
             settings.samples,
             settings.seed.wrapping_add(j as u64),
         )?;
-        sets.push(set.samples.iter().map(|s| s.lens).collect());
+        let squeeze = LensEffects {
+            aspect: settings.aspect,
+            ..LensEffects::default()
+        };
+        squeeze.validate()?;
+        sets.push(
+            set.samples
+                .iter()
+                .map(|s| squeeze.squeeze(s.lens))
+                .collect(),
+        );
     }
     let mut rng = SplitMix64::new(settings.seed ^ 0x6A17_7E12);
     let noise = (0..trace::NOISE_TILE * trace::NOISE_TILE)
