@@ -130,7 +130,7 @@ pub const METHODS: &[MethodInfo] = &[
         description: "lens rays traced through CoC-spaced depth layers rendered once: reference-like, cost independent of the scene",
         paper: "Lee, Eisemann, Seidel 2009, Depth-of-field rendering with multiview synthesis",
         input: InputKind::DepthLayers,
-        effects: &["anamorphic"],
+        effects: &["anamorphic", "cats-eye"],
     },
 ];
 

@@ -233,6 +233,7 @@ fn methods_without_an_effect_refuse_it_naming_it_and_who_has_it() {
     for (method, flag, value, effect) in [
         ("lowrank", "--anamorphic", "0.5", "anamorphic"),
         ("multilayer", "--cats-eye", "50", "cats-eye"),
+        ("multiview", "--chromatic", "0.2", "chromatic"),
         ("hammon", "--cats-eye", "50,20", "cats-eye"),
         ("splat", "--chromatic", "0.5", "chromatic"),
     ] {
@@ -467,7 +468,10 @@ fn multiview_stretches_its_rays_into_the_anamorphic_ellipse() {
         &camera,
         &MultiviewSettings {
             samples: 256,
-            aspect,
+            effects: LensEffects {
+                aspect,
+                ..LensEffects::default()
+            },
             ..MultiviewSettings::default()
         },
     )
@@ -475,4 +479,34 @@ fn multiview_stretches_its_rays_into_the_anamorphic_ellipse() {
     let s = aspect.sqrt();
     let want = analytic_extent(q, coc, |u| (u.x / s).powi(2) + (u.y * s).powi(2) <= 1.0);
     assert_extents_close("multiview aspect 0.5", lit_extent(&out.image), want);
+}
+
+/// `multiview` claims the cat's eye: each pixel keeps only the rays whose lens point passes its
+/// view of the barrel, so the far light 50 px from the centre becomes the same lemon as in
+/// `reference`.
+#[test]
+fn multiview_clips_its_rays_into_the_cats_eye_lemon() {
+    use defocus::methods::multiview::{self, MultiviewSettings};
+    let centre = Vec2::new(W as f32 / 2.0, H as f32 / 2.0);
+    let q = centre + Vec2::new(50.0, 0.0);
+    let (scene, camera, coc) = light_at(q);
+    let lens = camera.thin_lens().unwrap();
+    let effects = LensEffects {
+        barrel_distance_m: 0.2,
+        ..LensEffects::default()
+    };
+    let out = multiview::render(
+        &scene,
+        &camera,
+        &MultiviewSettings {
+            samples: 256,
+            effects,
+            ..MultiviewSettings::default()
+        },
+    )
+    .unwrap();
+    let want = analytic_extent(q, coc, |u| {
+        u.length() <= 1.0 && effects.passes(effects.barrel(&lens, q + coc * u), u)
+    });
+    assert_extents_close("multiview cat's eye", lit_extent(&out.image), want);
 }

@@ -107,10 +107,11 @@ pub struct MultiviewSettings {
     /// Coverage masks and guard band of the layers (default both on; off: pixel centres over
     /// the frame, as the paper).
     pub input: LayeredInput,
-    /// Anamorphic squeeze of the aperture ([`LensEffects::aspect`]): every lens sample is
-    /// stretched by it, as in `reference`, so each ray leaves through the squeezed aperture.
-    /// 1 (the default): round.
-    pub aspect: f32,
+    /// The real lens's departures from the ideal one: the anamorphic squeeze stretches every
+    /// lens sample, as in `reference`; with a cat's eye each pixel keeps only the rays whose
+    /// lens point passes its view of the barrel (per ray, as `reference` per view). Chromatic
+    /// aberration is refused. Default: the ideal lens.
+    pub effects: LensEffects,
 }
 
 impl Default for MultiviewSettings {
@@ -126,7 +127,7 @@ impl Default for MultiviewSettings {
             jitter: true,
             culling: true,
             input: LayeredInput::default(),
-            aspect: 1.0,
+            effects: LensEffects::default(),
         }
     }
 }
@@ -243,15 +244,18 @@ pub fn sample_sets(settings: &MultiviewSettings) -> Result<(Vec<Vec<Vec2>>, Vec<
             settings.samples,
             settings.seed.wrapping_add(j as u64),
         )?;
-        let squeeze = LensEffects {
-            aspect: settings.aspect,
-            ..LensEffects::default()
-        };
-        squeeze.validate()?;
+        let effects = settings.effects;
+        effects.validate()?;
+        if effects.is_chromatic() {
+            return Err(crate::Error::Option(
+                "multiview does not render chromatic aberration (--chromatic); reference does"
+                    .to_string(),
+            ));
+        }
         sets.push(
             set.samples
                 .iter()
-                .map(|s| squeeze.squeeze(s.lens))
+                .map(|s| effects.squeeze(s.lens))
                 .collect(),
         );
     }
@@ -351,6 +355,10 @@ fn render_with(
         noise: &noise,
         lambda,
         region: (guard, guard, frame.width_px, frame.height_px),
+        clip: settings
+            .effects
+            .has_cats_eye()
+            .then_some((settings.effects, frame)),
     };
     let image = timings.time(pass::TRACE, || trace_fn(&input));
     let bytes = layers.bytes()

@@ -32,6 +32,7 @@ use rayon::prelude::*;
 
 use super::nbuffer::NBuffer;
 use crate::image::{ColorImage, Rgba};
+use crate::lens::{LensEffects, ThinLens};
 use crate::raster::{from_half, DepthLayers};
 
 /// How far behind the surface under it, in pixels of CoC, a ray may be at its refined hit and
@@ -152,6 +153,9 @@ pub struct TraceInput<'a> {
     /// The part of the layers traced: `(x0, y0, width, height)` in layer pixels (the frame
     /// inside the layers' guard band). The image has this size.
     pub region: (usize, usize, usize, usize),
+    /// The cat's eye and the frame's lens: each pixel keeps only the rays whose lens point
+    /// passes the barrel as the pixel sees it ([`LensEffects::barrel`]). `None`: every ray.
+    pub clip: Option<(LensEffects, ThinLens)>,
 }
 
 /// Where a ray went.
@@ -234,7 +238,19 @@ fn trace_row_inner(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
             % input.sets.len()];
         let mut acc = [0.0f32; 4];
         let mut count = 0u32;
+        // The barrel as this pixel of the frame sees it (with a cat's eye).
+        let barrel = input.clip.as_ref().map(|(e, lens)| {
+            (
+                e,
+                e.barrel(lens, Vec2::new(fx as f32 + 0.5, fy as f32 + 0.5)),
+            )
+        });
         for &v in set {
+            if let Some((e, b)) = barrel {
+                if !e.passes(b, v) {
+                    continue;
+                }
+            }
             if let Ray::Color(c) = ray(input, &open, p, v) {
                 for k in 0..4 {
                     acc[k] += c[k];
