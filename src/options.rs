@@ -294,7 +294,7 @@ pub struct PostArgs {
     #[arg(
         long,
         value_name = "PRESET|FILE.json",
-        help_heading = "Lens effects (reference: all; multiview: anamorphic, cat's eye; poisson: anamorphic)"
+        help_heading = "Lens effects (reference: all; multiview, poisson: anamorphic, cat's eye)"
     )]
     pub lens: Option<String>,
     /// Anamorphic aperture: the bokeh's width over its height, its area kept (0.5: the tall
@@ -303,19 +303,19 @@ pub struct PostArgs {
     #[arg(
         long,
         value_name = "ASPECT",
-        help_heading = "Lens effects (reference: all; multiview: anamorphic, cat's eye; poisson: anamorphic)"
+        help_heading = "Lens effects (reference: all; multiview, poisson: anamorphic, cat's eye)"
     )]
     pub anamorphic: Option<f32>,
     /// Cat's eye (optical vignetting): the lens barrel's front opening DIST millimetres in front
     /// of the aperture, of radius RADIUS millimetres [default: the lens radius at this
     /// f-number]. Towards the corners the bokeh is clipped into a lemon, its long side
     /// tangential; stopping down inside a larger opening fades it. Exact in reference (per
-    /// view) and multiview (per ray); other methods refuse it.
+    /// view); multiview per ray and poisson per tap; other methods refuse it.
     #[arg(
         long,
         value_name = "DIST[,RADIUS]",
         value_parser = parse_cats_eye,
-        help_heading = "Lens effects (reference: all; multiview: anamorphic, cat's eye; poisson: anamorphic)"
+        help_heading = "Lens effects (reference: all; multiview, poisson: anamorphic, cat's eye)"
     )]
     pub cats_eye: Option<(f32, Option<f32>)>,
     /// Chromatic aberration: red in focus DPT dioptres (1/m) nearer than green and blue as much
@@ -327,7 +327,7 @@ pub struct PostArgs {
         value_name = "DPT[,SCALE]",
         value_parser = parse_chromatic,
         allow_negative_numbers = true,
-        help_heading = "Lens effects (reference: all; multiview: anamorphic, cat's eye; poisson: anamorphic)"
+        help_heading = "Lens effects (reference: all; multiview, poisson: anamorphic, cat's eye)"
     )]
     pub chromatic: Option<(f32, f32)>,
 }
@@ -556,7 +556,7 @@ impl PostArgs {
                     taps: self.taps,
                     seed,
                     max_coc_px: self.max_coc,
-                    aspect: self.lens_effects()?.aspect,
+                    effects: self.lens_effects()?,
                 })
             }
             "splat" => {

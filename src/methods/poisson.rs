@@ -29,6 +29,7 @@
 //!
 //! Pixels with `|C| < 0.5` (the blur stays inside the pixel) are copied unchanged.
 
+use glam::Vec2;
 use rayon::prelude::*;
 
 use super::coc_map::{check_frame, coc};
@@ -51,10 +52,11 @@ pub struct PoissonSettings {
     pub seed: u64,
     /// Largest CoC radius in pixels; larger blurs are clamped to it. Default 64.
     pub max_coc_px: f32,
-    /// Anamorphic squeeze of the aperture ([`LensEffects::aspect`]): the taps are stretched by
-    /// it, so the gather's footprint, and a far light's bokeh, is the squeezed aperture. 1 (the
-    /// default): round.
-    pub aspect: f32,
+    /// The real lens's departures from the ideal one: the anamorphic squeeze stretches the
+    /// taps, so the gather's footprint, and a far light's bokeh, is the squeezed aperture; with
+    /// a cat's eye each pixel keeps only the taps (lens points) that pass its view of the
+    /// barrel. Chromatic aberration is refused. Default: the ideal lens.
+    pub effects: LensEffects,
 }
 
 impl Default for PoissonSettings {
@@ -64,7 +66,7 @@ impl Default for PoissonSettings {
             taps: 32,
             seed: 0,
             max_coc_px: 64.0,
-            aspect: 1.0,
+            effects: LensEffects::default(),
         }
     }
 }
@@ -79,18 +81,25 @@ pub fn render(
     check_frame(color, depth, lens)?;
     let mut timings = Timings::default();
     let mut taps = Taps::poisson_disc(&settings.aperture, settings.taps, settings.seed, 0.0)?;
-    if settings.aspect != 1.0 {
-        let effects = LensEffects {
-            aspect: settings.aspect,
-            ..LensEffects::default()
-        };
-        effects.validate()?;
-        for p in &mut taps.points {
-            *p = effects.squeeze(*p);
-        }
+    let effects = settings.effects;
+    effects.validate()?;
+    if effects.is_chromatic() {
+        return Err(crate::Error::Option(
+            "poisson does not render chromatic aberration (--chromatic); reference does"
+                .to_string(),
+        ));
+    }
+    for p in &mut taps.points {
+        *p = effects.squeeze(*p);
     }
     let coc_px = timings.time("poisson/coc", || coc(depth, lens, settings.max_coc_px))?;
-    let image = timings.time("poisson/gather", || gather(color, &coc_px, &taps));
+    let image = timings.time("poisson/gather", || {
+        if effects.has_cats_eye() {
+            gather_clipped(color, &coc_px, &taps, &effects, lens)
+        } else {
+            gather(color, &coc_px, &taps)
+        }
+    });
     Ok(MethodOutput {
         image,
         depth: None,
@@ -120,6 +129,20 @@ pub fn gather_pixel(
     x: usize,
     y: usize,
 ) -> Rgba {
+    gather_pixel_keeping(color, coc_px, taps, x, y, |_| true)
+}
+
+/// [`gather_pixel`] with only the taps `v` (lens points) for which `keep(v)` holds: the
+/// cat's eye keeps those that pass the pixel's view of the lens barrel.
+#[inline(always)]
+fn gather_pixel_keeping(
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    taps: &Taps,
+    x: usize,
+    y: usize,
+    keep: impl Fn(Vec2) -> bool,
+) -> Rgba {
     let c = coc_px.get(x, y);
     if c.abs() < 0.5 {
         return color.get(x, y);
@@ -128,6 +151,9 @@ pub fn gather_pixel(
     let mut acc = [0.0f32; 4];
     let mut total = 0.0f32;
     for (v, &base) in taps.points.iter().zip(&taps.weights) {
+        if !keep(*v) {
+            continue;
+        }
         let sx = (x as f32 + 0.5 - c * v.x).floor().clamp(0.0, w - 1.0) as usize;
         let sy = (y as f32 + 0.5 - c * v.y).floor().clamp(0.0, h - 1.0) as usize;
         let wt = base * rejection_weight(c, coc_px.get(sx, sy));
@@ -144,6 +170,29 @@ pub fn gather_pixel(
     } else {
         color.get(x, y)
     }
+}
+
+/// Pass `gather` with a cat's eye: each pixel keeps only the taps that pass its view of the
+/// lens barrel ([`LensEffects::barrel`]), in the frame of `lens`.
+fn gather_clipped(
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    taps: &Taps,
+    effects: &LensEffects,
+    lens: &ThinLens,
+) -> ColorImage {
+    let w = color.width();
+    let mut out = color.clone();
+    out.pixels_mut()
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, o) in row.iter_mut().enumerate() {
+                let barrel = effects.barrel(lens, Vec2::new(x as f32 + 0.5, y as f32 + 0.5));
+                *o = gather_pixel_keeping(color, coc_px, taps, x, y, |v| effects.passes(barrel, v));
+            }
+        });
+    out
 }
 
 /// Pass `gather`: every pixel of `color` gathered with `taps`. `coc_px` must have the size of

@@ -109,7 +109,7 @@ pub const METHODS: &[MethodInfo] = &[
         description: "baseline: Poisson-disc gather in the aperture shape with depth rejection",
         paper: "after Scheuermann 2004",
         input: InputKind::PinholeFrame,
-        effects: &["anamorphic"],
+        effects: &["anamorphic", "cats-eye"],
     },
     MethodInfo {
         id: "splat",

@@ -235,6 +235,7 @@ fn methods_without_an_effect_refuse_it_naming_it_and_who_has_it() {
         ("multilayer", "--cats-eye", "50", "cats-eye"),
         ("multiview", "--chromatic", "0.2", "chromatic"),
         ("hammon", "--cats-eye", "50,20", "cats-eye"),
+        ("poisson", "--chromatic", "0.2", "chromatic"),
         ("splat", "--chromatic", "0.5", "chromatic"),
     ] {
         let o = defocus(&[
@@ -366,7 +367,10 @@ fn poisson_stretches_its_taps_into_the_anamorphic_ellipse() {
         &lens,
         &PoissonSettings {
             taps: 256,
-            aspect,
+            effects: LensEffects {
+                aspect,
+                ..LensEffects::default()
+            },
             ..PoissonSettings::default()
         },
     )
@@ -509,4 +513,44 @@ fn multiview_clips_its_rays_into_the_cats_eye_lemon() {
         u.length() <= 1.0 && effects.passes(effects.barrel(&lens, q + coc * u), u)
     });
     assert_extents_close("multiview cat's eye", lit_extent(&out.image), want);
+}
+
+/// `poisson` claims the cat's eye: each pixel keeps only the taps whose lens point passes its
+/// view of the barrel, so the far light 50 px from the centre becomes the same lemon.
+#[test]
+fn poisson_clips_its_taps_into_the_cats_eye_lemon() {
+    use defocus::methods::poisson::{self, PoissonSettings};
+    let q = Vec2::new(W as f32 / 2.0 + 50.0, H as f32 / 2.0);
+    let (scene, camera, coc) = light_at(q);
+    let lens = camera.thin_lens().unwrap();
+    let pinhole = reference::render(
+        &scene,
+        &camera,
+        &ReferenceSettings {
+            samples: 1,
+            with_depth: true,
+            ..ReferenceSettings::default()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let effects = LensEffects {
+        barrel_distance_m: 0.2,
+        ..LensEffects::default()
+    };
+    let out = poisson::render(
+        &pinhole.image,
+        pinhole.depth.as_ref().unwrap(),
+        &lens,
+        &PoissonSettings {
+            taps: 256,
+            effects,
+            ..PoissonSettings::default()
+        },
+    )
+    .unwrap();
+    let want = analytic_extent(q, coc, |u| {
+        u.length() <= 1.0 && effects.passes(effects.barrel(&lens, q + coc * u), u)
+    });
+    assert_extents_close("poisson cat's eye", lit_extent(&out.image), want);
 }
