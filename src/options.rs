@@ -415,26 +415,7 @@ impl PostArgs {
         lens: Option<&ThinLens>,
     ) -> Result<MethodSettings> {
         let settings = self.settings_of(method, aperture, seed, height_px, lens)?;
-        let effects = self.lens_effects()?;
-        let info = crate::methods::registry::find(method)?;
-        let unsupported: Vec<&str> = effects
-            .active()
-            .into_iter()
-            .filter(|e| !info.effects.contains(e))
-            .collect();
-        if !unsupported.is_empty() {
-            let supported: Vec<&str> = crate::methods::registry::METHODS
-                .iter()
-                .filter(|m| unsupported.iter().all(|e| m.effects.contains(e)))
-                .map(|m| m.id)
-                .collect();
-            bail!(
-                "method {method} does not support the lens effect {} (--{}); {} support it",
-                unsupported.join(", "),
-                unsupported.join(", --"),
-                supported.join(", ")
-            );
-        }
+        self.lens_effects()?.check_for_method(method)?;
         // The flags of the other methods are range-checked too: a bad value is a mistake
         // whichever method runs (`--max-coc nan` with `hammon` is refused, not ignored).
         for other in crate::methods::registry::ids() {

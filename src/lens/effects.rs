@@ -185,6 +185,32 @@ impl LensEffects {
         on
     }
 
+    /// Checks the ranges, and refuses the effects that method `id` of the registry does not
+    /// render ([`crate::methods::registry::MethodInfo::effects`]), naming them.
+    pub fn check_for_method(&self, id: &str) -> Result<()> {
+        self.validate()?;
+        let info = crate::methods::registry::find(id)?;
+        let missing: Vec<&str> = self
+            .active()
+            .into_iter()
+            .filter(|e| !info.effects.contains(e))
+            .collect();
+        if missing.is_empty() {
+            return Ok(());
+        }
+        let supported: Vec<&str> = crate::methods::registry::METHODS
+            .iter()
+            .filter(|m| missing.iter().all(|e| m.effects.contains(e)))
+            .map(|m| m.id)
+            .collect();
+        Err(Error::Option(format!(
+            "method {id} does not support the lens effect {} (--{}); {} support it",
+            missing.join(", "),
+            missing.join(", --"),
+            supported.join(", ")
+        )))
+    }
+
     /// Whether the channels see different lenses (chromatic aberration).
     pub fn is_chromatic(&self) -> bool {
         self.chroma_dpt != 0.0 || self.chroma_scale != 1.0

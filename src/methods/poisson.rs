@@ -82,13 +82,7 @@ pub fn render(
     let mut timings = Timings::default();
     let mut taps = Taps::poisson_disc(&settings.aperture, settings.taps, settings.seed, 0.0)?;
     let effects = settings.effects;
-    effects.validate()?;
-    if effects.is_chromatic() {
-        return Err(crate::Error::Option(
-            "poisson does not render chromatic aberration (--chromatic); reference does"
-                .to_string(),
-        ));
-    }
+    effects.check_for_method("poisson")?;
     for p in &mut taps.points {
         *p = effects.squeeze(*p);
     }

@@ -63,6 +63,22 @@ fn render_with(scene: &Scene, camera: &Camera, effects: LensEffects, samples: us
     .image
 }
 
+/// The pinhole frame of `scene` and its depth, as a renderer's passes (pixel centres).
+fn pinhole_with_depth(scene: &Scene, camera: &Camera) -> (ColorImage, defocus::image::GrayImage) {
+    let out = reference::render(
+        scene,
+        camera,
+        &ReferenceSettings {
+            samples: 1,
+            with_depth: true,
+            ..ReferenceSettings::default()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    (out.image, out.depth.unwrap())
+}
+
 /// The lit pixels' extent (min x, max x, min y, max y), in pixel-centre coordinates, at half
 /// the bokeh's level (the median of the clearly lit pixels).
 fn lit_extent(img: &ColorImage) -> (f32, f32, f32, f32) {
@@ -347,22 +363,12 @@ fn poisson_stretches_its_taps_into_the_anamorphic_ellipse() {
     use defocus::methods::poisson::{self, PoissonSettings};
     let q = Vec2::new(W as f32 / 2.0, H as f32 / 2.0);
     let (scene, camera, coc) = light_at(q);
-    let pinhole = reference::render(
-        &scene,
-        &camera,
-        &ReferenceSettings {
-            samples: 1,
-            with_depth: true,
-            ..ReferenceSettings::default()
-        },
-        &mut |_, _| {},
-    )
-    .unwrap();
-    let depth = pinhole.depth.unwrap();
+    let pinhole = pinhole_with_depth(&scene, &camera);
+    let depth = pinhole.1;
     let lens = camera.thin_lens().unwrap();
     let aspect = 0.5f32;
     let out = poisson::render(
-        &pinhole.image,
+        &pinhole.0,
         &depth,
         &lens,
         &PoissonSettings {
@@ -523,24 +529,14 @@ fn poisson_clips_its_taps_into_the_cats_eye_lemon() {
     let q = Vec2::new(W as f32 / 2.0 + 50.0, H as f32 / 2.0);
     let (scene, camera, coc) = light_at(q);
     let lens = camera.thin_lens().unwrap();
-    let pinhole = reference::render(
-        &scene,
-        &camera,
-        &ReferenceSettings {
-            samples: 1,
-            with_depth: true,
-            ..ReferenceSettings::default()
-        },
-        &mut |_, _| {},
-    )
-    .unwrap();
+    let pinhole = pinhole_with_depth(&scene, &camera);
     let effects = LensEffects {
         barrel_distance_m: 0.2,
         ..LensEffects::default()
     };
     let out = poisson::render(
-        &pinhole.image,
-        pinhole.depth.as_ref().unwrap(),
+        &pinhole.0,
+        &pinhole.1,
         &lens,
         &PoissonSettings {
             taps: 256,

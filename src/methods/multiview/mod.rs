@@ -245,13 +245,7 @@ pub fn sample_sets(settings: &MultiviewSettings) -> Result<(Vec<Vec<Vec2>>, Vec<
             settings.seed.wrapping_add(j as u64),
         )?;
         let effects = settings.effects;
-        effects.validate()?;
-        if effects.is_chromatic() {
-            return Err(crate::Error::Option(
-                "multiview does not render chromatic aberration (--chromatic); reference does"
-                    .to_string(),
-            ));
-        }
+        effects.check_for_method("multiview")?;
         sets.push(
             set.samples
                 .iter()
