@@ -197,98 +197,23 @@ fn render_sequence_turns_the_aperture_ring_in_stops() {
 fn sequence_flags_without_a_sequence_are_refused_with_the_flag_named() {
     let dir = temp_dir("seq-refused");
     write_frames(&dir, &[1]);
-    let c = dir.join("c.0001.exr");
-    let d = dir.join("d.0001.exr");
-    let cases: Vec<(Vec<String>, &str)> = vec![
-        (
-            vec![
-                "--color".into(),
-                s(&c).into(),
-                "--depth".into(),
-                s(&d).into(),
-                "--out".into(),
-                s(&dir.join("o.png")).into(),
-                "--focus".into(),
-                "1:2,5:3".into(),
-            ],
-            "--focus",
-        ),
-        (
-            vec![
-                "--color".into(),
-                s(&c).into(),
-                "--depth".into(),
-                s(&d).into(),
-                "--out".into(),
-                s(&dir.join("o.png")).into(),
-                "--fstop".into(),
-                "1:2,5:3".into(),
-            ],
-            "--fstop",
-        ),
-        (
-            vec![
-                "--color".into(),
-                s(&c).into(),
-                "--depth".into(),
-                s(&d).into(),
-                "--out".into(),
-                s(&dir.join("o.png")).into(),
-                "--frames".into(),
-                "1-3".into(),
-            ],
-            "--frames",
-        ),
-        (
-            vec![
-                "--color".into(),
-                s(&c).into(),
-                "--depth".into(),
-                s(&d).into(),
-                "--out".into(),
-                s(&dir.join("o.####.png")).into(),
-            ],
-            "--out",
-        ),
-        (
-            vec![
-                "--color".into(),
-                s(&dir.join("c.####.exr")).into(),
-                "--depth".into(),
-                s(&dir.join("d.####.exr")).into(),
-                "--out".into(),
-                s(&dir.join("o.png")).into(),
-            ],
-            "--out",
-        ),
-        (
-            vec![
-                "--color".into(),
-                s(&dir.join("c.####.exr")).into(),
-                "--depth".into(),
-                s(&dir.join("d.####.exr")).into(),
-                "--out".into(),
-                s(&dir.join("o.####.png")).into(),
-                "--frames".into(),
-                "1-x".into(),
-            ],
-            "--frames",
-        ),
-        (
-            vec![
-                "--color".into(),
-                s(&dir.join("c.####.exr")).into(),
-                "--depth".into(),
-                s(&dir.join("d.####.exr")).into(),
-                "--out".into(),
-                s(&dir.join("c.####.exr")).into(),
-            ],
-            "outputs never overwrite inputs",
-        ),
+    let path = |name: &str| s(&dir.join(name)).to_string();
+    let (c, d) = (path("c.0001.exr"), path("d.0001.exr"));
+    let (cs, ds) = (path("c.####.exr"), path("d.####.exr"));
+    let (png, pngs) = (path("o.png"), path("o.####.png"));
+    // (colour, depth, output, more flags, what the error names)
+    let cases: Vec<(&str, &str, &str, &[&str], &str)> = vec![
+        (&c, &d, &png, &["--focus", "1:2,5:3"], "--focus"),
+        (&c, &d, &png, &["--fstop", "1:2,5:3"], "--fstop"),
+        (&c, &d, &png, &["--frames", "1-3"], "--frames"),
+        (&c, &d, &pngs, &[], "--out"),
+        (&cs, &ds, &png, &[], "--out"),
+        (&cs, &ds, &pngs, &["--frames", "1-x"], "--frames"),
+        (&cs, &ds, &cs, &[], "outputs never overwrite inputs"),
     ];
-    for (args, expected) in cases {
-        let mut all = vec!["blur"];
-        all.extend(args.iter().map(String::as_str));
+    for (color, depth, out, more, expected) in cases {
+        let mut all = vec!["blur", "--color", color, "--depth", depth, "--out", out];
+        all.extend_from_slice(more);
         let o = defocus(&all);
         assert!(!o.status.success(), "{all:?}");
         let err = stderr(&o);
