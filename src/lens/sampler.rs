@@ -14,6 +14,12 @@ pub enum SamplerKind {
     /// with a Cranley-Patterson rotation chosen by the seed. Low discrepancy; the default.
     #[default]
     Halton,
+    /// Owen-scrambled Sobol (0,2)-sequence for the lens, and a second one, scrambled and
+    /// shuffled apart, for the pixel ([`owen_sobol`]). Every run of 2^m samples from a multiple
+    /// of 2^m has one lens point in each of the 2^m elementary boxes of the unit square; the
+    /// seed picks the scrambles. Measured against Halton in the README ("How fast `reference`
+    /// converges"): the same error at 64-256 samples.
+    Sobol,
     /// Jittered grid over the lens (ceil(sqrt N) squared strata, N of them used in a seeded
     /// shuffled order), uniform random pixel positions.
     Stratified,
@@ -22,16 +28,17 @@ pub enum SamplerKind {
 }
 
 impl SamplerKind {
-    /// Parses `halton`, `stratified` or `random`.
+    /// Parses `sobol`, `halton`, `stratified` or `random`.
     pub fn parse(s: &str) -> Result<Self> {
         match s {
+            "sobol" => Ok(Self::Sobol),
             "halton" => Ok(Self::Halton),
             "stratified" => Ok(Self::Stratified),
             "random" => Ok(Self::Random),
             other => Err(Error::Unknown {
                 kind: "sampler",
                 name: other.to_string(),
-                expected: "halton, stratified, random".into(),
+                expected: "sobol, halton, stratified, random".into(),
             }),
         }
     }
@@ -72,6 +79,65 @@ fn rotate(x: f64, offset: f32) -> f32 {
     v.min(1.0 - f32::EPSILON)
 }
 
+/// The first two dimensions of Sobol's sequence at index `i`, as 32-bit fractions: the van der
+/// Corput sequence (bits of `i` reversed) and the dimension of the primitive polynomial `x + 1`,
+/// whose direction numbers are `v_0 = 2^31`, `v_k = v_(k-1) xor (v_(k-1) >> 1)`. Together they
+/// form a (0,2)-sequence in base 2: every run of 2^m points starting at a multiple of 2^m has
+/// one point in each elementary box of area 2^-m.
+fn sobol_02(i: u32) -> (u32, u32) {
+    let mut y = 0u32;
+    let mut v = 1u32 << 31;
+    let mut bits = i;
+    while bits != 0 {
+        if bits & 1 != 0 {
+            y ^= v;
+        }
+        bits >>= 1;
+        v ^= v >> 1;
+    }
+    (i.reverse_bits(), y)
+}
+
+/// Owen's nested uniform scramble of a 32-bit fraction `x`: each bit, from the most
+/// significant, is flipped or kept by a hash of the seed, its position and the bits above it.
+/// Points in one elementary interval stay together in one, so the scramble keeps the net
+/// structure of a sequence while making it a random point set.
+fn owen_scramble(x: u32, seed: u64) -> u32 {
+    let mut out = x;
+    for bit in 0..32u32 {
+        // The `bit` leading bits of the input: the interval the point lies in at that depth.
+        let prefix = if bit == 0 { 0 } else { x >> (32 - bit) };
+        let h = crate::random::mix64(seed ^ ((bit as u64) << 32 | prefix as u64));
+        out ^= ((h >> 63) as u32) << (31 - bit);
+    }
+    out
+}
+
+/// A seeded permutation of sample indices that maps every aligned block of 2^m indices onto an
+/// aligned block of 2^m: Owen's scramble of the index itself, whose bit k is flipped by a hash
+/// of the bits above it, so the indices of one block share their flips above bit m. A
+/// (0,2)-sequence read in this order stays one, and is decorrelated from another read in the
+/// natural order.
+fn shuffle_index(i: u32, seed: u64) -> u32 {
+    owen_scramble(i, seed)
+}
+
+/// A 32-bit fraction as a float in [0, 1).
+fn sobol_unit(x: u32) -> f32 {
+    ((x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)).min(1.0 - f32::EPSILON)
+}
+
+/// Point `i` of the Owen-scrambled Sobol (0,2)-sequence of `seed`, in [0, 1)^2 (Owen,
+/// "Randomly permuted (t,m,s)-nets and (t,s)-sequences", 1995). Each dimension takes its own
+/// scramble.
+pub fn owen_sobol(i: u32, seed: u64) -> Vec2 {
+    let (x, y) = sobol_02(i);
+    Vec2::new(
+        sobol_unit(owen_scramble(x, seed)),
+        sobol_unit(owen_scramble(y, crate::random::mix64(seed ^ 0x51))),
+    )
+}
+
 /// Upper bound on candidates drawn for rejection sampling (shapes covering at least 1/64 of
 /// their bounding area always fill the set well before this).
 const MAX_CANDIDATES_PER_SAMPLE: usize = 4096;
@@ -99,6 +165,7 @@ impl SampleSet {
         }
         let mut rng = SplitMix64::new(seed ^ SAMPLER_SEED_SALT);
         let rot: [f32; 5] = std::array::from_fn(|_| rng.next_f32());
+        let scramble: [u64; 5] = std::array::from_fn(|_| rng.next_u64());
         // Candidate stream: index -> (lens u, pixel u, acceptance u).
         let grid = (count as f64).sqrt().ceil() as usize;
         let mut order: Vec<usize> = (0..grid * grid).collect();
@@ -110,6 +177,17 @@ impl SampleSet {
         }
         let candidate = |i: usize, rng: &mut SplitMix64| -> (Vec2, Vec2, f32) {
             match kind {
+                SamplerKind::Sobol => {
+                    let i = i as u32;
+                    (
+                        owen_sobol(i, scramble[0]),
+                        owen_sobol(shuffle_index(i, scramble[1]), scramble[2]),
+                        sobol_unit(owen_scramble(
+                            shuffle_index(i, scramble[3]).reverse_bits(),
+                            scramble[4],
+                        )),
+                    )
+                }
                 SamplerKind::Halton => {
                     let i = i as u64 + 1;
                     (
@@ -174,5 +252,71 @@ impl SampleSet {
             });
         }
         Ok(Self { samples })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Counts the points of `pts` in each of the `2^a x 2^(m-a)` elementary boxes.
+    fn box_counts(pts: &[Vec2], m: u32, a: u32) -> Vec<u32> {
+        let (nx, ny) = (1usize << a, 1usize << (m - a));
+        let mut counts = vec![0u32; nx * ny];
+        for p in pts {
+            let (x, y) = ((p.x * nx as f32) as usize, (p.y * ny as f32) as usize);
+            counts[y.min(ny - 1) * nx + x.min(nx - 1)] += 1;
+        }
+        counts
+    }
+
+    #[test]
+    fn owen_sobol_runs_of_two_to_the_m_are_nets_for_every_seed() {
+        // A (0,m,2)-net: every elementary box of area 2^-m holds exactly one of the 2^m
+        // points, whatever its aspect; Owen's scramble must keep that, a plain hash would not.
+        for seed in [0u64, 1, 0xDEAD_BEEF] {
+            for m in [4u32, 7] {
+                let n = 1u32 << m;
+                for start in [0u32, n, 5 * n] {
+                    let pts: Vec<Vec2> = (start..start + n).map(|i| owen_sobol(i, seed)).collect();
+                    for a in 0..=m {
+                        let counts = box_counts(&pts, m, a);
+                        assert!(
+                            counts.iter().all(|&c| c == 1),
+                            "seed {seed}, 2^{m} points from {start}, boxes 2^{a} x 2^{}",
+                            m - a
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_index_shuffle_maps_aligned_blocks_onto_aligned_blocks() {
+        for seed in [3u64, 77] {
+            for m in [0u32, 3, 6] {
+                let n = 1u32 << m;
+                for start in [0u32, n, 9 * n] {
+                    let mut block: Vec<u32> =
+                        (start..start + n).map(|i| shuffle_index(i, seed)).collect();
+                    block.sort_unstable();
+                    assert_eq!(block[0] % n, 0, "seed {seed}, block of 2^{m} from {start}");
+                    assert!(block.windows(2).all(|w| w[1] == w[0] + 1));
+                }
+            }
+            // And it is not the identity: the pixel sequence is read in another order.
+            assert!((0..64).any(|i| shuffle_index(i, seed) != i));
+        }
+    }
+
+    #[test]
+    fn seeds_scramble_apart() {
+        let a: Vec<Vec2> = (0..16).map(|i| owen_sobol(i, 1)).collect();
+        let b: Vec<Vec2> = (0..16).map(|i| owen_sobol(i, 2)).collect();
+        assert_ne!(a, b);
+        assert!(a
+            .iter()
+            .all(|p| (0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y)));
     }
 }

@@ -242,7 +242,11 @@ fn check_even_cover(aperture: &Aperture, kind: SamplerKind) {
 
 #[test]
 fn samplers_cover_each_aperture_evenly() {
-    for kind in [SamplerKind::Halton, SamplerKind::Stratified] {
+    for kind in [
+        SamplerKind::Halton,
+        SamplerKind::Sobol,
+        SamplerKind::Stratified,
+    ] {
         check_even_cover(&Aperture::Disc, kind);
         check_even_cover(&Aperture::parse("poly:8").unwrap(), kind);
         check_even_cover(&Aperture::parse("poly:6,curve=1.5").unwrap(), kind);

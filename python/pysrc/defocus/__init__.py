@@ -192,7 +192,7 @@ def render(
         width, height: image size in pixels [default: the scene's, 1280x720 for built-ins].
         samples: lens views of ``reference``, samples per pixel of ``pinhole`` and of the
             frame the post-process methods blur, lens rays per pixel of ``multiview``.
-        seed, sampler: the lens and pixel sampler (``halton``, ``stratified``, ``random``).
+        seed, sampler: the lens and pixel sampler (``halton``, ``sobol``, ``stratified``, ``random``).
         focus: focus distance in metres, or ``"auto"`` (the surface at the image centre)
             [default: the scene's].
         focus_pixel: focus on the surface at pixel (column, row).

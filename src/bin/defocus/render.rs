@@ -69,7 +69,7 @@ pub struct RenderArgs {
     /// far-field bokeh appears) [default: the scene's]. hammon, gaussian and multilayer (box filters) have no shape.
     #[arg(long, value_name = "SPEC")]
     pub aperture: Option<String>,
-    /// Lens sampler: halton (low discrepancy), stratified, random.
+    /// Lens sampler: halton (low discrepancy, the default), sobol (Owen-scrambled), stratified, random.
     #[arg(long, default_value = "halton")]
     pub sampler: String,
     /// Seed of the lens/pixel sampler.
