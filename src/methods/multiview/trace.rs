@@ -106,8 +106,9 @@ impl LayerMip {
             return [0.0; 4];
         }
         let (w, h, data) = &self.levels[k - 1];
-        let s = (1u32 << k) as f32;
-        let (u, v) = ((q.x / s - 0.5).max(0.0), (q.y / s - 0.5).max(0.0));
+        // 1 / 2^k is exact, so the product is the quotient bit for bit.
+        let inv = 1.0 / (1u32 << k) as f32;
+        let (u, v) = ((q.x * inv - 0.5).max(0.0), (q.y * inv - 0.5).max(0.0));
         let (x0, y0) = ((u as usize).min(w - 1), (v as usize).min(h - 1));
         let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
         let (fx, fy) = (u - x0 as f32, v - y0 as f32);
@@ -174,12 +175,14 @@ pub fn trace(input: &TraceInput) -> ColorImage {
 /// [`trace`] built for the portable baseline only (no run-time dispatch): the twin the
 /// dispatched versions are tested against, bit for bit.
 pub fn trace_baseline(input: &TraceInput) -> ColorImage {
-    trace_with(input, trace_row_inner)
+    trace_with(input, |input, table, rmax, y, row| {
+        trace_row_inner(input, table, rmax, y, row, false)
+    })
 }
 
 fn trace_with(
     input: &TraceInput,
-    row_fn: impl Fn(&TraceInput, f32, usize, &mut [Rgba]) + Sync,
+    row_fn: impl Fn(&TraceInput, &RayTable, f32, usize, &mut [Rgba]) + Sync,
 ) -> ColorImage {
     let (_, _, w, h) = input.region;
     let rmax = input
@@ -188,10 +191,11 @@ fn trace_with(
         .flatten()
         .map(|v| v.length())
         .fold(0.0f32, f32::max);
+    let table = RayTable::new(input);
     let mut data = vec![[0.0f32; 4]; w * h];
     data.par_chunks_mut(w.max(1))
         .enumerate()
-        .for_each(|(y, row)| row_fn(input, rmax, y, row));
+        .for_each(|(y, row)| row_fn(input, &table, rmax, y, row));
     ColorImage::from_vec(w, h, data).expect("sizes agree by construction")
 }
 
@@ -203,20 +207,41 @@ fn trace_with(
     "x86_64+avx2",
     "aarch64+neon"
 ))]
-fn trace_row(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
-    trace_row_inner(input, rmax, y, row);
+fn trace_row(input: &TraceInput, table: &RayTable, rmax: f32, y: usize, row: &mut [Rgba]) {
+    let simd = simd_fits(input.layers.width * input.layers.height);
+    trace_row_inner(input, table, rmax, y, row, simd);
 }
 
 #[inline(always)]
-fn trace_row_inner(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
+fn trace_row_inner(
+    input: &TraceInput,
+    table: &RayTable,
+    rmax: f32,
+    y: usize,
+    row: &mut [Rgba],
+    simd: bool,
+) {
     let layers = input.layers;
     let m = layers.spacing.layers;
     let mut open = vec![false; m];
+    let mut open_list: Vec<usize> = Vec::with_capacity(m);
+    let mut kept: Vec<u32> = Vec::with_capacity(input.sets.first().map_or(0, Vec::len));
     let (x0, y0, _, _) = input.region;
     let (fy, y) = (y, y + y0);
+    // A pixel at least `reach` from every side of the layers has no ray that leaves them in
+    // any layer (q is linear in C between the layers' extreme CoCs), so its rays need no
+    // discard test and can skip the layers that are not open. A ray enters each layer the
+    // overlap margin in front of its bound, so the nearest CoC it samples is that far before
+    // layer 0.
+    let (c_first, _) = layers.spacing.bounds(0);
+    let c_first = c_first - layers.spacing.overlap * layers.spacing.delta_px;
+    let (_, c_last) = layers.spacing.bounds(m.saturating_sub(1));
+    let reach = c_first.abs().max(c_last.abs()) * rmax + 1.0;
+    let (lw, lh) = (layers.width as f32, layers.height as f32);
     for (fx, out) in row.iter_mut().enumerate() {
         let x = fx + x0;
         let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+        let safe = p.x - reach >= 0.0 && p.y - reach >= 0.0 && p.x + reach < lw && p.y + reach < lh;
         // Early layer culling for all rays of the pixel.
         for (l, o) in open.iter_mut().enumerate() {
             *o = input.filled[l];
@@ -233,9 +258,11 @@ fn trace_row_inner(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
                 }
             }
         }
-        let set = &input.sets[input.noise[(fy % NOISE_TILE) * NOISE_TILE + fx % NOISE_TILE]
-            as usize
-            % input.sets.len()];
+        open_list.clear();
+        open_list.extend((0..m).filter(|&l| open[l]));
+        let set_index = input.noise[(fy % NOISE_TILE) * NOISE_TILE + fx % NOISE_TILE] as usize
+            % input.sets.len();
+        let set = &input.sets[set_index];
         let mut acc = [0.0f32; 4];
         let mut count = 0u32;
         // The barrel as this pixel of the frame sees it (with a cat's eye).
@@ -245,17 +272,37 @@ fn trace_row_inner(input: &TraceInput, rmax: f32, y: usize, row: &mut [Rgba]) {
                 e.barrel(lens, Vec2::new(fx as f32 + 0.5, fy as f32 + 0.5)),
             )
         });
-        for &v in set {
-            if let Some((e, b)) = barrel {
-                if !e.passes(b, v) {
-                    continue;
+        if safe {
+            // The pixel's rays in packets of LANES, layer by layer.
+            kept.clear();
+            kept.extend((0..set.len() as u32).filter(|&r| match barrel {
+                Some((e, b)) => e.passes(b, set[r as usize]),
+                None => true,
+            }));
+            for rays in kept.chunks(LANES) {
+                for c in trace_packet(input, table, set_index, &open_list, p, rays, simd)
+                    .iter()
+                    .take(rays.len())
+                {
+                    for k in 0..4 {
+                        acc[k] += c[k];
+                    }
                 }
+                count += rays.len() as u32;
             }
-            if let Ray::Color(c) = ray(input, &open, p, v) {
-                for k in 0..4 {
-                    acc[k] += c[k];
+        } else {
+            for &v in set {
+                if let Some((e, b)) = barrel {
+                    if !e.passes(b, v) {
+                        continue;
+                    }
                 }
-                count += 1;
+                if let Ray::Color(c) = ray(input, &open, p, v) {
+                    for k in 0..4 {
+                        acc[k] += c[k];
+                    }
+                    count += 1;
+                }
             }
         }
         if count > 0 {
@@ -271,11 +318,10 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
     let layers = input.layers;
     let (w, h) = (layers.width as f32, layers.height as f32);
     let spacing = &layers.spacing;
-    let mut col = [0.0f32; 4];
-    let mut weight = 1.0f32;
+    let mut state = RayState::default();
     let inside = |q: Vec2| q.x >= 0.0 && q.y >= 0.0 && q.x < w && q.y < h;
     let speed = v.length();
-    for l in 0..spacing.layers {
+    for (l, &is_open) in open.iter().enumerate() {
         let (ca, cb) = spacing.bounds(l);
         // A ray that leaves the image in this layer's segment is discarded (q is linear in C,
         // so the ends decide), whether or not the layer can be skipped: culling must not
@@ -283,74 +329,589 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
         if !inside(p - ca * v) || !inside(p - cb * v) {
             return Ray::Discarded;
         }
-        if !open[l] {
-            continue;
-        }
-        let steps = ((cb - ca) * speed).ceil().max(1.0) as usize;
-        let dc = (cb - ca) / steps as f32;
-        // The ray was in front of the surface under it at the previous sample; a crossing from
-        // there to behind it brackets a hit. It enters the layer in front of everything the
-        // layer holds: the overlap margin before its front bound.
-        let mut prev = ca - spacing.overlap * spacing.delta_px;
-        let mut prev_front = true;
-        let mut hit = None;
-        for k in 0..=steps {
-            let c = ca + dc * k as f32;
-            let q = p - c * v;
-            let i = layers.index(l, q.x as usize, q.y as usize);
-            let behind = layers.coc_px[i] <= c;
-            if behind && prev_front {
-                let (c_hit, i_hit, h_front) =
-                    refine(layers, l, p, v, prev, c).unwrap_or((c, i, f32::INFINITY));
-                // A ray meets the surface where it crosses it (refined to within
-                // THICKNESS_PX), or where it steps onto it from a continuation of the same
-                // surface (a slanted surface sampled pixel by pixel); one that comes in from
-                // the side of a thin object, from empty space or from a surface far in
-                // front, passes behind it.
-                let h_hit = layers.coc_px[i_hit];
-                if c_hit - h_hit <= THICKNESS_PX || (h_front - h_hit).abs() <= CONTINUITY_PX {
-                    hit = Some((c_hit, i_hit));
-                    break;
-                }
-            }
-            prev_front = !behind;
-            prev = c;
-        }
-        let Some((c_hit, i)) = hit else {
-            continue;
-        };
-        let color = from_half(&layers.color[i]);
-        let (v1, c1) = match input.mips {
-            Some(mips) => {
-                // Trilinear: the footprint's level between two mip levels (level 0 is the hit
-                // pixel itself, fully covered).
-                let d = input.lambda * c_hit.abs();
-                if d > 1.0 {
-                    let f = d.log2();
-                    let k0 = f.floor() as usize;
-                    let t = f - k0 as f32;
-                    let q = p - c_hit * v;
-                    let a = if k0 == 0 { color } else { mips[l].fetch(k0, q) };
-                    let b = mips[l].fetch(k0 + 1, q);
-                    let m: Rgba = std::array::from_fn(|k| a[k] + t * (b[k] - a[k]));
-                    (m[3].clamp(0.0, 1.0), m)
-                } else {
-                    (color[3].clamp(0.0, 1.0), color)
-                }
-            }
-            None => (color[3].clamp(0.0, 1.0), color),
-        };
-        // v1 c1 is the premultiplied mip colour itself.
-        for k in 0..3 {
-            col[k] += weight * c1[k];
-        }
-        col[3] += weight * v1;
-        weight *= 1.0 - v1;
-        if weight < 1e-3 {
+        if is_open && layer(input, l, p, v, speed, &mut state) {
             break;
         }
     }
-    Ray::Color(col)
+    Ray::Color(state.col)
+}
+
+/// Per sample set, ray and layer, what the trace of a ray needs that does not depend on the
+/// pixel: its speed `|v|` (pixels per pixel of CoC), and in each layer its number of steps and
+/// its CoC step (computed as [`layer`] computes them, so the same bits).
+pub struct RayTable {
+    rays: usize,
+    layers: usize,
+    speed: Vec<f32>,
+    steps: Vec<(u32, f32)>,
+}
+
+impl RayTable {
+    fn new(input: &TraceInput) -> Self {
+        let spacing = &input.layers.spacing;
+        let rays = input.sets.iter().map(Vec::len).max().unwrap_or(0);
+        let layers = spacing.layers;
+        let mut speed = vec![0.0; input.sets.len() * rays];
+        let mut steps = vec![(0, 0.0); input.sets.len() * layers * rays];
+        for (s, set) in input.sets.iter().enumerate() {
+            for (r, v) in set.iter().enumerate() {
+                let sp = v.length();
+                speed[s * rays + r] = sp;
+                for l in 0..layers {
+                    let (ca, cb) = spacing.bounds(l);
+                    let n = ((cb - ca) * sp).ceil().max(1.0) as usize;
+                    steps[(s * layers + l) * rays + r] = (n as u32, (cb - ca) / n as f32);
+                }
+            }
+        }
+        Self {
+            rays,
+            layers,
+            speed,
+            steps,
+        }
+    }
+
+    #[inline(always)]
+    fn speed(&self, set: usize, ray: u32) -> f32 {
+        self.speed[set * self.rays + ray as usize]
+    }
+
+    /// Steps and CoC step of ray `ray` of set `set` in layer `l`.
+    #[inline(always)]
+    fn step(&self, set: usize, l: usize, ray: u32) -> (usize, f32) {
+        let (n, dc) = self.steps[(set * self.layers + l) * self.rays + ray as usize];
+        (n as usize, dc)
+    }
+}
+
+/// Rays traced together by [`trace_packet`].
+const LANES: usize = 8;
+
+/// [`ray`] for up to [`LANES`] rays `rays` of a pixel whose rays stay inside the layers, through
+/// the open layers `open` in order, with the same samples and arithmetic as [`layer`], so the
+/// same colours bit for bit. The lanes step each layer side by side (independent loads, no
+/// branch per sample) and refine their first crossings together; a lane whose first crossing
+/// is not a hit (it passes behind a thin object) takes the layer again alone, as [`layer`]
+/// does.
+#[inline(always)]
+fn trace_packet(
+    input: &TraceInput,
+    table: &RayTable,
+    set: usize,
+    open: &[usize],
+    p: Vec2,
+    rays: &[u32],
+    simd: bool,
+) -> [Rgba; LANES] {
+    let layers = input.layers;
+    let spacing = &layers.spacing;
+    let (w, h) = (layers.width, layers.height);
+    let n = rays.len();
+    let mut vx = [0.0f32; LANES];
+    let mut vy = [0.0f32; LANES];
+    let mut speed = [0.0f32; LANES];
+    for (j, &r) in rays.iter().enumerate() {
+        let v = input.sets[set][r as usize];
+        (vx[j], vy[j], speed[j]) = (v.x, v.y, table.speed(set, r));
+    }
+    let mut state: [RayState; LANES] = std::array::from_fn(|_| RayState::default());
+    // Lanes still tracing (the unused ones of a short packet never are).
+    let mut live = [false; LANES];
+    live[..n].fill(true);
+    for &l in open {
+        let plane = &layers.coc_px[l * w * h..(l + 1) * w * h];
+        let (ca, _) = spacing.bounds(l);
+        let enter = ca - spacing.overlap * spacing.delta_px;
+        let mut steps = [0usize; LANES];
+        let mut stepsf = [0.0f32; LANES];
+        let mut dc = [0.0f32; LANES];
+        let mut most = 0;
+        for (j, &r) in rays.iter().enumerate() {
+            (steps[j], dc[j]) = table.step(set, l, r);
+            stepsf[j] = steps[j] as f32;
+            if live[j] {
+                most = most.max(steps[j]);
+            }
+        }
+        let lanes = Lanes {
+            vx: &vx,
+            vy: &vy,
+            dc: &dc,
+            steps: &steps,
+            stepsf: &stepsf,
+            live: &live,
+        };
+        let Crossings {
+            found,
+            hi,
+            h_lo,
+            i_hi,
+        } = if simd {
+            crossings_simd(plane, w, p, ca, enter, most, &lanes)
+        } else {
+            crossings(plane, w, p, ca, enter, most, &lanes)
+        };
+        if !found.iter().any(|&f| f) {
+            continue;
+        }
+        for j in 0..LANES {
+            if !found[j] {
+                continue;
+            }
+            let v = Vec2::new(vx[j], vy[j]);
+            let h_hit = plane[i_hi[j]];
+            let done = if hi[j] - h_hit <= THICKNESS_PX || (h_lo[j] - h_hit).abs() <= CONTINUITY_PX
+            {
+                let hit = Hit {
+                    l,
+                    c: hi[j],
+                    i: l * w * h + i_hi[j],
+                };
+                shade(input, p, v, hit, &mut state[j], simd)
+            } else {
+                // Behind a thin object: the rest of the layer, as `layer` walks it.
+                layer(input, l, p, v, speed[j], &mut state[j])
+            };
+            live[j] = !done;
+        }
+        if !live.iter().any(|&a| a) {
+            break;
+        }
+    }
+    state.map(|s| s.col)
+}
+
+/// The rays of a packet, as [`crossings`] reads them.
+struct Lanes<'a> {
+    vx: &'a [f32; LANES],
+    vy: &'a [f32; LANES],
+    /// CoC step of each lane in this layer, and its number of steps.
+    dc: &'a [f32; LANES],
+    steps: &'a [usize; LANES],
+    stepsf: &'a [f32; LANES],
+    /// Lanes still tracing.
+    live: &'a [bool; LANES],
+}
+
+/// Each lane's first crossing in a layer, refined: whether it has one, the ray's CoC there,
+/// the surface's CoC just in front of it, and the plane index of the pixel hit.
+struct Crossings {
+    found: [bool; LANES],
+    hi: [f32; LANES],
+    h_lo: [f32; LANES],
+    i_hi: [usize; LANES],
+}
+
+/// The lanes' first crossings in the layer `plane` (the CoCs of one layer, `w` wide), from
+/// `enter` in front of the layer's front bound `ca`, with up to `most` steps, refined as
+/// [`refine`] does. The portable twin of [`crossings_simd`].
+#[inline(always)]
+fn crossings(
+    plane: &[f32],
+    w: usize,
+    p: Vec2,
+    ca: f32,
+    enter: f32,
+    most: usize,
+    lanes: &Lanes,
+) -> Crossings {
+    let (vx, vy, dc, steps, live) = (lanes.vx, lanes.vy, lanes.dc, lanes.steps, lanes.live);
+    let at = |c: f32, j: usize| -> (f32, usize) {
+        let q = p - c * Vec2::new(vx[j], vy[j]);
+        let i = q.y as usize * w + q.x as usize;
+        (plane[i], i)
+    };
+    // Per lane: its first crossing from in front to behind (the samples around it).
+    let mut found = [false; LANES];
+    let mut lo = [0.0f32; LANES];
+    let mut hi = [0.0f32; LANES];
+    let mut prev = [enter; LANES];
+    let mut prev_front = [true; LANES];
+    for k in 0..=most {
+        for j in 0..LANES {
+            let kk = k.min(steps[j]);
+            let c = ca + dc[j] * kk as f32;
+            let (hh, _) = at(c, j);
+            let behind = hh <= c;
+            let cross = live[j] && !found[j] && k <= steps[j] && behind && prev_front[j];
+            if cross {
+                (lo[j], hi[j]) = (prev[j], c);
+            }
+            found[j] |= cross;
+            prev_front[j] = !behind;
+            prev[j] = c;
+        }
+    }
+    if !found.iter().any(|&f| f) {
+        return Crossings {
+            found,
+            hi,
+            h_lo: [0.0; LANES],
+            i_hi: [0; LANES],
+        };
+    }
+    // Refine every crossing as `refine` does.
+    let mut h_lo = [0.0f32; LANES];
+    let mut h_hi = [0.0f32; LANES];
+    let mut i_hi = [0usize; LANES];
+    for j in 0..LANES {
+        if found[j] {
+            (h_lo[j], _) = at(lo[j], j);
+            (h_hi[j], i_hi[j]) = at(hi[j], j);
+        }
+    }
+    for _ in 0..3 {
+        for j in 0..LANES {
+            if !found[j] {
+                continue;
+            }
+            let (f_lo, f_hi) = (h_lo[j] - lo[j], h_hi[j] - hi[j]);
+            let mut mid = if f_lo.is_finite() && f_hi.is_finite() && f_lo != f_hi {
+                lo[j] + (hi[j] - lo[j]) * f_lo / (f_lo - f_hi)
+            } else {
+                0.5 * (lo[j] + hi[j])
+            };
+            if !(mid > lo[j] && mid < hi[j]) {
+                mid = 0.5 * (lo[j] + hi[j]);
+            }
+            let (h_mid, i_mid) = at(mid, j);
+            if h_mid <= mid {
+                (hi[j], h_hi[j], i_hi[j]) = (mid, h_mid, i_mid);
+            } else {
+                (lo[j], h_lo[j]) = (mid, h_mid);
+            }
+        }
+    }
+    Crossings {
+        found,
+        hi,
+        h_lo,
+        i_hi,
+    }
+}
+
+/// [`crossings`] with the lanes in AVX2 registers and the samples gathered, where the CPU has
+/// AVX2 (the same arithmetic, without fused multiply-adds, so the same bits); elsewhere the
+/// portable twin.
+#[inline(always)]
+fn crossings_simd(
+    plane: &[f32],
+    w: usize,
+    p: Vec2,
+    ca: f32,
+    enter: f32,
+    most: usize,
+    lanes: &Lanes,
+) -> Crossings {
+    #[cfg(target_arch = "x86_64")]
+    {
+        // Checked once per row by the caller; indices fit in i32 (`simd_fits`).
+        // SAFETY: `simd` is only set where `is_x86_feature_detected!("avx2")` held.
+        unsafe { avx2::crossings(plane, w, p, ca, enter, most, lanes) }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        crossings(plane, w, p, ca, enter, most, lanes)
+    }
+}
+
+/// A stored colour in f32: with F16C where `simd` says the CPU has it (the same values: the
+/// conversion is exact).
+#[inline(always)]
+fn half4(c: &crate::raster::HalfRgba, simd: bool) -> Rgba {
+    #[cfg(target_arch = "x86_64")]
+    if simd {
+        // SAFETY: `simd` is only set where F16C was detected (`simd_fits`).
+        return unsafe { avx2::half4(c) };
+    }
+    let _ = simd;
+    from_half(c)
+}
+
+/// Whether the AVX2 path can run on layers of `len` pixels each: the CPU has AVX2 and F16C, and
+/// plane indices fit its 32-bit gathers.
+fn simd_fits(len: usize) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        len < i32::MAX as usize
+            && std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("f16c")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = len;
+        false
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{Crossings, Lanes, LANES};
+    use glam::Vec2;
+    use std::arch::x86_64::*;
+
+    /// Four halves to f32 with F16C.
+    #[target_feature(enable = "f16c")]
+    pub(super) unsafe fn half4(c: &crate::raster::HalfRgba) -> crate::image::Rgba {
+        let bits = c.map(|h| h.to_bits() as u64);
+        let packed = bits[0] | bits[1] << 16 | bits[2] << 32 | bits[3] << 48;
+        let v = _mm_cvtph_ps(_mm_cvtsi64_si128(packed as i64));
+        let mut out = [0.0f32; 4];
+        _mm_storeu_ps(out.as_mut_ptr(), v);
+        out
+    }
+
+    /// Plane indices of the samples at CoCs `c`, clamped into the plane (`last` its last
+    /// index), so a gather never reads outside it whatever the positions.
+    #[inline(always)]
+    unsafe fn index(
+        c: __m256,
+        px: __m256,
+        py: __m256,
+        vx: __m256,
+        vy: __m256,
+        w: __m256i,
+        last: __m256i,
+    ) -> __m256i {
+        let qx = _mm256_sub_ps(px, _mm256_mul_ps(c, vx));
+        let qy = _mm256_sub_ps(py, _mm256_mul_ps(c, vy));
+        let i = _mm256_add_epi32(
+            _mm256_mullo_epi32(_mm256_cvttps_epi32(qy), w),
+            _mm256_cvttps_epi32(qx),
+        );
+        _mm256_min_epi32(_mm256_max_epi32(i, _mm256_setzero_si256()), last)
+    }
+
+    /// See [`super::crossings`]: the same samples, tests and refinement, eight lanes at a time.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn crossings(
+        plane: &[f32],
+        w: usize,
+        p: Vec2,
+        ca: f32,
+        enter: f32,
+        most: usize,
+        lanes: &Lanes,
+    ) -> Crossings {
+        let base = plane.as_ptr();
+        let last = _mm256_set1_epi32(plane.len() as i32 - 1);
+        let wv = _mm256_set1_epi32(w as i32);
+        let (px, py) = (_mm256_set1_ps(p.x), _mm256_set1_ps(p.y));
+        let vx = _mm256_loadu_ps(lanes.vx.as_ptr());
+        let vy = _mm256_loadu_ps(lanes.vy.as_ptr());
+        let dc = _mm256_loadu_ps(lanes.dc.as_ptr());
+        let steps = _mm256_loadu_ps(lanes.stepsf.as_ptr());
+        let mask_of = |b: bool| if b { -1i32 } else { 0 };
+        let live = lanes.live;
+        let mut seeking = _mm256_castsi256_ps(_mm256_setr_epi32(
+            mask_of(live[0]),
+            mask_of(live[1]),
+            mask_of(live[2]),
+            mask_of(live[3]),
+            mask_of(live[4]),
+            mask_of(live[5]),
+            mask_of(live[6]),
+            mask_of(live[7]),
+        ));
+        let all = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+        let cav = _mm256_set1_ps(ca);
+        let mut found = _mm256_setzero_ps();
+        let mut lo = _mm256_setzero_ps();
+        let mut hi = _mm256_setzero_ps();
+        let mut prev = _mm256_set1_ps(enter);
+        let mut prev_front = all;
+        for k in 0..=most {
+            let kf = _mm256_set1_ps(k as f32);
+            let in_layer = _mm256_cmp_ps::<_CMP_LE_OQ>(kf, steps);
+            let c = _mm256_add_ps(cav, _mm256_mul_ps(dc, _mm256_min_ps(kf, steps)));
+            let i = index(c, px, py, vx, vy, wv, last);
+            let h = _mm256_i32gather_ps::<4>(base, i);
+            let behind = _mm256_cmp_ps::<_CMP_LE_OQ>(h, c);
+            let cross = _mm256_and_ps(
+                _mm256_and_ps(seeking, in_layer),
+                _mm256_and_ps(behind, prev_front),
+            );
+            lo = _mm256_blendv_ps(lo, prev, cross);
+            hi = _mm256_blendv_ps(hi, c, cross);
+            found = _mm256_or_ps(found, cross);
+            seeking = _mm256_andnot_ps(cross, seeking);
+            prev_front = _mm256_andnot_ps(behind, all);
+            prev = c;
+            if _mm256_movemask_ps(seeking) == 0 {
+                break;
+            }
+        }
+        let found_bits = _mm256_movemask_ps(found);
+        let mut out = Crossings {
+            found: std::array::from_fn(|j| found_bits >> j & 1 != 0),
+            hi: [0.0; LANES],
+            h_lo: [0.0; LANES],
+            i_hi: [0; LANES],
+        };
+        if found_bits == 0 {
+            _mm256_storeu_ps(out.hi.as_mut_ptr(), hi);
+            return out;
+        }
+        // Refinement: three false-position steps with bisection as a guard, as `refine`.
+        let mut h_lo = _mm256_i32gather_ps::<4>(base, index(lo, px, py, vx, vy, wv, last));
+        let mut i_hi = index(hi, px, py, vx, vy, wv, last);
+        let mut h_hi = _mm256_i32gather_ps::<4>(base, i_hi);
+        let abs = _mm256_castsi256_ps(_mm256_set1_epi32(i32::MAX));
+        let inf = _mm256_set1_ps(f32::INFINITY);
+        let half = _mm256_set1_ps(0.5);
+        for _ in 0..3 {
+            let f_lo = _mm256_sub_ps(h_lo, lo);
+            let f_hi = _mm256_sub_ps(h_hi, hi);
+            let finite = _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_and_ps(f_lo, abs), inf),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_and_ps(f_hi, abs), inf),
+            );
+            let secant = _mm256_and_ps(finite, _mm256_cmp_ps::<_CMP_NEQ_OQ>(f_lo, f_hi));
+            let guess = _mm256_add_ps(
+                lo,
+                _mm256_div_ps(
+                    _mm256_mul_ps(_mm256_sub_ps(hi, lo), f_lo),
+                    _mm256_sub_ps(f_lo, f_hi),
+                ),
+            );
+            let bisect = _mm256_mul_ps(half, _mm256_add_ps(lo, hi));
+            let mid = _mm256_blendv_ps(bisect, guess, secant);
+            let inside = _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GT_OQ>(mid, lo),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(mid, hi),
+            );
+            let mid = _mm256_blendv_ps(bisect, mid, inside);
+            let i_mid = index(mid, px, py, vx, vy, wv, last);
+            let h_mid = _mm256_i32gather_ps::<4>(base, i_mid);
+            let to_hi = _mm256_cmp_ps::<_CMP_LE_OQ>(h_mid, mid);
+            hi = _mm256_blendv_ps(hi, mid, to_hi);
+            h_hi = _mm256_blendv_ps(h_hi, h_mid, to_hi);
+            i_hi = _mm256_castps_si256(_mm256_blendv_ps(
+                _mm256_castsi256_ps(i_hi),
+                _mm256_castsi256_ps(i_mid),
+                to_hi,
+            ));
+            lo = _mm256_blendv_ps(mid, lo, to_hi);
+            h_lo = _mm256_blendv_ps(h_mid, h_lo, to_hi);
+        }
+        let mut idx = [0i32; LANES];
+        _mm256_storeu_si256(idx.as_mut_ptr().cast(), i_hi);
+        _mm256_storeu_ps(out.hi.as_mut_ptr(), hi);
+        _mm256_storeu_ps(out.h_lo.as_mut_ptr(), h_lo);
+        out.i_hi = idx.map(|i| i as usize);
+        out
+    }
+}
+
+/// What a ray has gathered: premultiplied colour, and the weight left for what lies behind.
+struct RayState {
+    col: Rgba,
+    weight: f32,
+}
+
+impl Default for RayState {
+    fn default() -> Self {
+        Self {
+            col: [0.0; 4],
+            weight: 1.0,
+        }
+    }
+}
+
+/// Traces the ray through layer `l` and takes its colour at the hit, if any. True when the ray
+/// is done (what remains behind weighs under 1e-3).
+#[inline(always)]
+fn layer(input: &TraceInput, l: usize, p: Vec2, v: Vec2, speed: f32, state: &mut RayState) -> bool {
+    let layers = input.layers;
+    let spacing = &layers.spacing;
+    let (ca, cb) = spacing.bounds(l);
+    let steps = ((cb - ca) * speed).ceil().max(1.0) as usize;
+    let dc = (cb - ca) / steps as f32;
+    // The ray was in front of the surface under it at the previous sample; a crossing from
+    // there to behind it brackets a hit. It enters the layer in front of everything the
+    // layer holds: the overlap margin before its front bound.
+    let mut prev = ca - spacing.overlap * spacing.delta_px;
+    let mut prev_front = true;
+    let mut hit = None;
+    for k in 0..=steps {
+        let c = ca + dc * k as f32;
+        let q = p - c * v;
+        let i = layers.index(l, q.x as usize, q.y as usize);
+        let behind = layers.coc_px[i] <= c;
+        if behind && prev_front {
+            let (c_hit, i_hit, h_front) =
+                refine(layers, l, p, v, prev, c).unwrap_or((c, i, f32::INFINITY));
+            // A ray meets the surface where it crosses it (refined to within
+            // THICKNESS_PX), or where it steps onto it from a continuation of the same
+            // surface (a slanted surface sampled pixel by pixel); one that comes in from
+            // the side of a thin object, from empty space or from a surface far in
+            // front, passes behind it.
+            let h_hit = layers.coc_px[i_hit];
+            if c_hit - h_hit <= THICKNESS_PX || (h_front - h_hit).abs() <= CONTINUITY_PX {
+                hit = Some((c_hit, i_hit));
+                break;
+            }
+        }
+        prev_front = !behind;
+        prev = c;
+    }
+    let Some((c_hit, i)) = hit else {
+        return false;
+    };
+    shade(input, p, v, Hit { l, c: c_hit, i }, state, false)
+}
+
+/// Where a ray meets a layer: the layer, the ray's CoC there, and the pixel's index in the whole
+/// stack of layers.
+struct Hit {
+    l: usize,
+    c: f32,
+    i: usize,
+}
+
+/// The ray meets a layer at `hit`: it takes the colour there (cone traced with the mipmaps)
+/// with the weight it has left. True when the ray is done (what remains behind weighs under
+/// 1e-3).
+#[inline(always)]
+fn shade(input: &TraceInput, p: Vec2, v: Vec2, hit: Hit, state: &mut RayState, simd: bool) -> bool {
+    let Hit { l, c: c_hit, i } = hit;
+    let color = || half4(&input.layers.color[i], simd);
+    let (v1, c1) = match input.mips {
+        Some(mips) => {
+            // Trilinear: the footprint's level between two mip levels (level 0 is the hit
+            // pixel itself, fully covered).
+            let d = input.lambda * c_hit.abs();
+            if d > 1.0 {
+                let f = d.log2();
+                let k0 = f.floor() as usize;
+                let t = f - k0 as f32;
+                let q = p - c_hit * v;
+                let a = if k0 == 0 {
+                    color()
+                } else {
+                    mips[l].fetch(k0, q)
+                };
+                let b = mips[l].fetch(k0 + 1, q);
+                let m: Rgba = std::array::from_fn(|k| a[k] + t * (b[k] - a[k]));
+                (m[3].clamp(0.0, 1.0), m)
+            } else {
+                let color = color();
+                (color[3].clamp(0.0, 1.0), color)
+            }
+        }
+        None => {
+            let color = color();
+            (color[3].clamp(0.0, 1.0), color)
+        }
+    };
+    // v1 c1 is the premultiplied mip colour itself.
+    for (o, c) in state.col.iter_mut().zip(&c1).take(3) {
+        *o += state.weight * c;
+    }
+    state.col[3] += state.weight * v1;
+    state.weight *= 1.0 - v1;
+    state.weight < 1e-3
 }
 
 /// Between `lo` (in front of the surface) and `hi` (at or behind it): three false-position
