@@ -564,3 +564,97 @@ pub(super) fn exr_write_error(path: &Path, e: exr::error::Error) -> Error {
         other => Error::format(path, format!("could not write OpenEXR: {other}")),
     }
 }
+
+/// The headers of a one-part scanline EXR of `width` x `height` RGBA pixels, f16 samples with
+/// `half` and f32 otherwise, as the `exr` crate infers them for its own writer.
+pub(super) fn rgba_headers(
+    width: usize,
+    height: usize,
+    attributes: LayerAttributes,
+    encoding: Encoding,
+    frame: exr::meta::header::ImageAttributes,
+    half: bool,
+) -> exr::meta::Headers {
+    macro_rules! headers {
+        ($zero:expr) => {{
+            let zero = $zero;
+            let channels = exr::prelude::SpecificChannels::rgba(move |_: Vec2<usize>| {
+                (zero, zero, zero, zero)
+            });
+            let layer = exr::prelude::Layer::new((width, height), attributes, encoding, channels);
+            ExrImage::new(frame, layer).write().infer_meta_data()
+        }};
+    }
+    if half {
+        headers!(half::f16::ZERO)
+    } else {
+        headers!(0.0f32)
+    }
+}
+
+/// Blocks of a scanline EXR compressed at a time: a bound on the compressed bytes held.
+const BLOCKS_PER_BATCH: usize = 64;
+
+/// Writes the pixels of an RGBA image `width` wide as the blocks of `headers` (one layer with
+/// channels R, G, B, A of one sample type): each block's lines are filled straight from the
+/// pixels and compressed in parallel, a batch at a time, and the chunks are written in order,
+/// the same bytes as the `exr` crate's own writer.
+pub(super) fn write_rgba_blocks<W: std::io::Write + std::io::Seek>(
+    out: W,
+    headers: exr::meta::Headers,
+    pixels: &[Rgba],
+    width: usize,
+) -> exr::error::UnitResult {
+    use exr::block::chunk::Chunk;
+    use exr::block::writer::ChunksWriter;
+    use exr::block::UncompressedBlock;
+    use exr::meta::attribute::SampleType;
+    use rayon::prelude::*;
+    exr::block::write(out, headers, true, |meta, writer| {
+        let header = &meta.headers[0];
+        // The file's channel order (sorted by name) as indices into our RGBA.
+        let order: Vec<(usize, SampleType)> = header
+            .channels
+            .list
+            .iter()
+            .map(|c| {
+                let k = match c.name.to_string().as_str() {
+                    "R" => 0,
+                    "G" => 1,
+                    "B" => 2,
+                    _ => 3,
+                };
+                (k, c.sample_type)
+            })
+            .collect();
+        let blocks: Vec<(usize, exr::block::BlockIndex)> =
+            exr::block::enumerate_ordered_header_block_indices(&meta.headers).collect();
+        for batch in blocks.chunks(BLOCKS_PER_BATCH) {
+            let chunks: Vec<exr::error::Result<Chunk>> = batch
+                .par_iter()
+                .map(|&(_, index)| {
+                    let (x0, y0) = (index.pixel_position.0, index.pixel_position.1);
+                    let (bw, bh) = (index.pixel_size.0, index.pixel_size.1);
+                    let mut data = Vec::with_capacity(header.channels.bytes_per_pixel * bw * bh);
+                    for y in y0..y0 + bh {
+                        let line = &pixels[y * width + x0..y * width + x0 + bw];
+                        for &(k, sample_type) in &order {
+                            match sample_type {
+                                SampleType::F16 => data.extend(
+                                    line.iter()
+                                        .flat_map(|c| half::f16::from_f32(c[k]).to_ne_bytes()),
+                                ),
+                                _ => data.extend(line.iter().flat_map(|c| c[k].to_ne_bytes())),
+                            }
+                        }
+                    }
+                    UncompressedBlock { index, data }.compress_to_chunk(&meta.headers)
+                })
+                .collect();
+            for (&(i, _), chunk) in batch.iter().zip(chunks) {
+                writer.write_chunk(i, chunk?)?;
+            }
+        }
+        Ok(())
+    })
+}

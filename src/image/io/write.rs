@@ -88,36 +88,15 @@ impl OutputSet {
         check_output_size(path, img.width(), img.height())?;
         match format {
             FileFormat::Exr => {
-                // Straight from our pixels: the encoder asks for each line's samples (no
-                // copy of the image into channel planes first).
-                let (w, px) = (img.width(), img.pixels());
-                let at = move |p: Vec2<usize>| px[p.1 * w + p.0];
-                // One layer of the four channels from `sample`, as f32 or f16 samples.
-                macro_rules! write_rgba {
-                    ($sample:expr) => {{
-                        let sample = $sample;
-                        let channels =
-                            exr::prelude::SpecificChannels::rgba(move |p: Vec2<usize>| {
-                                let c = at(p);
-                                (sample(c[0]), sample(c[1]), sample(c[2]), sample(c[3]))
-                            });
-                        let (attributes, encoding, frame) = exr_frame(w, img.height(), exr);
-                        let size = (w, img.height());
-                        let layer = exr::prelude::Layer::new(size, attributes, encoding, channels);
-                        let image = ExrImage::new(frame, layer);
-                        self.write(path, |out| {
-                            image
-                                .write()
-                                .to_buffered(out)
-                                .map_err(|e| exr_write_error(path, e))
-                        })
-                    }};
-                }
-                if exr.half {
-                    write_rgba!(half::f16::from_f32)
-                } else {
-                    write_rgba!(|v: f32| v)
-                }
+                // The header as the `exr` crate infers it for four channels; the blocks are
+                // filled straight from our pixels and compressed on our threads.
+                let (w, h) = (img.width(), img.height());
+                let (attributes, encoding, frame) = exr_frame(w, h, exr);
+                let headers = rgba_headers(w, h, attributes, encoding, frame, exr.half);
+                self.write(path, |out| {
+                    write_rgba_blocks(out, headers, img.pixels(), w)
+                        .map_err(|e| exr_write_error(path, e))
+                })
             }
             FileFormat::Png => {
                 let bytes = png8_samples(img);
