@@ -406,7 +406,6 @@ fn trace_packet(
 ) -> [Rgba; LANES] {
     let layers = input.layers;
     let spacing = &layers.spacing;
-    let (w, h) = (layers.width, layers.height);
     let n = rays.len();
     let mut vx = [0.0f32; LANES];
     let mut vy = [0.0f32; LANES];
@@ -420,7 +419,6 @@ fn trace_packet(
     let mut live = [false; LANES];
     live[..n].fill(true);
     for &l in open {
-        let plane = &layers.coc_px[l * w * h..(l + 1) * w * h];
         let (ca, _) = spacing.bounds(l);
         let enter = ca - spacing.overlap * spacing.delta_px;
         let mut steps = [0usize; LANES];
@@ -434,6 +432,14 @@ fn trace_packet(
                 most = most.max(steps[j]);
             }
         }
+        let segment = Segment {
+            layers,
+            l,
+            p,
+            ca,
+            enter,
+            most,
+        };
         let lanes = Lanes {
             vx: &vx,
             vy: &vy,
@@ -448,9 +454,9 @@ fn trace_packet(
             h_lo,
             i_hi,
         } = if simd {
-            crossings_simd(plane, w, p, ca, enter, most, &lanes)
+            crossings_simd(&segment, &lanes)
         } else {
-            crossings(plane, w, p, ca, enter, most, &lanes)
+            crossings(&segment, &lanes)
         };
         if !found.iter().any(|&f| f) {
             continue;
@@ -460,13 +466,13 @@ fn trace_packet(
                 continue;
             }
             let v = Vec2::new(vx[j], vy[j]);
-            let h_hit = plane[i_hi[j]];
+            let h_hit = layers.coc_px[i_hi[j]];
             let done = if hi[j] - h_hit <= THICKNESS_PX || (h_lo[j] - h_hit).abs() <= CONTINUITY_PX
             {
                 let hit = Hit {
                     l,
                     c: hi[j],
-                    i: l * w * h + i_hi[j],
+                    i: i_hi[j],
                 };
                 shade(input, p, v, hit, &mut state[j], simd)
             } else {
@@ -495,7 +501,8 @@ struct Lanes<'a> {
 }
 
 /// Each lane's first crossing in a layer, refined: whether it has one, the ray's CoC there,
-/// the surface's CoC just in front of it, and the plane index of the pixel hit.
+/// the surface's CoC just in front of it, and the index of the pixel hit in the whole stack of
+/// layers.
 struct Crossings {
     found: [bool; LANES],
     hi: [f32; LANES],
@@ -503,37 +510,36 @@ struct Crossings {
     i_hi: [usize; LANES],
 }
 
-/// The lanes' first crossings in the layer `plane` (the CoCs of one layer, `w` wide), from
-/// `enter` in front of the layer's front bound `ca`, with up to `most` steps, refined as
-/// [`refine`] does. The portable twin of [`crossings_simd`].
-#[inline(always)]
-fn crossings(
-    plane: &[f32],
-    w: usize,
+/// Where a packet walks one layer: layer `l` of `layers`, for the pixel centre `p`, from
+/// `enter` in front of the layer's front bound `ca`, in at most `most` steps.
+struct Segment<'a> {
+    layers: &'a DepthLayers,
+    l: usize,
     p: Vec2,
     ca: f32,
     enter: f32,
     most: usize,
-    lanes: &Lanes,
-) -> Crossings {
+}
+
+/// The lanes' first crossings in the layer of `seg`, refined by [`refine`]. The portable twin
+/// of [`crossings_simd`].
+#[inline(always)]
+fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
+    let (layers, l, p) = (seg.layers, seg.l, seg.p);
     let (vx, vy, dc, steps, live) = (lanes.vx, lanes.vy, lanes.dc, lanes.steps, lanes.live);
-    let at = |c: f32, j: usize| -> (f32, usize) {
-        let q = p - c * Vec2::new(vx[j], vy[j]);
-        let i = q.y as usize * w + q.x as usize;
-        (plane[i], i)
-    };
+    let v = |j: usize| Vec2::new(vx[j], vy[j]);
     // Per lane: its first crossing from in front to behind (the samples around it).
     let mut found = [false; LANES];
     let mut lo = [0.0f32; LANES];
     let mut hi = [0.0f32; LANES];
-    let mut prev = [enter; LANES];
+    let mut prev = [seg.enter; LANES];
     let mut prev_front = [true; LANES];
-    for k in 0..=most {
+    for k in 0..=seg.most {
         for j in 0..LANES {
             let kk = k.min(steps[j]);
-            let c = ca + dc[j] * kk as f32;
-            let (hh, _) = at(c, j);
-            let behind = hh <= c;
+            let c = seg.ca + dc[j] * kk as f32;
+            let q = p - c * v(j);
+            let behind = layers.coc_px[layers.index(l, q.x as usize, q.y as usize)] <= c;
             let cross = live[j] && !found[j] && k <= steps[j] && behind && prev_front[j];
             if cross {
                 (lo[j], hi[j]) = (prev[j], c);
@@ -543,76 +549,36 @@ fn crossings(
             prev[j] = c;
         }
     }
-    if !found.iter().any(|&f| f) {
-        return Crossings {
-            found,
-            hi,
-            h_lo: [0.0; LANES],
-            i_hi: [0; LANES],
-        };
-    }
-    // Refine every crossing as `refine` does.
-    let mut h_lo = [0.0f32; LANES];
-    let mut h_hi = [0.0f32; LANES];
-    let mut i_hi = [0usize; LANES];
-    for j in 0..LANES {
-        if found[j] {
-            (h_lo[j], _) = at(lo[j], j);
-            (h_hi[j], i_hi[j]) = at(hi[j], j);
-        }
-    }
-    for _ in 0..3 {
-        for j in 0..LANES {
-            if !found[j] {
-                continue;
-            }
-            let (f_lo, f_hi) = (h_lo[j] - lo[j], h_hi[j] - hi[j]);
-            let mut mid = if f_lo.is_finite() && f_hi.is_finite() && f_lo != f_hi {
-                lo[j] + (hi[j] - lo[j]) * f_lo / (f_lo - f_hi)
-            } else {
-                0.5 * (lo[j] + hi[j])
-            };
-            if !(mid > lo[j] && mid < hi[j]) {
-                mid = 0.5 * (lo[j] + hi[j]);
-            }
-            let (h_mid, i_mid) = at(mid, j);
-            if h_mid <= mid {
-                (hi[j], h_hi[j], i_hi[j]) = (mid, h_mid, i_mid);
-            } else {
-                (lo[j], h_lo[j]) = (mid, h_mid);
-            }
-        }
-    }
-    Crossings {
+    let mut out = Crossings {
         found,
         hi,
-        h_lo,
-        i_hi,
+        h_lo: [0.0; LANES],
+        i_hi: [0; LANES],
+    };
+    for j in 0..LANES {
+        if found[j] {
+            // The packet's pixel keeps its rays inside the layers: `refine` finds the hit.
+            let (c, i, h) = refine(layers, l, p, v(j), lo[j], hi[j]).unwrap_or((hi[j], 0, 0.0));
+            (out.hi[j], out.i_hi[j], out.h_lo[j]) = (c, i, h);
+        }
     }
+    out
 }
 
 /// [`crossings`] with the lanes in AVX2 registers and the samples gathered, where the CPU has
 /// AVX2 (the same arithmetic, without fused multiply-adds, so the same bits); elsewhere the
 /// portable twin.
 #[inline(always)]
-fn crossings_simd(
-    plane: &[f32],
-    w: usize,
-    p: Vec2,
-    ca: f32,
-    enter: f32,
-    most: usize,
-    lanes: &Lanes,
-) -> Crossings {
+fn crossings_simd(seg: &Segment, lanes: &Lanes) -> Crossings {
     #[cfg(target_arch = "x86_64")]
     {
         // Checked once per row by the caller; indices fit in i32 (`simd_fits`).
         // SAFETY: `simd` is only set where `is_x86_feature_detected!("avx2")` held.
-        unsafe { avx2::crossings(plane, w, p, ca, enter, most, lanes) }
+        unsafe { avx2::crossings(seg, lanes) }
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        crossings(plane, w, p, ca, enter, most, lanes)
+        crossings(seg, lanes)
     }
 }
 
@@ -647,8 +613,7 @@ fn simd_fits(len: usize) -> bool {
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::{Crossings, Lanes, LANES};
-    use glam::Vec2;
+    use super::{Crossings, Lanes, Segment, LANES};
     use std::arch::x86_64::*;
 
     /// Four halves to f32 with F16C.
@@ -685,15 +650,10 @@ mod avx2 {
 
     /// See [`super::crossings`]: the same samples, tests and refinement, eight lanes at a time.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn crossings(
-        plane: &[f32],
-        w: usize,
-        p: Vec2,
-        ca: f32,
-        enter: f32,
-        most: usize,
-        lanes: &Lanes,
-    ) -> Crossings {
+    pub(super) unsafe fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
+        let (w, h) = (seg.layers.width, seg.layers.height);
+        let plane = &seg.layers.coc_px[seg.l * w * h..(seg.l + 1) * w * h];
+        let (p, ca, enter, most) = (seg.p, seg.ca, seg.enter, seg.most);
         let base = plane.as_ptr();
         let last = _mm256_set1_epi32(plane.len() as i32 - 1);
         let wv = _mm256_set1_epi32(w as i32);
@@ -799,7 +759,7 @@ mod avx2 {
         _mm256_storeu_si256(idx.as_mut_ptr().cast(), i_hi);
         _mm256_storeu_ps(out.hi.as_mut_ptr(), hi);
         _mm256_storeu_ps(out.h_lo.as_mut_ptr(), h_lo);
-        out.i_hi = idx.map(|i| i as usize);
+        out.i_hi = idx.map(|i| seg.l * w * h + i as usize);
         out
     }
 }
