@@ -116,7 +116,7 @@ pub const METHODS: &[MethodInfo] = &[
         description: "tiled scatter: every fragment splatted in the aperture's shape, blended in depth order per tile (--layers N: from fragment lists)",
         paper: "Fast depth of field rendering (poster; tiled DoF splatting)",
         input: InputKind::PinholeFrame,
-        effects: &[],
+        effects: &["anamorphic"],
     },
     MethodInfo {
         id: "multilayer",

@@ -35,6 +35,10 @@ pub struct Shape {
     kind: ShapeKind,
     /// Area of the unit aperture (pi for the disc).
     area: f32,
+    /// The anamorphic squeeze of the aperture's axes ([`crate::lens::LensEffects::squeeze`]):
+    /// the footprint is the shape stretched by `squeeze.x` across and `squeeze.y` down, its
+    /// soft edge at most `soft_px` wide. `(1, 1)` for the ideal lens.
+    squeeze: Vec2,
 }
 
 #[derive(Clone, Debug)]
@@ -74,7 +78,28 @@ impl Shape {
         Self {
             kind,
             area: aperture.area(),
+            squeeze: Vec2::ONE,
         }
+    }
+
+    /// The shape with the anamorphic squeeze of `effects` (its other effects are not drawn
+    /// here: the registry refuses them for `splat`).
+    pub fn with_effects(mut self, effects: &crate::lens::LensEffects) -> Self {
+        self.squeeze = effects.squeeze(Vec2::ONE);
+        self
+    }
+
+    /// How far the footprint reaches beyond the CoC radius along its longer axis.
+    #[inline]
+    pub fn stretch(&self) -> f32 {
+        self.squeeze.x.max(self.squeeze.y)
+    }
+
+    /// An offset in pixels and an edge width, in the unsqueezed aperture's frame (the same
+    /// values without a squeeze).
+    #[inline]
+    fn unsqueeze(&self, d_px: Vec2, soft_px: f32) -> (Vec2, f32) {
+        (d_px / self.squeeze, soft_px / self.stretch())
     }
 
     /// Coverage in [0, 1] of the pixel at offset `d_px` from a fragment's centre, for the
@@ -82,6 +107,7 @@ impl Shape {
     /// of a merged fragment: the footprint of a block is its disc widened by the block).
     #[inline]
     pub fn coverage(&self, d_px: Vec2, c: f32, soft_px: f32) -> f32 {
+        let (d_px, soft_px) = self.unsqueeze(d_px, soft_px);
         let r = c.abs();
         let v = d_px / c;
         let inv = 1.0 / soft_px;
@@ -102,9 +128,9 @@ impl Shape {
     pub fn norm(&self, centre: Vec2, c: f32, soft_px: f32) -> f32 {
         let r = c.abs();
         if r >= 4.0 {
-            return 1.0 / (self.area * r * r);
+            return 1.0 / (self.area * r * r * self.squeeze.x * self.squeeze.y);
         }
-        let reach = reach_px(c, soft_px);
+        let reach = reach_px(c, soft_px, self.stretch());
         let (x0, x1) = (
             (centre.x - reach).floor() as i64,
             (centre.x + reach).ceil() as i64,
@@ -161,7 +187,11 @@ struct Footprint<'a> {
     shape: &'a Shape,
     c: f32,
     r: f32,
+    /// The edge width in the unsqueezed frame ([`Shape::unsqueeze`]), and the pixel one.
     soft: f32,
+    soft_px: f32,
+    /// The squeeze: rows and columns are walked in pixels, tested in the unsqueezed frame.
+    squeeze: Vec2,
     inv_soft: f32,
     /// Disc: squared radii of the outer (coverage above 0) and inner (coverage 1) discs.
     outer2: f32,
@@ -177,7 +207,8 @@ struct Footprint<'a> {
 
 impl<'a> Footprint<'a> {
     #[inline]
-    fn new(shape: &'a Shape, c: f32, soft: f32) -> Self {
+    fn new(shape: &'a Shape, c: f32, soft_px: f32) -> Self {
+        let (_, soft) = shape.unsqueeze(Vec2::ZERO, soft_px);
         let r = c.abs();
         let (o, i) = (r + 0.5 * soft, r - 0.5 * soft);
         let mut fp = Self {
@@ -185,6 +216,8 @@ impl<'a> Footprint<'a> {
             c,
             r,
             soft,
+            soft_px,
+            squeeze: shape.squeeze,
             inv_soft: 1.0 / soft,
             outer2: o * o,
             inner2: if i > 0.0 { i * i } else { -1.0 },
@@ -219,6 +252,18 @@ impl<'a> Footprint<'a> {
     #[inline]
     #[expect(clippy::type_complexity, reason = "two optional intervals, read once")]
     fn spans(&self, dy: f32) -> Option<(Option<(f32, f32)>, Option<(f32, f32)>)> {
+        let (outer, inner) = self.spans_unsqueezed(dy / self.squeeze.y)?;
+        let sx = self.squeeze.x;
+        Some((
+            outer.map(|(a, b)| (a * sx, b * sx)),
+            inner.map(|(a, b)| (a * sx, b * sx)),
+        ))
+    }
+
+    /// [`Footprint::spans`] of the unsqueezed row offset `dy`, in unsqueezed offsets.
+    #[inline]
+    #[expect(clippy::type_complexity, reason = "two optional intervals, read once")]
+    fn spans_unsqueezed(&self, dy: f32) -> Option<(Option<(f32, f32)>, Option<(f32, f32)>)> {
         match self.shape.kind {
             ShapeKind::Disc => {
                 let d2 = dy * dy;
@@ -280,6 +325,10 @@ impl<'a> Footprint<'a> {
     /// Coverage of the pixel at offset `(dx, dy)`.
     #[inline]
     fn coverage(&self, dx: f32, dy: f32) -> f32 {
+        if let ShapeKind::Density(_) = self.shape.kind {
+            return self.shape.coverage(Vec2::new(dx, dy), self.c, self.soft_px);
+        }
+        let (dx, dy) = (dx / self.squeeze.x, dy / self.squeeze.y);
         match self.shape.kind {
             ShapeKind::Disc => {
                 let d = (dx * dx + dy * dy).sqrt();
@@ -295,7 +344,7 @@ impl<'a> Footprint<'a> {
                 }
                 (0.5 - (m - self.dist) * self.inv_soft).clamp(0.0, 1.0)
             }
-            _ => self.shape.coverage(Vec2::new(dx, dy), self.c, self.soft),
+            _ => self.shape.coverage(Vec2::new(dx, dy) * self.squeeze, self.c, self.soft_px),
         }
     }
 }
@@ -519,7 +568,7 @@ fn blend_tile_inner(
         let centre = f.centre();
         let c = draw_radius(f.coc_px);
         let soft = f.soft_px(merge);
-        let reach = reach_px(f.coc_px, soft);
+        let reach = reach_px(f.coc_px, soft, shape.stretch());
         let py0 = (floor_px(centre.y - reach).max(y0 as f32) as usize).max(y0);
         let py1 = (ceil_px(centre.y + reach).max(0.0) as usize + 1).min(y1);
         let bx0 = (floor_px(centre.x - reach).max(x0 as f32) as usize).max(x0);

@@ -205,10 +205,11 @@ pub fn fragments(
 }
 
 /// Radius in pixels within which a fragment's shape (with its soft edge `soft_px` wide) can
-/// cover a pixel centre: `max(|C|, 0.5) + soft_px`.
+/// cover a pixel centre: `max(|C|, 0.5) stretch + soft_px`, where `stretch` is the longer
+/// axis of an anamorphic aperture (1 for the ideal lens).
 #[inline]
-pub fn reach_px(coc_px: f32, soft_px: f32) -> f32 {
-    coc_px.abs().max(0.5) + soft_px
+pub fn reach_px(coc_px: f32, soft_px: f32, stretch: f32) -> f32 {
+    coc_px.abs().max(0.5) * stretch + soft_px
 }
 
 /// Tile lists: tile `t` holds the fragment indices `entries[offsets[t]..offsets[t + 1]]` with
@@ -240,10 +241,11 @@ type ChunkLists = (Vec<usize>, Vec<(u32, u32)>);
 fn tile_range(
     f: &SplatFragment,
     merge: usize,
+    stretch: f32,
     window: &TileWindow,
 ) -> (usize, usize, usize, usize) {
     let c = f.centre();
-    let r = reach_px(f.coc_px, f.soft_px(merge));
+    let r = reach_px(f.coc_px, f.soft_px(merge), stretch);
     let t = TILE_PX as f32;
     let tile = |v: f32| (v / t).floor();
     let (ax, bx, ay, by) = (tile(c.x - r), tile(c.x + r), tile(c.y - r), tile(c.y + r));
@@ -298,6 +300,7 @@ impl TileWindow {
 pub fn distribute(
     fragments: &[SplatFragment],
     merge: usize,
+    stretch: f32,
     width: usize,
     height: usize,
     window: &TileWindow,
@@ -313,7 +316,7 @@ pub fn distribute(
         .map(|ch| {
             let mut count = vec![0u32; tiles];
             for f in ch.iter() {
-                let (x0, x1, y0, y1) = tile_range(f, merge, window);
+                let (x0, x1, y0, y1) = tile_range(f, merge, stretch, window);
                 for ty in y0..=y1 {
                     for tx in x0..=x1 {
                         count[ty * tiles_x + tx] += 1;
@@ -345,7 +348,7 @@ pub fn distribute(
             let mut buf = vec![(0u32, 0u32); off[tiles]];
             let first = c * chunk;
             for (i, f) in ch.iter().enumerate() {
-                let (x0, x1, y0, y1) = tile_range(f, merge, window);
+                let (x0, x1, y0, y1) = tile_range(f, merge, stretch, window);
                 let k = super::sort::key(f.coc_px);
                 for ty in y0..=y1 {
                     for tx in x0..=x1 {

@@ -39,7 +39,7 @@ pub mod sort;
 use rayon::prelude::*;
 
 use crate::image::{ColorImage, GrayImage};
-use crate::lens::{Aperture, Camera, ThinLens};
+use crate::lens::{Aperture, Camera, LensEffects, ThinLens};
 use crate::raster::{render_fragment_lists, LayeredInput, PreparedScene, View};
 use crate::scene::Scene;
 use crate::timing::Timings;
@@ -82,6 +82,10 @@ pub struct SplatSettings {
     /// Coverage masks and guard band of the fragment lists (`layers` > 1; default both on;
     /// off: the input sampled at pixel centres over the frame).
     pub input: LayeredInput,
+    /// The real lens's departures from the ideal one: the anamorphic squeeze stretches every
+    /// fragment's footprint (an ellipse, a squeezed polygon), as `reference`'s lens samples.
+    /// The cat's eye and chromatic aberration are refused. Default: the ideal lens.
+    pub effects: LensEffects,
 }
 
 impl Default for SplatSettings {
@@ -93,6 +97,7 @@ impl Default for SplatSettings {
             group_px: 2.0,
             max_coc_px: 64.0,
             input: LayeredInput::default(),
+            effects: LensEffects::default(),
         }
     }
 }
@@ -126,6 +131,7 @@ impl SplatSettings {
             ));
         }
         coc_map::check_max_coc(self.max_coc_px)?;
+        self.effects.check_for_method("splat")?;
         self.aperture.validate()
     }
 }
@@ -158,7 +164,7 @@ fn splat(
             ),
         ));
     }
-    let shape = blend::Shape::new(&settings.aperture);
+    let shape = blend::Shape::new(&settings.aperture).with_effects(&settings.effects);
     let (fragments, norms, lists) = timings.time(pass::BUILD, || {
         let fragments = build::fragments(layers, width, height, settings.merge, settings.group_px);
         let norms: Vec<f32> = fragments
@@ -173,7 +179,14 @@ fn splat(
             .collect();
         // Only the tiles of the region are blended (the guard band around it is a source).
         let window = build::TileWindow::of(width, height, region);
-        let lists = build::distribute(&fragments, settings.merge, width, height, &window);
+        let lists = build::distribute(
+            &fragments,
+            settings.merge,
+            shape.stretch(),
+            width,
+            height,
+            &window,
+        );
         (fragments, norms, lists)
     });
     let mut lists = lists?;
