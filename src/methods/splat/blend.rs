@@ -344,7 +344,9 @@ impl<'a> Footprint<'a> {
                 }
                 (0.5 - (m - self.dist) * self.inv_soft).clamp(0.0, 1.0)
             }
-            _ => self.shape.coverage(Vec2::new(dx, dy) * self.squeeze, self.c, self.soft_px),
+            _ => self
+                .shape
+                .coverage(Vec2::new(dx, dy) * self.squeeze, self.c, self.soft_px),
         }
     }
 }

@@ -131,7 +131,6 @@ impl SplatSettings {
             ));
         }
         coc_map::check_max_coc(self.max_coc_px)?;
-        self.effects.check_for_method("splat")?;
         self.aperture.validate()
     }
 }
@@ -272,6 +271,7 @@ fn render_detailed_with(
     blend_fn: BlendFn,
 ) -> Result<(MethodOutput, SplatStats)> {
     settings.validate()?;
+    settings.effects.check_for_method("splat")?;
     coc_map::check_frame(color, depth, lens)?;
     let mut timings = Timings::default();
     let coc_px = timings.time(pass::COC, || coc_map::coc(depth, lens, settings.max_coc_px))?;
@@ -304,6 +304,7 @@ pub fn render_scene(
     settings: &SplatSettings,
 ) -> Result<(MethodOutput, SplatStats)> {
     settings.validate()?;
+    settings.effects.check_for_method("splat")?;
     let frame = camera.thin_lens()?;
     let check = |lens: &ThinLens| {
         let px = (lens.width_px * lens.height_px) as u64;
