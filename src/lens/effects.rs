@@ -211,6 +211,16 @@ impl LensEffects {
         )))
     }
 
+    /// The same effects without chromatic aberration: what each channel's run of a method that
+    /// renders colour a channel at a time sees.
+    pub fn without_colour(&self) -> Self {
+        Self {
+            chroma_dpt: 0.0,
+            chroma_scale: 1.0,
+            ..*self
+        }
+    }
+
     /// Whether the channels see different lenses (chromatic aberration).
     pub fn is_chromatic(&self) -> bool {
         self.chroma_dpt != 0.0 || self.chroma_scale != 1.0

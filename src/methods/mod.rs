@@ -28,6 +28,7 @@ pub mod registry;
 pub mod splat;
 
 use crate::image::{ColorImage, GrayImage};
+use crate::lens::LensEffects;
 use crate::timing::Timings;
 
 /// What a method returns.
@@ -42,4 +43,44 @@ pub struct MethodOutput {
     /// Peak bytes of the method's own intermediate storage, where the method tracks it (the
     /// fragment lists and filtered levels of `multilayer`).
     pub memory_bytes: Option<usize>,
+}
+
+/// Chromatic aberration by one run per colour channel, as `reference` renders it:
+/// `run(c, focus_m, radius_scale)` renders through channel `c`'s lens (0 red, 1 green, 2 blue:
+/// its focus distance in metres, and its lens radius as a factor of the ideal lens's, from
+/// [`LensEffects::channel_lens`] of a lens focused at `focus_m`). Each colour channel is taken
+/// from its own run; alpha and depth are green's, the timings are summed (each pass over the
+/// three runs), and the memory is the largest run's.
+pub(crate) fn per_channel(
+    effects: &LensEffects,
+    focus_m: f32,
+    mut run: impl FnMut(usize, f32, f32) -> crate::Result<MethodOutput>,
+) -> crate::Result<MethodOutput> {
+    let mut timings = Timings::default();
+    let mut runs = Vec::with_capacity(3);
+    for c in 0..3 {
+        let (focus_c, scale) = effects.channel_lens(c, focus_m)?;
+        let out = run(c, focus_c, scale)?;
+        timings.extend(&out.timings);
+        runs.push(out);
+    }
+    let memory_bytes = runs.iter().filter_map(|r| r.memory_bytes).max();
+    let green = runs.swap_remove(1);
+    let (red, blue) = (&runs[0], &runs[1]);
+    let mut image = green.image;
+    for ((p, r), b) in image
+        .pixels_mut()
+        .iter_mut()
+        .zip(red.image.pixels())
+        .zip(blue.image.pixels())
+    {
+        p[0] = r[0];
+        p[2] = b[2];
+    }
+    Ok(MethodOutput {
+        image,
+        depth: green.depth,
+        timings,
+        memory_bytes,
+    })
 }

@@ -55,7 +55,9 @@ pub struct PoissonSettings {
     /// The real lens's departures from the ideal one: the anamorphic squeeze stretches the
     /// taps, so the gather's footprint, and a far light's bokeh, is the squeezed aperture; with
     /// a cat's eye each pixel keeps only the taps (lens points) that pass its view of the
-    /// barrel. Chromatic aberration is refused. Default: the ideal lens.
+    /// barrel; with chromatic aberration each channel is gathered with its own channel's CoCs
+    /// (a gather per channel, as `reference` renders a pass per channel). Default: the ideal
+    /// lens.
     pub effects: LensEffects,
 }
 
@@ -79,6 +81,21 @@ pub fn render(
     settings: &PoissonSettings,
 ) -> Result<MethodOutput> {
     check_frame(color, depth, lens)?;
+    if settings.effects.is_chromatic() {
+        settings.effects.check_for_method("poisson")?;
+        let mono = PoissonSettings {
+            effects: settings.effects.without_colour(),
+            ..settings.clone()
+        };
+        return super::per_channel(&settings.effects, lens.focus_m, |_, focus_m, scale| {
+            let channel = ThinLens {
+                focus_m,
+                lens_radius_m: lens.lens_radius_m * scale,
+                ..*lens
+            };
+            render(color, depth, &channel, &mono)
+        });
+    }
     let mut timings = Timings::default();
     let mut taps = Taps::poisson_disc(&settings.aperture, settings.taps, settings.seed, 0.0)?;
     let effects = settings.effects;

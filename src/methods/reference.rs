@@ -193,45 +193,18 @@ fn render_chromatic(
 ) -> Result<MethodOutput> {
     settings.effects.validate()?;
     let mono = ReferenceSettings {
-        effects: LensEffects {
-            chroma_dpt: 0.0,
-            chroma_scale: 1.0,
-            ..settings.effects
-        },
+        effects: settings.effects.without_colour(),
         ..settings.clone()
     };
-    let mut timings = Timings::default();
-    let mut channels = Vec::with_capacity(3);
-    for c in 0..3 {
-        let (focus_m, scale) = settings.effects.channel_lens(c, camera.focus_m)?;
+    super::per_channel(&settings.effects, camera.focus_m, |c, focus_m, scale| {
         let channel_camera = Camera {
             focus_m,
             fstop: camera.fstop / scale,
             ..camera.clone()
         };
-        let out = render(scene, &channel_camera, &mono, &mut |done, total| {
+        render(scene, &channel_camera, &mono, &mut |done, total| {
             progress(c * total + done, 3 * total)
-        })?;
-        timings.extend(&out.timings);
-        channels.push(out);
-    }
-    let green = channels.swap_remove(1);
-    let (red, blue) = (&channels[0], &channels[1]);
-    let mut image = green.image;
-    for ((p, r), b) in image
-        .pixels_mut()
-        .iter_mut()
-        .zip(red.image.pixels())
-        .zip(blue.image.pixels())
-    {
-        p[0] = r[0];
-        p[2] = b[2];
-    }
-    Ok(MethodOutput {
-        image,
-        depth: green.depth,
-        timings,
-        memory_bytes: None,
+        })
     })
 }
 

@@ -109,14 +109,14 @@ pub const METHODS: &[MethodInfo] = &[
         description: "baseline: Poisson-disc gather in the aperture shape with depth rejection",
         paper: "after Scheuermann 2004",
         input: InputKind::PinholeFrame,
-        effects: &["anamorphic", "cats-eye"],
+        effects: &["anamorphic", "cats-eye", "chromatic"],
     },
     MethodInfo {
         id: "splat",
         description: "tiled scatter: every fragment splatted in the aperture's shape, blended in depth order per tile (--layers N: from fragment lists)",
         paper: "Fast depth of field rendering (poster; tiled DoF splatting)",
         input: InputKind::PinholeFrame,
-        effects: &["anamorphic"],
+        effects: &["anamorphic", "chromatic"],
     },
     MethodInfo {
         id: "multilayer",
@@ -130,7 +130,7 @@ pub const METHODS: &[MethodInfo] = &[
         description: "lens rays traced through CoC-spaced depth layers rendered once: reference-like, cost independent of the scene",
         paper: "Lee, Eisemann, Seidel 2009, Depth-of-field rendering with multiview synthesis",
         input: InputKind::DepthLayers,
-        effects: &["anamorphic", "cats-eye"],
+        effects: &["anamorphic", "cats-eye", "chromatic"],
     },
 ];
 

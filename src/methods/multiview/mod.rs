@@ -109,8 +109,9 @@ pub struct MultiviewSettings {
     pub input: LayeredInput,
     /// The real lens's departures from the ideal one: the anamorphic squeeze stretches every
     /// lens sample, as in `reference`; with a cat's eye each pixel keeps only the rays whose
-    /// lens point passes its view of the barrel (per ray, as `reference` per view). Chromatic
-    /// aberration is refused. Default: the ideal lens.
+    /// lens point passes its view of the barrel (per ray, as `reference` per view); with
+    /// chromatic aberration each channel is a run of its own through its channel's lens, as
+    /// `reference`. Default: the ideal lens.
     pub effects: LensEffects,
 }
 
@@ -292,6 +293,22 @@ fn render_with(
     trace_fn: fn(&TraceInput) -> ColorImage,
 ) -> Result<MethodOutput> {
     settings.validate()?;
+    if settings.effects.is_chromatic() {
+        // A run per channel through its own lens, as `reference`.
+        settings.effects.check_for_method("multiview")?;
+        let mono = MultiviewSettings {
+            effects: settings.effects.without_colour(),
+            ..settings.clone()
+        };
+        return super::per_channel(&settings.effects, camera.focus_m, |_, focus_m, scale| {
+            let channel_camera = Camera {
+                focus_m,
+                fstop: camera.fstop / scale,
+                ..camera.clone()
+            };
+            render_with(scene, &channel_camera, &mono, trace_fn)
+        });
+    }
     let frame = camera.thin_lens()?;
     let mut timings = Timings::default();
     let prepared = timings.time(pass::PREPARE, || {

@@ -83,8 +83,10 @@ pub struct SplatSettings {
     /// off: the input sampled at pixel centres over the frame).
     pub input: LayeredInput,
     /// The real lens's departures from the ideal one: the anamorphic squeeze stretches every
-    /// fragment's footprint (an ellipse, a squeezed polygon), as `reference`'s lens samples.
-    /// The cat's eye and chromatic aberration are refused. Default: the ideal lens.
+    /// fragment's footprint (an ellipse, a squeezed polygon), as `reference`'s lens samples;
+    /// with chromatic aberration each channel is splatted with its own channel's CoCs (a run
+    /// per channel, as `reference` renders a pass per channel). The cat's eye is refused.
+    /// Default: the ideal lens.
     pub effects: LensEffects,
 }
 
@@ -273,6 +275,16 @@ fn render_detailed_with(
     settings.validate()?;
     settings.effects.check_for_method("splat")?;
     coc_map::check_frame(color, depth, lens)?;
+    if settings.effects.is_chromatic() {
+        return per_channel(settings, lens.focus_m, |mono, focus_m, scale| {
+            let channel = ThinLens {
+                focus_m,
+                lens_radius_m: lens.lens_radius_m * scale,
+                ..*lens
+            };
+            render_detailed_with(color, depth, &channel, mono, blend_fn)
+        });
+    }
     let mut timings = Timings::default();
     let coc_px = timings.time(pass::COC, || coc_map::coc(depth, lens, settings.max_coc_px))?;
     let layers = build::from_frame(color, &coc_px);
@@ -305,6 +317,16 @@ pub fn render_scene(
 ) -> Result<(MethodOutput, SplatStats)> {
     settings.validate()?;
     settings.effects.check_for_method("splat")?;
+    if settings.effects.is_chromatic() {
+        return per_channel(settings, camera.focus_m, |mono, focus_m, scale| {
+            let channel = Camera {
+                focus_m,
+                fstop: camera.fstop / scale,
+                ..camera.clone()
+            };
+            render_scene(scene, &channel, mono)
+        });
+    }
     let frame = camera.thin_lens()?;
     let check = |lens: &ThinLens| {
         let px = (lens.width_px * lens.height_px) as u64;
@@ -361,4 +383,29 @@ pub fn render_scene(
         },
         stats,
     ))
+}
+
+/// Chromatic aberration: `run(settings without colour, focus_m, radius_scale)` once per
+/// channel ([`super::per_channel`]), with green's figures.
+fn per_channel(
+    settings: &SplatSettings,
+    focus_m: f32,
+    mut run: impl FnMut(&SplatSettings, f32, f32) -> Result<(MethodOutput, SplatStats)>,
+) -> Result<(MethodOutput, SplatStats)> {
+    let mono = SplatSettings {
+        effects: settings.effects.without_colour(),
+        ..settings.clone()
+    };
+    let mut stats = SplatStats {
+        fragments: 0,
+        mean_list_length: 0.0,
+    };
+    let out = super::per_channel(&settings.effects, focus_m, |c, focus_m, scale| {
+        let (out, s) = run(&mono, focus_m, scale)?;
+        if c == 1 {
+            stats = s;
+        }
+        Ok(out)
+    })?;
+    Ok((out, stats))
 }
