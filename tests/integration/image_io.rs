@@ -220,6 +220,62 @@ fn exr_colour_is_the_exr_crates_own_file_byte_for_byte() {
 }
 
 #[test]
+fn named_exr_channels_are_the_exr_crates_own_file_byte_for_byte() {
+    // Planar channels (a multilayer file's names, unsorted on purpose, placed) go through the
+    // same block writer as colour: the file must be the crate's own.
+    use exr::prelude::*;
+    let dir = TempDir::new("exr-crate-layers");
+    let (w, h) = (53usize, 37usize);
+    let plane = |k: f32| -> Vec<f32> {
+        (0..w * h)
+            .map(|i| (i as f32 * 0.37 + k).sin() * 9.0)
+            .collect()
+    };
+    let names = [
+        "ViewLayer.Combined.R",
+        "ViewLayer.Depth.Z",
+        "ViewLayer.Combined.A",
+    ];
+    let planes: Vec<Vec<f32>> = (0..3).map(|k| plane(k as f32)).collect();
+    let given: Vec<(&str, &[f32])> = names
+        .iter()
+        .zip(&planes)
+        .map(|(n, p)| (*n, p.as_slice()))
+        .collect();
+    let placement = Placement {
+        data_origin: (3, -2),
+        display_origin: (0, 0),
+        display_size: (64, 40),
+    };
+    let path = dir.join("layers.exr");
+    defocus::image::io::write_exr_layers_placed(&path, w, h, &given, Some(placement)).unwrap();
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = given
+        .iter()
+        .map(|(n, p)| AnyChannel::new(Text::from(*n), FlatSamples::F32(p.to_vec())))
+        .collect();
+    let encoding = Encoding {
+        compression: Compression::Uncompressed,
+        blocks: Blocks::ScanLines,
+        line_order: LineOrder::Increasing,
+    };
+    let attributes = LayerAttributes {
+        layer_position: Vec2(3, -2),
+        ..LayerAttributes::default()
+    };
+    let frame = ImageAttributes::new(IntegerBounds::new((0, 0), (64, 40)));
+    let layer = Layer::new((w, h), attributes, encoding, AnyChannels::sort(list));
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    Image::new(frame, layer)
+        .write()
+        .to_buffered(&mut bytes)
+        .unwrap();
+    assert!(
+        std::fs::read(&path).unwrap() == bytes.into_inner(),
+        "named channels differ"
+    );
+}
+
+#[test]
 fn png_8bit_round_trip_is_within_half_a_code_value_after_srgb_encoding() {
     let dir = TempDir::new("png8_round_trip");
     let img = ldr_image(19, 11);

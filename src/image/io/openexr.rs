@@ -520,11 +520,27 @@ pub(super) fn write_exr(
     let (attributes, encoding, frame) = exr_frame(width, height, options);
     let layer = exr::prelude::Layer::new((width, height), attributes, encoding, channels);
     let image = ExrImage::new(frame, layer);
+    let headers = image.write().infer_meta_data();
+    // The channels in the file's order (sorted by name, as the headers list them).
+    let planes = &image.layer_data.channel_data.list;
     set.write(path, |out| {
-        image
-            .write()
-            .to_buffered(out)
-            .map_err(|e| exr_write_error(path, e))
+        write_blocks(out, headers, |y, x0, bw, data| {
+            let line = y * width + x0..y * width + x0 + bw;
+            for channel in planes {
+                match &channel.sample_data {
+                    FlatSamples::F16(v) => {
+                        data.extend(v[line.clone()].iter().flat_map(|h| h.to_ne_bytes()))
+                    }
+                    FlatSamples::F32(v) => {
+                        data.extend(v[line.clone()].iter().flat_map(|f| f.to_ne_bytes()))
+                    }
+                    FlatSamples::U32(v) => {
+                        data.extend(v[line.clone()].iter().flat_map(|u| u.to_ne_bytes()))
+                    }
+                }
+            }
+        })
+        .map_err(|e| exr_write_error(path, e))
     })
 }
 
@@ -592,41 +608,63 @@ pub(super) fn rgba_headers(
     }
 }
 
-/// Blocks of a scanline EXR compressed at a time: a bound on the compressed bytes held.
-const BLOCKS_PER_BATCH: usize = 64;
-
 /// Writes the pixels of an RGBA image `width` wide as the blocks of `headers` (one layer with
-/// channels R, G, B, A of one sample type): each block's lines are filled straight from the
-/// pixels and compressed in parallel, a batch at a time, and the chunks are written in order,
-/// the same bytes as the `exr` crate's own writer.
+/// channels R, G, B, A of one sample type), the lines filled straight from the pixels.
 pub(super) fn write_rgba_blocks<W: std::io::Write + std::io::Seek>(
     out: W,
     headers: exr::meta::Headers,
     pixels: &[Rgba],
     width: usize,
 ) -> exr::error::UnitResult {
+    use exr::meta::attribute::SampleType;
+    // The file's channel order (sorted by name) as indices into our RGBA.
+    let order: Vec<(usize, SampleType)> = headers[0]
+        .channels
+        .list
+        .iter()
+        .map(|c| {
+            let k = match c.name.to_string().as_str() {
+                "R" => 0,
+                "G" => 1,
+                "B" => 2,
+                _ => 3,
+            };
+            (k, c.sample_type)
+        })
+        .collect();
+    write_blocks(out, headers, |y, x0, bw, data| {
+        let line = &pixels[y * width + x0..y * width + x0 + bw];
+        for &(k, sample_type) in &order {
+            match sample_type {
+                SampleType::F16 => data.extend(
+                    line.iter()
+                        .flat_map(|c| half::f16::from_f32(c[k]).to_ne_bytes()),
+                ),
+                _ => data.extend(line.iter().flat_map(|c| c[k].to_ne_bytes())),
+            }
+        }
+    })
+}
+
+/// Blocks of a scanline EXR compressed at a time: a bound on the compressed bytes held.
+const BLOCKS_PER_BATCH: usize = 64;
+
+/// Writes the one layer of `headers` block by block: `fill(y, x0, width, bytes)` appends line
+/// `y`'s samples from column `x0`, `width` of them, of every channel in the file's order
+/// (native-endian). Blocks are filled and compressed in parallel by the crate's codecs, a batch
+/// at a time, and their chunks written in order: the same bytes as the `exr` crate's own
+/// writer, without its per-sample calls or its thread pool.
+fn write_blocks<W: std::io::Write + std::io::Seek>(
+    out: W,
+    headers: exr::meta::Headers,
+    fill: impl Fn(usize, usize, usize, &mut Vec<u8>) + Sync,
+) -> exr::error::UnitResult {
     use exr::block::chunk::Chunk;
     use exr::block::writer::ChunksWriter;
     use exr::block::UncompressedBlock;
-    use exr::meta::attribute::SampleType;
     use rayon::prelude::*;
     exr::block::write(out, headers, true, |meta, writer| {
-        let header = &meta.headers[0];
-        // The file's channel order (sorted by name) as indices into our RGBA.
-        let order: Vec<(usize, SampleType)> = header
-            .channels
-            .list
-            .iter()
-            .map(|c| {
-                let k = match c.name.to_string().as_str() {
-                    "R" => 0,
-                    "G" => 1,
-                    "B" => 2,
-                    _ => 3,
-                };
-                (k, c.sample_type)
-            })
-            .collect();
+        let bytes_per_pixel = meta.headers[0].channels.bytes_per_pixel;
         let blocks: Vec<(usize, exr::block::BlockIndex)> =
             exr::block::enumerate_ordered_header_block_indices(&meta.headers).collect();
         for batch in blocks.chunks(BLOCKS_PER_BATCH) {
@@ -635,18 +673,9 @@ pub(super) fn write_rgba_blocks<W: std::io::Write + std::io::Seek>(
                 .map(|&(_, index)| {
                     let (x0, y0) = (index.pixel_position.0, index.pixel_position.1);
                     let (bw, bh) = (index.pixel_size.0, index.pixel_size.1);
-                    let mut data = Vec::with_capacity(header.channels.bytes_per_pixel * bw * bh);
+                    let mut data = Vec::with_capacity(bytes_per_pixel * bw * bh);
                     for y in y0..y0 + bh {
-                        let line = &pixels[y * width + x0..y * width + x0 + bw];
-                        for &(k, sample_type) in &order {
-                            match sample_type {
-                                SampleType::F16 => data.extend(
-                                    line.iter()
-                                        .flat_map(|c| half::f16::from_f32(c[k]).to_ne_bytes()),
-                                ),
-                                _ => data.extend(line.iter().flat_map(|c| c[k].to_ne_bytes())),
-                            }
-                        }
+                        fill(y, x0, bw, &mut data);
                     }
                     UncompressedBlock { index, data }.compress_to_chunk(&meta.headers)
                 })

@@ -33,7 +33,7 @@ pub fn write_depth_exr(path: &Path, depth: &GrayImage) -> Result<()> {
     write_one(|set| set.write_depth_exr(path, depth))
 }
 
-/// Writes float32 channels of one size to an OpenEXR file (one part, ZIP), atomically.
+/// Writes float32 channels of one size to an uncompressed OpenEXR file (one part), atomically.
 ///
 /// Names are written as given, so `ViewLayer.Combined.R` makes a Blender-style multilayer file.
 /// Each channel must hold `width * height` row-major samples; names must be non-empty, unique and
