@@ -213,6 +213,6 @@ def test_lens_presets_and_effects_reach_python_through_the_same_options():
     img = defocus.render("lights", width=32, height=18, samples=8, lens="anamorphic-2x")
     assert img.shape == (18, 32, 4)
     ids = {m["id"]: m for m in defocus.methods()}
-    assert "anamorphic" in ids["reference"]["effects"] and not ids["lowrank"]["effects"]
+    assert "anamorphic" in ids["reference"]["effects"] and not ids["hammon"]["effects"]
     with pytest.raises(ValueError, match="anamorphic"):
-        defocus.blur(checkerboard(), two_planes(), "lowrank", focus=1.5, anamorphic=0.5)
+        defocus.blur(checkerboard(), two_planes(), "hammon", focus=1.5, anamorphic=0.5)

@@ -69,7 +69,10 @@ pub struct KernelBank {
     levels: usize,
     nmax: usize,
     stride: usize,
-    half: Vec<usize>,
+    /// Taps on each side of the centre per level: horizontal and vertical (they differ when
+    /// the aperture is squeezed, [`KernelBank::with_squeeze`]).
+    half_h: Vec<usize>,
+    half_v: Vec<usize>,
     /// `[(sign * levels + level) * rank + i] * stride + j`, the weight of offset `nmax - j`
     /// (far field, sign 0) or `j - nmax` (near field, sign 1), 0 beyond the level's taps.
     horizontal: Vec<f32>,
@@ -123,6 +126,21 @@ impl KernelBank {
     /// Tabulates the taps of `lr` at rank `rank` (1 to [`LowRank::len`]) for CoC radii up to
     /// `max_radius_px` pixels.
     pub fn new(lr: &LowRank, rank: usize, max_radius_px: f32) -> Result<Self> {
+        Self::with_squeeze(lr, rank, max_radius_px, 1.0, 1.0)
+    }
+
+    /// [`KernelBank::new`] for an anamorphic aperture: the horizontal taps of a CoC radius `R`
+    /// are the kernel at radius `R sx`, the vertical ones at `R sy`, so the rank-r kernel is
+    /// the aperture stretched by `(sx, sy)` (each pass's taps still integrate to its singular
+    /// vector's sum, so the normalisation is unchanged). `(1, 1)` gives [`KernelBank::new`]'s
+    /// tables bit for bit.
+    pub fn with_squeeze(
+        lr: &LowRank,
+        rank: usize,
+        max_radius_px: f32,
+        sx: f32,
+        sy: f32,
+    ) -> Result<Self> {
         if rank == 0 || rank > lr.len() {
             return Err(Error::invalid(
                 "rank",
@@ -137,8 +155,13 @@ impl KernelBank {
         }
         let norm = rank_sum(lr, rank)?;
         let levels = level_count(max_radius_px);
-        let half: Vec<usize> = (0..levels).map(|l| half_taps(level_radius_px(l))).collect();
-        let nmax = half[levels - 1];
+        let half_h: Vec<usize> = (0..levels)
+            .map(|l| half_taps(level_radius_px(l) * sx))
+            .collect();
+        let half_v: Vec<usize> = (0..levels)
+            .map(|l| half_taps(level_radius_px(l) * sy))
+            .collect();
+        let nmax = half_h[levels - 1].max(half_v[levels - 1]);
         let stride = 2 * nmax + 1;
         let floats = 2 * levels * rank * stride;
         if floats > MAX_BANK_FLOATS {
@@ -153,27 +176,32 @@ impl KernelBank {
         }
         let mut horizontal = vec![0.0f32; floats];
         let mut vertical = vec![0.0f32; floats];
-        for (level, &n) in half.iter().enumerate() {
-            let radius = level_radius_px(level) as f64;
+        // Tap `t` of a table of `n` taps a side is offset d = t - n; far field: j = nmax - d;
+        // near field: j = nmax + d.
+        let put = |table: &mut [f32], row: usize, sign: usize, n: usize, taps: &[f64], k: f64| {
+            for (t, &w) in taps.iter().enumerate() {
+                let d = t as i64 - n as i64;
+                let j = if sign == 0 {
+                    nmax as i64 - d
+                } else {
+                    nmax as i64 + d
+                } as usize;
+                table[row + j] = (w / k) as f32;
+            }
+        };
+        for level in 0..levels {
+            let radius = level_radius_px(level);
+            let (nh, nv) = (half_h[level], half_v[level]);
             for i in 0..rank {
                 let (Some(hv), Some(vv)) = (lr.horizontal(i), lr.vertical(i)) else {
                     break;
                 };
-                let h_taps = far_taps(hv, radius, n);
-                let v_taps = far_taps(vv, radius, n);
+                let h_taps = far_taps(hv, (radius * sx) as f64, nh);
+                let v_taps = far_taps(vv, (radius * sy) as f64, nv);
                 for sign in 0..2 {
                     let row = ((sign * levels + level) * rank + i) * stride;
-                    for (t, (&hw, &vw)) in h_taps.iter().zip(&v_taps).enumerate() {
-                        // t indexes d = t - n; far field: j = nmax - d; near field: j = nmax + d.
-                        let d = t as i64 - n as i64;
-                        let j = if sign == 0 {
-                            nmax as i64 - d
-                        } else {
-                            nmax as i64 + d
-                        } as usize;
-                        horizontal[row + j] = (hw / norm) as f32;
-                        vertical[row + j] = vw as f32;
-                    }
+                    put(&mut horizontal, row, sign, nh, &h_taps, norm);
+                    put(&mut vertical, row, sign, nv, &v_taps, 1.0);
                 }
             }
         }
@@ -182,7 +210,8 @@ impl KernelBank {
             levels,
             nmax,
             stride,
-            half,
+            half_h,
+            half_v,
             horizontal,
             vertical,
         })
@@ -210,10 +239,16 @@ impl KernelBank {
         (usize::from(coc_px < 0.0) * self.levels + level) as u32
     }
 
-    /// Half taps of the pixel with table key `key`.
+    /// Horizontal half taps of the pixel with table key `key`.
     #[inline]
-    fn half_of(&self, key: u32) -> usize {
-        self.half[key as usize % self.levels]
+    fn half_h_of(&self, key: u32) -> usize {
+        self.half_h[key as usize % self.levels]
+    }
+
+    /// Vertical half taps of the pixel with table key `key`.
+    #[inline]
+    fn half_v_of(&self, key: u32) -> usize {
+        self.half_v[key as usize % self.levels]
     }
 }
 
@@ -435,7 +470,7 @@ fn horizontal_row(
     }
     let mut out_e = out_e;
     for (a, b, key) in runs(keys) {
-        let n = bank.half_of(key);
+        let n = bank.half_h_of(key);
         let table = (key as usize * r + i) * stride;
         list.clear();
         for j in nmax - n..=nmax + n {
@@ -481,7 +516,7 @@ pub fn vertical<const CH: usize>(
         let keys = &inter.keys[y * w + x0..y * w + x1];
         let (nmax, stride) = (bank.nmax, bank.stride);
         for (a, b, key) in runs(keys) {
-            let n = bank.half_of(key);
+            let n = bank.half_v_of(key);
             list.clear();
             for j in nmax - n..=nmax + n {
                 let yy = (y + j).saturating_sub(nmax).min(h - 1);
@@ -554,7 +589,7 @@ fn finish<const CH: usize>(
         .zip(&inter.keys)
         .zip(color.pixels())
         .map(|((f, &key), &c)| {
-            if bank.half_of(key) == 0 {
+            if bank.half_h_of(key) == 0 && bank.half_v_of(key) == 0 {
                 c
             } else {
                 let v = |k: usize| if k < CH { f[k].max(0.0) } else { 1.0 };

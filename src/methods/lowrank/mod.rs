@@ -103,7 +103,7 @@ use super::coc_map;
 use super::poisson::{self, Taps};
 use super::MethodOutput;
 use crate::image::{ColorImage, GrayImage};
-use crate::lens::{Aperture, ThinLens};
+use crate::lens::{Aperture, LensEffects, ThinLens};
 use crate::timing::Timings;
 use crate::{Error, Result};
 
@@ -145,6 +145,11 @@ pub struct LowRankSettings {
     pub seed: u64,
     /// Largest CoC radius in pixels; larger blurs are clamped (0 to 512). Default 64.
     pub max_coc_px: f32,
+    /// The real lens's departures from the ideal one: the anamorphic squeeze stretches every
+    /// pixel's kernel (the horizontal taps of CoC radius `R` at `R sx`, the vertical ones at
+    /// `R sy`) and the fallback's taps. The cat's eye and chromatic aberration are refused.
+    /// Default: the ideal lens.
+    pub effects: LensEffects,
 }
 
 impl Default for LowRankSettings {
@@ -161,6 +166,7 @@ impl Default for LowRankSettings {
             fallback_taps: 64,
             seed: 0,
             max_coc_px: 64.0,
+            effects: LensEffects::default(),
         }
     }
 }
@@ -293,6 +299,8 @@ fn run(
     settings: &LowRankSettings,
     mut timings: Timings,
 ) -> Result<Detailed> {
+    settings.effects.check_for_method("lowrank")?;
+    let squeeze = settings.effects.squeeze(glam::Vec2::ONE);
     let max_radius = coc_px.pixels().iter().fold(0.0f32, |m, c| m.max(c.abs()));
     let spec = settings.kernel_spec(max_radius);
     let bank = timings.time("lowrank/kernel", || -> Result<dof::KernelBank> {
@@ -308,7 +316,7 @@ fn run(
                 ),
             ));
         }
-        dof::KernelBank::new(&lr, settings.rank, max_radius)
+        dof::KernelBank::with_squeeze(&lr, settings.rank, max_radius, squeeze.x, squeeze.y)
     })?;
     let edges = settings.use_mask.then(|| {
         timings.time("lowrank/edges", || {
@@ -319,12 +327,15 @@ fn run(
         dof::filter(color, edges.as_ref(), &coc_px, &bank, &mut timings);
     let mut mask_image = None;
     if let Some(filtered) = filtered_edges {
-        let taps = Taps::poisson_disc(
+        let mut taps = Taps::poisson_disc(
             &settings.aperture,
             settings.fallback_taps,
             settings.seed,
             settings.aberration,
         )?;
+        for p in &mut taps.points {
+            *p = settings.effects.squeeze(*p);
+        }
         let threshold = settings.mask_threshold;
         let mask: Vec<bool> = timings.time("lowrank/fallback", || {
             let mask: Vec<bool> = filtered
