@@ -294,7 +294,7 @@ pub struct PostArgs {
     #[arg(
         long,
         value_name = "PRESET|FILE.json",
-        help_heading = "Lens effects (reference, multiview, poisson: all; splat: anamorphic, chromatic; lowrank: anamorphic)"
+        help_heading = "Lens effects (reference, multiview, poisson: all; splat, lowrank: anamorphic, chromatic)"
     )]
     pub lens: Option<String>,
     /// Anamorphic aperture: the bokeh's width over its height, its area kept (0.5: the tall
@@ -303,7 +303,7 @@ pub struct PostArgs {
     #[arg(
         long,
         value_name = "ASPECT",
-        help_heading = "Lens effects (reference, multiview, poisson: all; splat: anamorphic, chromatic; lowrank: anamorphic)"
+        help_heading = "Lens effects (reference, multiview, poisson: all; splat, lowrank: anamorphic, chromatic)"
     )]
     pub anamorphic: Option<f32>,
     /// Cat's eye (optical vignetting): the lens barrel's front opening DIST millimetres in front
@@ -315,7 +315,7 @@ pub struct PostArgs {
         long,
         value_name = "DIST[,RADIUS]",
         value_parser = parse_cats_eye,
-        help_heading = "Lens effects (reference, multiview, poisson: all; splat: anamorphic, chromatic; lowrank: anamorphic)"
+        help_heading = "Lens effects (reference, multiview, poisson: all; splat, lowrank: anamorphic, chromatic)"
     )]
     pub cats_eye: Option<(f32, Option<f32>)>,
     /// Chromatic aberration: red in focus DPT dioptres (1/m) nearer than green and blue as much
@@ -327,7 +327,7 @@ pub struct PostArgs {
         value_name = "DPT[,SCALE]",
         value_parser = parse_chromatic,
         allow_negative_numbers = true,
-        help_heading = "Lens effects (reference, multiview, poisson: all; splat: anamorphic, chromatic; lowrank: anamorphic)"
+        help_heading = "Lens effects (reference, multiview, poisson: all; splat, lowrank: anamorphic, chromatic)"
     )]
     pub chromatic: Option<(f32, f32)>,
 }

@@ -95,7 +95,7 @@ pub const METHODS: &[MethodInfo] = &[
         description: "aperture kernel as a sum of separable filters (SVD), depth-edge mask with a 2D fallback",
         paper: "McGraw 2015, Fast bokeh effects using low-rank linear filters",
         input: InputKind::PinholeFrame,
-        effects: &["anamorphic"],
+        effects: &["anamorphic", "chromatic"],
     },
     MethodInfo {
         id: "gaussian",

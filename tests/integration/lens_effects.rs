@@ -235,10 +235,12 @@ fn assert_channel_fringes(
 
 /// Longitudinal chromatic aberration: each channel's bokeh has the diameter of its own lens's
 /// CoC, so behind the focus red (in focus nearer) has the largest and fringes the bokeh, and in
-/// front of it blue. `reference` renders a pass per channel; `poisson`, `splat` and
-/// `multiview` do the same with their own runs (`poisson`: behind the focus only).
+/// front of it blue. `reference` renders a pass per channel; `poisson`, `lowrank`, `splat` and
+/// `multiview` do the same with their own runs (the gathers, `poisson` and `lowrank`: behind
+/// the focus only).
 #[test]
 fn chromatic_bokeh_fringes_red_behind_the_focus_and_blue_in_front() {
+    use defocus::methods::lowrank::{self, LowRankSettings};
     use defocus::methods::multiview::{self, MultiviewSettings};
     use defocus::methods::poisson::{self, PoissonSettings};
     use defocus::methods::splat::{self, SplatSettings};
@@ -268,6 +270,18 @@ fn chromatic_bokeh_fringes_red_behind_the_focus_and_blue_in_front() {
                 ),
             ),
             (
+                "lowrank",
+                lowrank::render(
+                    &color,
+                    &depth,
+                    &lens,
+                    &LowRankSettings {
+                        effects,
+                        ..LowRankSettings::default()
+                    },
+                ),
+            ),
+            (
                 "splat",
                 splat::render(
                     &color,
@@ -293,14 +307,16 @@ fn chromatic_bokeh_fringes_red_behind_the_focus_and_blue_in_front() {
             ),
         ];
         for (name, out) in images {
-            if name == "poisson" && z != LIGHT_M {
+            if (name == "poisson" || name == "lowrank") && z != LIGHT_M {
                 // A gather cannot spread a light in front of the focus over the pixels behind
                 // it (its own limit, with or without colour): the far light only.
                 continue;
             }
             let img = out.unwrap().image;
-            // A gather over 256 taps and 64 jittered rays a pixel are sampled; splat is not.
-            assert_channel_fringes(name, &img, &lens, q, z, fringe, name != "splat");
+            // A gather over 256 taps and 64 jittered rays a pixel are sampled; the kernels of
+            // splat and lowrank are not.
+            let sampled = name == "poisson" || name == "multiview";
+            assert_channel_fringes(name, &img, &lens, q, z, fringe, sampled);
         }
     }
 }

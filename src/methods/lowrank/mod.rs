@@ -147,8 +147,9 @@ pub struct LowRankSettings {
     pub max_coc_px: f32,
     /// The real lens's departures from the ideal one: the anamorphic squeeze stretches every
     /// pixel's kernel (the horizontal taps of CoC radius `R` at `R sx`, the vertical ones at
-    /// `R sy`) and the fallback's taps. The cat's eye and chromatic aberration are refused.
-    /// Default: the ideal lens.
+    /// `R sy`) and the fallback's taps; with chromatic aberration [`render`] filters each
+    /// channel with its own channel's CoCs (a run per channel, as `reference`). The cat's eye is
+    /// refused. Default: the ideal lens.
     pub effects: LensEffects,
 }
 
@@ -234,6 +235,22 @@ pub fn render(
     lens: &ThinLens,
     settings: &LowRankSettings,
 ) -> Result<MethodOutput> {
+    if settings.effects.is_chromatic() {
+        // A run per channel through its own lens, as `reference`.
+        settings.effects.check_for_method("lowrank")?;
+        let mono = LowRankSettings {
+            effects: settings.effects.without_colour(),
+            ..settings.clone()
+        };
+        return super::per_channel(&settings.effects, lens.focus_m, |_, focus_m, scale| {
+            let channel = ThinLens {
+                focus_m,
+                lens_radius_m: lens.lens_radius_m * scale,
+                ..*lens
+            };
+            render(color, depth, &channel, &mono)
+        });
+    }
     render_detailed(color, depth, lens, settings).map(|d| d.output)
 }
 
@@ -300,6 +317,13 @@ fn run(
     mut timings: Timings,
 ) -> Result<Detailed> {
     settings.effects.check_for_method("lowrank")?;
+    if settings.effects.is_chromatic() {
+        return Err(Error::invalid(
+            "chromatic aberration",
+            "each channel needs its own CoCs from a depth map (lowrank::render); one CoC map \
+             (--tilt-shift, or the detailed outputs) has one lens",
+        ));
+    }
     let squeeze = settings.effects.squeeze(glam::Vec2::ONE);
     let max_radius = coc_px.pixels().iter().fold(0.0f32, |m, c| m.max(c.abs()));
     let spec = settings.kernel_spec(max_radius);
