@@ -84,3 +84,19 @@ pub(crate) fn per_channel(
         memory_bytes,
     })
 }
+
+/// [`per_channel`] for a method on a frame: `run(lens)` with each channel's thin lens (its
+/// focus distance, its lens radius scaled).
+pub(crate) fn per_channel_lens(
+    effects: &LensEffects,
+    lens: &crate::lens::ThinLens,
+    mut run: impl FnMut(&crate::lens::ThinLens) -> crate::Result<MethodOutput>,
+) -> crate::Result<MethodOutput> {
+    per_channel(effects, lens.focus_m, |_, focus_m, scale| {
+        run(&crate::lens::ThinLens {
+            focus_m,
+            lens_radius_m: lens.lens_radius_m * scale,
+            ..*lens
+        })
+    })
+}

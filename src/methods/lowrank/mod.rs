@@ -242,13 +242,8 @@ pub fn render(
             effects: settings.effects.without_colour(),
             ..settings.clone()
         };
-        return super::per_channel(&settings.effects, lens.focus_m, |_, focus_m, scale| {
-            let channel = ThinLens {
-                focus_m,
-                lens_radius_m: lens.lens_radius_m * scale,
-                ..*lens
-            };
-            render(color, depth, &channel, &mono)
+        return super::per_channel_lens(&settings.effects, lens, |channel| {
+            render(color, depth, channel, &mono)
         });
     }
     render_detailed(color, depth, lens, settings).map(|d| d.output)
