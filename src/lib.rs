@@ -12,6 +12,7 @@ pub mod budget;
 pub mod error;
 pub mod frames;
 pub mod image;
+pub mod jobs;
 pub mod lens;
 pub mod methods;
 pub mod metrics;

@@ -17,6 +17,7 @@ use clap::{CommandFactory, Parser};
 use defocus::blur::{frame_lens, DepthKind, FocusChoice, Highlights, LensSpec};
 use defocus::image::io::{self, DepthRead, Placement};
 use defocus::image::{ColorImage, GrayImage, Rgba};
+use defocus::jobs::report::CompareArgs;
 use defocus::lens::SamplerKind;
 use defocus::methods::registry::{self, Frame, SceneOptions, DEFAULT_FRAME_SAMPLES, METHODS};
 use defocus::options::{parse_aperture, PostArgs};
@@ -493,6 +494,57 @@ fn render(
     Ok((color, depth))
 }
 
+/// The report's flags alone, parsed from the keyword arguments turned into flags.
+#[derive(Parser)]
+#[command(name = "defocus compare", no_binary_name = true)]
+struct ReportFlags {
+    #[command(flatten)]
+    args: CompareArgs,
+}
+
+/// An error of a job as the Python exception it is: a file that could not be read or written
+/// is `OSError`, the rest `ValueError`; the message is the command line's.
+fn job_err(e: anyhow::Error) -> PyErr {
+    let text: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+    let text = defocus::error::shown(&text.join(": "));
+    let is_io = e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>().is_some()
+            || matches!(
+                c.downcast_ref::<defocus::Error>(),
+                Some(defocus::Error::Io { .. })
+            )
+    });
+    if is_io {
+        PyOSError::new_err(text)
+    } else {
+        PyValueError::new_err(text)
+    }
+}
+
+/// Writes the comparison report (see `defocus.report`), the GIL released: the path of its
+/// `index.html`, the text of its `results.json` and the labels of the runs that failed.
+#[pyfunction]
+fn report(py: Python<'_>, flags: Vec<String>) -> PyResult<(String, String, Vec<String>)> {
+    let args = ReportFlags::try_parse_from(flags)
+        .map(|f| f.args)
+        .map_err(|e| {
+            let text = e.to_string();
+            let first = text.lines().next().unwrap_or_default();
+            PyValueError::new_err(format!(
+                "invalid report option: {}",
+                first.trim_start_matches("error: ")
+            ))
+        })?;
+    let written = py
+        .detach(|| defocus::jobs::report::write(&args, &mut |_| {}, &mut |_| {}))
+        .map_err(job_err)?;
+    Ok((
+        written.index_html.to_string_lossy().into_owned(),
+        written.results.to_string(),
+        written.failed,
+    ))
+}
+
 /// MSE (linear), PSNR (dB, sRGB) and SSIM of `a` against `b` (see `defocus.compare`).
 #[pyfunction]
 fn compare<'py>(
@@ -615,6 +667,7 @@ fn _defocus(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(blur, m)?)?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
+    m.add_function(wrap_pyfunction!(report, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;
     m.add_function(wrap_pyfunction!(scenes, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -216,3 +216,32 @@ def test_lens_presets_and_effects_reach_python_through_the_same_options():
     assert "anamorphic" in ids["reference"]["effects"] and not ids["hammon"]["effects"]
     with pytest.raises(ValueError, match="anamorphic"):
         defocus.blur(checkerboard(), two_planes(), "hammon", focus=1.5, anamorphic=0.5)
+
+
+def test_report_writes_the_page_and_its_numbers_are_the_images(tmp_path):
+    # The report renders `reference` and each method through the library's jobs; its PSNR for
+    # a method must be what the same render through `defocus.render`, compared here, gives.
+    lens = dict(focus=3.0, fstop=1.4, width=96, height=54)
+    out = tmp_path / "report"
+    r = defocus.report(
+        out, "glass", methods=["pinhole", "lowrank"], reference_samples=32, samples=4, **lens
+    )
+    assert (out / "index.html").is_file() and (out / "results.json").is_file()
+    assert r["index_html"].endswith("index.html") and r["failed"] == []
+    runs = {run["label"]: run for run in r["runs"]}
+    assert set(runs) == {"pinhole", "lowrank"}
+    assert all(run["status"] == "ok" for run in runs.values())
+    truth = defocus.render("glass", samples=32, **lens)
+    ours = defocus.render("glass", method="lowrank", samples=4, **lens)
+    assert runs["lowrank"]["psnr_db"] == pytest.approx(defocus.compare(ours, truth)["psnr"], abs=1e-6)
+    assert (out / runs["lowrank"]["image_png"]).is_file()
+
+
+def test_report_errors_are_value_and_os_errors(tmp_path):
+    with pytest.raises(ValueError, match="--scene"):
+        defocus.report(tmp_path / "r")
+    with pytest.raises(ValueError, match="no-such-method"):
+        defocus.report(tmp_path / "r", "glass", methods=["no-such-method"])
+    missing = tmp_path / "missing.exr"
+    with pytest.raises(OSError, match="missing.exr"):
+        defocus.report(tmp_path / "r", color=missing, depth=missing, truth=missing)

@@ -24,6 +24,7 @@ the command line's messages.
 
 from __future__ import annotations
 
+import json
 import os
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
@@ -36,6 +37,7 @@ __all__ = [
     "blur",
     "render",
     "compare",
+    "report",
     "methods",
     "scenes",
     "RandomDefocus",
@@ -236,6 +238,73 @@ def compare(a: Any, b: Any) -> Dict[str, float]:
     """MSE (linear light, unclamped), PSNR in dB and SSIM (sRGB-encoded, clamped to [0, 1]) of
     image ``a`` against image ``b`` (HxWx3 or HxWx4, float32 linear or uint8 sRGB)."""
     return _defocus.compare(_as_color(a, "a"), _as_color(b, "b"))
+
+
+def report(
+    out: Union[str, "os.PathLike[str]"],
+    scene: Optional[Union[str, "os.PathLike[str]"]] = None,
+    *,
+    color: Optional[Union[str, "os.PathLike[str]"]] = None,
+    depth: Optional[Union[str, "os.PathLike[str]"]] = None,
+    truth: Optional[Union[str, "os.PathLike[str]"]] = None,
+    methods: Union[str, Sequence[str]] = "all",
+    reference_samples: int = 256,
+    sweep: Union[None, str, Sequence[str], Dict[str, Sequence[Any]]] = None,
+    frontier: bool = False,
+    focus: Focus = None,
+    **options: Any,
+) -> Dict[str, Any]:
+    """Writes the comparison report of ``defocus compare``: every method (or those of
+    ``methods``) against the reference, as ``out/index.html`` (images, error maps, a table, a
+    time/PSNR plot), ``out/results.json`` and every image as PNG and EXR.
+
+    Args:
+        out: the report's folder (created if absent; files of an earlier report that this one
+            does not replace are removed).
+        scene: a built-in scene name or a scene file: ``reference`` is rendered from it with
+            ``reference_samples`` lens samples, then every method.
+        color, depth, truth: instead of ``scene``, a rendered frame (colour and depth files)
+            and its ground truth (a file, for example from another renderer).
+        methods: ``"all"`` or method ids.
+        reference_samples: lens samples of the reference.
+        sweep: run each method that has the setting once per value:
+            ``{"samples": [8, 16, 32]}``, or strings ``"samples=8,16,32"``.
+        frontier: also run ``reference`` at 4 to 128 samples and mark each method as on the
+            time-quality frontier or behind it (needs ``scene``).
+        focus: metres or ``"auto"`` [default: the scene's; ``"auto"`` for frames].
+        **options: the other flags of ``defocus compare`` with underscores: ``width``,
+            ``height``, ``fstop``, ``focal_length``, ``sensor_width``, ``aperture``,
+            ``samples``, ``seed``, camera flags (``camera``, ``look_from``, ...) and every
+            method option (``rank=3``, ``layers=4``).
+
+    Returns:
+        What ``results.json`` holds (each run's ``status``, ``psnr_db``, ``ssim``,
+        ``total_ms``, passes, files, ``frontier``), with ``index_html``, the page's path, and
+        ``failed``, the labels of the runs that failed. A run that fails is reported, not
+        raised; bad arguments raise ``ValueError``, unreadable files ``OSError``.
+    """
+    flags = [f"--out={os.fspath(out)}"]
+    for name, value in (("scene", scene), ("color", color), ("depth", depth), ("truth", truth)):
+        if value is not None:
+            flags.append(f"--{name}={os.fspath(value)}")
+    flags.append("--methods=" + (methods if isinstance(methods, str) else ",".join(methods)))
+    flags.append(f"--reference-samples={int(reference_samples)}")
+    if isinstance(sweep, str):
+        sweep = [sweep]
+    if isinstance(sweep, dict):
+        sweep = [f"{k.replace('_', '-')}={','.join(str(v) for v in vs)}" for k, vs in sweep.items()]
+    for s in sweep or []:
+        flags.append(f"--sweep={s}")
+    if frontier:
+        flags.append("--frontier")
+    if focus is not None:
+        flags.append(f"--focus={focus}")
+    flags.extend(_flags(options))
+    index_html, results, failed = _defocus.report(flags)
+    value: Dict[str, Any] = json.loads(results)
+    value["index_html"] = index_html
+    value["failed"] = list(failed)
+    return value
 
 
 def methods() -> List[Dict[str, Any]]:

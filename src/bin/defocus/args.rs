@@ -32,11 +32,11 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Render a scene (built-in or file) with a DoF method.
-    Render(crate::render::RenderArgs),
+    Render(defocus::jobs::render::RenderArgs),
     /// Depth of field for a rendered colour image with a depth pass (or tilt-shift on a photo).
-    Blur(Box<crate::blur::BlurArgs>),
+    Blur(Box<defocus::jobs::blur::BlurArgs>),
     /// Compare two images: MSE (linear), PSNR and SSIM (sRGB, clamped to [0,1]).
-    Compare(crate::report::CompareArgs),
+    Compare(defocus::jobs::report::CompareArgs),
     /// Aperture kernels: singular values and low-rank approximation errors (McGraw eq. 4).
     Kernel(crate::kernel::KernelArgs),
 }

@@ -7,10 +7,12 @@ use defocus::error::shown;
 use defocus::image::io;
 use defocus::metrics;
 
+use defocus::jobs::blur::BlurJob;
+use defocus::jobs::render::RenderJob;
+use defocus::jobs::report::{self, CompareArgs};
+
 use crate::args::{Cli, Command};
-use crate::common::{check_output, IMAGE_EXTENSIONS, MAX_THREADS};
-use crate::render::RenderJob;
-use crate::report::CompareArgs;
+use crate::common::{check_output, progress_bar, report_timings, IMAGE_EXTENSIONS, MAX_THREADS};
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
@@ -34,24 +36,86 @@ pub fn run(cli: Cli) -> Result<()> {
             if crate::sequence::is_render_sequence(&args)? {
                 return crate::sequence::render(args, cli.quiet);
             }
-            let job = RenderJob::try_from(args)?;
-            job.run(cli.quiet)
+            render(args, cli.quiet)
         }
         Command::Blur(args) => {
             if crate::sequence::is_blur_sequence(&args)? {
                 return crate::sequence::blur(&args, cli.quiet);
             }
-            crate::blur::BlurJob::try_from(args.as_ref())?.run()
+            let job = BlurJob::new(args.as_ref(), &mut print_note)?;
+            let format = job.timing_format();
+            let done = job.execute()?;
+            report_timings(
+                format,
+                done.method,
+                done.width,
+                done.height,
+                &done.timings,
+                done.memory_bytes,
+            )
         }
         Command::Compare(args) => {
             if args.is_report() {
-                crate::report::run(&args, cli.quiet)
+                write_report(&args, cli.quiet)
             } else {
                 compare(&args)
             }
         }
         Command::Kernel(args) => crate::kernel::run(&args),
     }
+}
+
+/// Prints a line a job shows (on standard error, beside the progress).
+pub fn print_note(line: String) {
+    eprintln!("{line}");
+}
+
+/// `render`: the job, a progress bar of its views, the timings.
+fn render(args: defocus::jobs::render::RenderArgs, quiet: bool) -> Result<()> {
+    let job = RenderJob::new(args, &mut print_note)?;
+    let format = job.timing_format();
+    let bar = progress_bar(quiet, job.views() as u64, "views");
+    let done = job.execute(&mut |done, _| bar.set_position(done as u64), &mut |line| {
+        bar.suspend(|| print_note(line))
+    })?;
+    bar.finish_and_clear();
+    report_timings(
+        format,
+        done.method,
+        done.width,
+        done.height,
+        &done.timings,
+        done.memory_bytes,
+    )
+}
+
+/// `compare --scene`/`--color`: the report, a progress bar of its runs. The report is written
+/// either way; a failed run still makes the command fail, so that a script does not take a
+/// report of errors for results.
+fn write_report(args: &CompareArgs, quiet: bool) -> Result<()> {
+    // At least the reference and one method: the length is set from the first progress.
+    let bar = progress_bar(quiet, 2, "methods");
+    let written = report::write(
+        args,
+        &mut |p| {
+            bar.set_length(p.total);
+            bar.set_position(p.done);
+            bar.set_message(p.running.to_string());
+        },
+        &mut |line| bar.suspend(|| print_note(line)),
+    );
+    bar.finish_and_clear();
+    let written = written?;
+    eprintln!("report: {}", shown(&written.index_html));
+    if !written.failed.is_empty() {
+        bail!(
+            "{} of {} runs failed: {} (their errors are in the report)",
+            written.failed.len(),
+            written.runs,
+            written.failed.join(", ")
+        );
+    }
+    Ok(())
 }
 
 /// `compare A B` with both images given.

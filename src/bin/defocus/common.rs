@@ -1,79 +1,11 @@
-//! Helpers every command shares: output checks, the aperture, focus, f-number and pixel flags,
-//! the method flag, progress bars and timing reports. This file imports no other file of the
-//! binary, so the modules form no import circle: `common` <- `blur`, `render`, `kernel` <-
-//! `report`, `sequence` <- `args` <- `commands`.
+//! What the commands share that is the command line's own: progress bars, printing and timing
+//! reports. The flags' parsers and the jobs are the library's (`defocus::jobs`); this file
+//! imports no other file of the binary.
 
-use std::path::Path;
-
-use anyhow::{bail, Result};
-use clap::builder::{PossibleValue, PossibleValuesParser};
-use clap::{Args, ValueEnum};
-use defocus::error::shown;
-use defocus::frames::Keyed;
-use defocus::image::io::{ExrCompression, ExrOptions};
-use defocus::methods::registry::METHODS;
 use defocus::timing::Timings;
 use indicatif::{ProgressBar, ProgressStyle};
 
-/// How `--timings` reports.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum TimingFormat {
-    /// A table on stderr.
-    Table,
-    /// One JSON object on stdout.
-    Json,
-}
-
-/// `--method`: every id of the library's registry, with its description as help.
-pub fn method_parser() -> PossibleValuesParser {
-    PossibleValuesParser::new(
-        METHODS
-            .iter()
-            .map(|m| PossibleValue::new(m.id).help(m.description)),
-    )
-}
-
-pub use defocus::options::parse_numbers;
-
-pub const IMAGE_EXTENSIONS: &[&str] = &["exr", "png", "pfm"];
-
-/// Checks an output path before any work is done: a supported extension and an existing folder.
-pub fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
-    if !extensions.contains(&ext.as_str()) {
-        bail!(
-            "invalid {flag} {}: expected a file ending in .{}",
-            shown(&path),
-            extensions.join(", .")
-        );
-    }
-    if path.is_dir() {
-        bail!(
-            "invalid {flag} {}: it is a folder, expected a file name",
-            shown(&path)
-        );
-    }
-    // A device, a FIFO or a link to one: refused before the work, not at the write.
-    match defocus::output::check_target(path) {
-        Err(defocus::Error::Invalid { message, .. }) => bail!("invalid {flag}: {message}"),
-        other => other?,
-    }
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        if !parent.is_dir() {
-            bail!(
-                "invalid {flag} {}: folder {} does not exist",
-                shown(&path),
-                shown(&parent)
-            );
-        }
-    }
-    Ok(())
-}
-
+pub use defocus::jobs::flags::*;
 pub use defocus::options::parse_aperture;
 
 pub fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
@@ -111,20 +43,6 @@ pub fn resident_peak_bytes() -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
-}
-
-/// What one run of a method took, once its outputs are written.
-pub struct FrameDone {
-    /// The method's id.
-    pub method: &'static str,
-    /// Image width in pixels.
-    pub width: usize,
-    /// Image height in pixels.
-    pub height: usize,
-    /// Its passes, reading and writing included.
-    pub timings: Timings,
-    /// Peak bytes of the method's own storage, where it tracks them.
-    pub memory_bytes: Option<usize>,
 }
 
 pub fn report_timings(
@@ -176,115 +94,6 @@ pub fn report_timings(
         }
     }
     Ok(())
-}
-
-/// `--exr-compression`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum ExrCompressionArg {
-    /// Uncompressed: the fastest (about 17 ms for 1280x720 RGBA f32 here), 3.4x larger than zip.
-    None,
-    /// Run-length: fast, compresses only flat areas.
-    Rle,
-    /// Deflate per scanline (Nuke's default).
-    Zips,
-    /// Deflate per 16 scanlines (Blender's default): the smallest files, about 4x slower.
-    Zip,
-    /// Wavelet (PIZ): small for grainy images, the slowest here.
-    Piz,
-}
-
-/// How EXR outputs are written.
-#[derive(Debug, Args, Clone)]
-#[command(next_help_heading = "EXR output")]
-pub struct ExrArgs {
-    /// Lossless compression of EXR outputs. Measured on a 1280x720 RGBA f32 `blur` output of
-    /// `railing` (2 cores, `io/write` with the fsync): none 24 ms / 14.8 MB, rle 32 ms / 13.5 MB,
-    /// zips 103 ms / 8.4 MB, zip 145 ms / 8.0 MB, piz 150 ms / 7.9 MB.
-    #[arg(long, value_enum, default_value_t = ExrCompressionArg::None)]
-    pub exr_compression: ExrCompressionArg,
-    /// Write EXR colour as 16-bit half floats (half the size; values above 65504 become inf).
-    #[arg(long)]
-    pub half: bool,
-}
-
-impl ExrArgs {
-    /// The library's options.
-    pub fn options(&self) -> ExrOptions {
-        let compression = match self.exr_compression {
-            ExrCompressionArg::None => ExrCompression::None,
-            ExrCompressionArg::Rle => ExrCompression::Rle,
-            ExrCompressionArg::Zips => ExrCompression::Zips,
-            ExrCompressionArg::Zip => ExrCompression::Zip,
-            ExrCompressionArg::Piz => ExrCompression::Piz,
-        };
-        ExrOptions {
-            compression,
-            half: self.half,
-            placement: None,
-        }
-    }
-}
-
-/// `--focus`: a distance, `auto`, or keyframed distances (for a sequence).
-#[derive(Clone, Debug, PartialEq)]
-pub enum Focus {
-    /// Focus distance in metres.
-    Metres(f32),
-    /// The depth at the image centre.
-    Auto,
-    /// Distances in metres keyed to frames (a rack focus over a sequence).
-    Keys(Keyed),
-}
-
-pub fn parse_focus(s: &str) -> Result<Focus, String> {
-    if s.trim() == "auto" {
-        return Ok(Focus::Auto);
-    }
-    if s.contains(':') {
-        return Keyed::parse(s, "--focus")
-            .map(Focus::Keys)
-            .map_err(|e| e.to_string());
-    }
-    s.trim()
-        .parse()
-        .map(Focus::Metres)
-        .map_err(|_| format!("'{s}': expected a distance in metres or 'auto'"))
-}
-
-/// `--fstop`: an f-number, or keyframes `FRAME:N,...` (for a sequence).
-pub fn parse_fstop(s: &str) -> Result<Keyed, String> {
-    Keyed::parse(s, "--fstop").map_err(|e| e.to_string())
-}
-
-/// The one value of a flag that may hold keyframes; keyframes outside a sequence are refused.
-pub fn single_value(k: &Keyed, flag: &str) -> anyhow::Result<f32> {
-    match k.constant_value() {
-        Some(v) => Ok(v),
-        None => anyhow::bail!(
-            "{flag} has keyframes: they need a frame sequence (a frame pattern such as \
-             shot.####.exr and --frames)"
-        ),
-    }
-}
-
-/// Parses `X,Y,Z` (three finite numbers).
-pub fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
-    parse_numbers(s)
-        .and_then(|v| <[f32; 3]>::try_from(v).ok())
-        .ok_or_else(|| format!("'{s}': expected three numbers X,Y,Z"))
-}
-
-/// Parses `X,Y` (two pixel indices).
-pub(crate) fn parse_pixel(s: &str) -> Result<(usize, usize), String> {
-    let (x, y) = s
-        .split_once(',')
-        .ok_or_else(|| format!("'{s}': expected a pixel column and row X,Y"))?;
-    match (x.trim().parse(), y.trim().parse()) {
-        (Ok(x), Ok(y)) => Ok((x, y)),
-        _ => Err(format!(
-            "'{s}': expected a pixel column and row X,Y (whole numbers from 0)"
-        )),
-    }
 }
 
 /// Most worker threads `--threads` accepts (a thread per core of the largest machines, with

@@ -2,19 +2,14 @@
 //! them into validated jobs (units converted, ranges checked), run, report.
 
 mod args;
-mod blur;
 mod commands;
 mod common;
 mod kernel;
-mod render;
-mod report;
 mod sequence;
 
 use std::process::ExitCode;
 
 use clap::Parser;
-/// The methods' flags live in the library, shared with the Python package.
-pub(crate) use defocus::options as post;
 
 fn main() -> ExitCode {
     // Ctrl-C or SIGTERM: remove the temporary files of unfinished outputs, then stop.

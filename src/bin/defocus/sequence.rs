@@ -17,10 +17,12 @@ use defocus::image::io;
 use defocus::timing::Timings;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::blur::{BlurArgs, BlurJob};
+use defocus::jobs::blur::{BlurArgs, BlurJob};
+use defocus::jobs::render::{RenderArgs, RenderJob};
+
+use crate::commands::print_note;
 use crate::common::Focus;
 use crate::common::{check_output, resident_peak_bytes, FrameDone, TimingFormat};
-use crate::render::{RenderArgs, RenderJob};
 
 /// Bytes a frame of `blur` may take at its peak, per pixel: the largest frame method's
 /// estimate (`lowrank`, 100) and the decoder's (32).
@@ -193,7 +195,7 @@ pub fn blur(a: &BlurArgs, quiet: bool) -> Result<()> {
         workers,
         quiet,
         a.timings,
-        |n| BlurJob::try_from(&frame_args(n))?.execute(),
+        |n| BlurJob::new(&frame_args(n), &mut print_note)?.execute(),
     )
 }
 
@@ -247,7 +249,9 @@ pub fn render(a: RenderArgs, quiet: bool) -> Result<()> {
         1,
         quiet,
         a.timings,
-        |n| RenderJob::try_from(frame_args(n))?.execute(true),
+        |n| {
+            RenderJob::new(frame_args(n), &mut print_note)?.execute(&mut |_, _| {}, &mut print_note)
+        },
     )
 }
 

@@ -1,27 +1,28 @@
-//! `defocus blur`: depth of field for a rendered colour image with a depth pass.
+//! `defocus blur`: depth of field for a rendered colour image with a depth pass. Its flags
+//! ([`BlurArgs`]), the validated job ([`BlurJob`]: images read, sizes checked, lens derived)
+//! and its run. Lines the command line shows go to a `notes` sink.
 
 use std::path::{Path, PathBuf};
 
+use crate::blur::{describe_placement, frame_lens, FocusChoice, FrameLens, Highlights, LensSpec};
+use crate::error::shown;
+use crate::frames::Keyed;
+use crate::image::io::{self, DepthRead, Placement};
+use crate::image::{ColorImage, GrayImage};
+use crate::lens::ThinLens;
+use crate::methods::lowrank::{self, tilt_shift_coc_in_frame, TiltShift};
+use crate::methods::registry::{self, Frame, MethodSettings};
+use crate::methods::MethodOutput;
+use crate::timing::{self, Timings};
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use defocus::blur::{describe_placement, frame_lens, FocusChoice, FrameLens, Highlights, LensSpec};
-use defocus::error::shown;
-use defocus::frames::Keyed;
-use defocus::image::io::{self, DepthRead, Placement};
-use defocus::image::{ColorImage, GrayImage};
-use defocus::lens::ThinLens;
-use defocus::methods::lowrank::{self, tilt_shift_coc_in_frame, TiltShift};
-use defocus::methods::registry::{self, Frame, MethodSettings};
-use defocus::methods::MethodOutput;
-use defocus::timing::{self, Timings};
 
-use crate::common::{
-    check_output, method_parser, parse_aperture, report_timings, FrameDone, TimingFormat,
-    IMAGE_EXTENSIONS,
+use super::flags::{
+    check_output, method_parser, ExrArgs, FrameDone, TimingFormat, IMAGE_EXTENSIONS,
 };
-use crate::post::PostArgs;
+use crate::options::{parse_aperture, PostArgs};
 
-pub use defocus::blur::DepthKind;
+pub use crate::blur::DepthKind;
 
 /// Flags of `blur`.
 #[derive(Debug, Args, Clone)]
@@ -75,7 +76,7 @@ pub struct BlurArgs {
     /// Focus on the depth at pixel X,Y (column, row from the top left of the frame: for an EXR,
     /// of its display window), the median of a small window around it, as --focus auto does at
     /// the centre.
-    #[arg(long, value_name = "X,Y", value_parser = crate::common::parse_pixel, conflicts_with = "focus")]
+    #[arg(long, value_name = "X,Y", value_parser = super::flags::parse_pixel, conflicts_with = "focus")]
     pub focus_pixel: Option<(usize, usize)>,
     /// f-number N; the lens radius is focal length / (2 N). In a sequence, keyframes
     /// FRAME:N,... interpolated in stops (linearly in log N).
@@ -83,7 +84,7 @@ pub struct BlurArgs {
         long,
         default_value = "2.8",
         value_name = "N|F:N,...",
-        value_parser = crate::common::parse_fstop,
+        value_parser = super::flags::parse_fstop,
         allow_negative_numbers = true
     )]
     pub fstop: Keyed,
@@ -155,7 +156,7 @@ pub struct BlurArgs {
     pub highlights: Option<String>,
     /// EXR output options.
     #[command(flatten)]
-    pub exr: crate::common::ExrArgs,
+    pub exr: ExrArgs,
     /// Options of the methods.
     #[command(flatten)]
     pub post: PostArgs,
@@ -209,10 +210,10 @@ pub struct BlurJob {
     timings: Option<TimingFormat>,
 }
 
-impl TryFrom<&BlurArgs> for BlurJob {
-    type Error = anyhow::Error;
-
-    fn try_from(a: &BlurArgs) -> Result<Self> {
+impl BlurJob {
+    /// Checks the flags, reads the images and derives the lens; `notes` receives the lines the
+    /// command line shows (channels chosen, the focus picked, `--verbose` details).
+    pub fn new(a: &BlurArgs, notes: &mut dyn FnMut(String)) -> Result<Self> {
         check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
         if let Some(c) = &a.coc_out {
             check_output(c, "--coc-out", &["exr"])?;
@@ -255,7 +256,11 @@ impl TryFrom<&BlurArgs> for BlurJob {
         {
             let (color, _) = io::exr_channel_choice(&a.color, None)?;
             if let Ok(names) = color {
-                eprintln!("colour: {} channels {}", shown(&a.color), names.join(", "));
+                notes(format!(
+                    "colour: {} channels {}",
+                    shown(&a.color),
+                    names.join(", ")
+                ));
             }
         }
         let mut color = read_timings.time(timing::READ, || io::read_color(&a.color))?;
@@ -264,28 +269,28 @@ impl TryFrom<&BlurArgs> for BlurJob {
         let (w, h) = (color.width(), color.height());
         let frame = color_place.unwrap_or_else(|| Placement::full(w, h));
         if a.verbose && !frame.is_full(w, h) {
-            eprintln!(
+            notes(format!(
                 "colour: {}",
                 describe_placement(&shown(&a.color), w, h, &frame)
-            );
+            ));
         }
         let mut exr = a.exr.options();
         exr.placement = color_place.filter(|p| !p.is_full(w, h));
         if exr.placement.is_some() && !has_extension(&a.out, "exr") && !a.in_sequence {
-            eprintln!(
+            notes(format!(
                 "note: {} is not OpenEXR: it holds the colour image's {w}x{h} pixels without \
                  their place in the frame ({}); write .exr to keep it",
                 shown(&a.out),
                 describe_placement(&shown(&a.color), w, h, &frame)
-            );
+            ));
         }
         if a.sanitize {
             let n = io::sanitize_color(&mut color);
             if n > 0 {
-                eprintln!(
+                notes(format!(
                     "--sanitize: {n} pixel(s) of {} had NaN or infinite values, set to 0",
                     shown(&a.color)
-                );
+                ));
             }
         } else {
             io::check_finite_color(&a.color, &color)?;
@@ -293,7 +298,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
         if let Some(spec) = &a.highlights {
             let lifted = Highlights::parse(spec)?.apply(&mut color);
             if a.verbose {
-                eprintln!("highlights: {lifted} pixel(s) lifted");
+                notes(format!("highlights: {lifted} pixel(s) lifted"));
             }
         }
         if let Some(ts) = tilt_shift {
@@ -302,10 +307,10 @@ impl TryFrom<&BlurArgs> for BlurJob {
             let settings = post.settings(method, &aperture, a.seed, color.height(), None)?;
             let coc_px = tilt_shift_coc_in_frame(w, h, frame.offset(), frame.display_size, &ts)?;
             if a.verbose {
-                eprintln!(
+                notes(format!(
                     "tilt-shift: band centre {} of the height, width {}, angle {} deg, blur up to {} px over {} of the height",
                     ts.centre_y, ts.width, ts.angle_deg, ts.max_coc_px, ts.ramp
-                );
+                ));
             }
             return Ok(Self {
                 color,
@@ -330,7 +335,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
         {
             let (_, depth) = io::exr_channel_choice(depth_path, a.depth_channel.as_deref())?;
             if let Ok(name) = depth {
-                eprintln!("depth: {} channel {name}", shown(&depth_path));
+                notes(format!("depth: {} channel {name}", shown(&depth_path)));
             }
         }
         let opts = DepthRead {
@@ -381,7 +386,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             })?),
         };
         let spec = LensSpec {
-            fstop: crate::common::single_value(&a.fstop, "--fstop")?,
+            fstop: super::flags::single_value(&a.fstop, "--fstop")?,
             focal_length_mm: a.focal_length,
             sensor_width_mm: a.sensor_width,
         };
@@ -396,23 +401,23 @@ impl TryFrom<&BlurArgs> for BlurJob {
                 FocusChoice::Pixel(x, y) => format!("around ({x}, {y})"),
                 _ => "at the image centre".to_string(),
             };
-            eprintln!(
+            notes(format!(
                 "focus: {:.4} m (median depth of the {w}x{w} pixels {place})",
                 pick.depth_m,
                 w = pick.window_px
-            );
+            ));
         }
         let settings = a
             .post
             .settings(method, &aperture, a.seed, color.height(), Some(&lens))?;
         if a.verbose {
-            eprintln!(
+            notes(format!(
                 "lens: f_px {:.2}, lens radius {:.5} m, focus {:.4} m, CoC at infinity {:.2} px",
                 lens.f_px,
                 lens.lens_radius_m,
                 lens.focus_m,
                 lens.coc_at_infinity_px()
-            );
+            ));
         }
         Ok(Self {
             color,
@@ -425,9 +430,7 @@ impl TryFrom<&BlurArgs> for BlurJob {
             timings: a.timings,
         })
     }
-}
 
-impl BlurJob {
     /// Runs the method: its output, with the time spent reading the inputs in its timings.
     pub fn compute(&self) -> Result<MethodOutput> {
         let mut output: MethodOutput = match (&self.input, &self.settings) {
@@ -450,18 +453,9 @@ impl BlurJob {
         Ok(output)
     }
 
-    /// Runs the method, writes the output and reports the timings.
-    pub fn run(self) -> Result<()> {
-        let format = self.timings;
-        let done = self.execute()?;
-        report_timings(
-            format,
-            done.method,
-            done.width,
-            done.height,
-            &done.timings,
-            done.memory_bytes,
-        )
+    /// How `--timings` reports, if asked.
+    pub fn timing_format(&self) -> Option<TimingFormat> {
+        self.timings
     }
 
     /// Runs the method and writes the outputs; what it took.

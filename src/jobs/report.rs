@@ -11,19 +11,20 @@ use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use crate::error::shown;
+use crate::image::{io, ColorImage};
+use crate::methods::registry::{self, MethodInfo, METHODS};
+use crate::methods::MethodOutput;
+use crate::metrics;
+use crate::timing::Timings;
 use anyhow::{bail, Context, Result};
 use base64::Engine as _;
-use defocus::error::shown;
-use defocus::image::{io, ColorImage};
-use defocus::methods::registry::{self, MethodInfo, METHODS};
-use defocus::methods::MethodOutput;
-use defocus::metrics;
-use defocus::timing::Timings;
 use serde::Serialize;
 
-use crate::blur::{BlurArgs, BlurJob, DepthKind};
-use crate::common::{parse_focus, progress_bar, Focus};
-use crate::render::{RenderArgs, RenderJob, ViewArgs};
+use super::blur::{BlurArgs, BlurJob, DepthKind};
+use super::flags::{parse_focus, ExrArgs, ExrCompressionArg, Focus};
+use super::render::{RenderArgs, RenderJob, ViewArgs};
+use crate::options::PostArgs;
 use clap::Args;
 
 /// Sweep keys and the methods each applies to (the flag of that name changes their settings).
@@ -154,7 +155,7 @@ pub struct CompareArgs {
     pub view: Box<ViewArgs>,
     /// Options of the methods.
     #[command(flatten)]
-    pub post: Box<crate::post::PostArgs>,
+    pub post: Box<PostArgs>,
 }
 
 impl CompareArgs {
@@ -199,7 +200,7 @@ struct RunResult {
     ssim: Option<f64>,
     mse: Option<f64>,
     total_ms: Option<f64>,
-    passes: Vec<defocus::timing::PassTiming>,
+    passes: Vec<crate::timing::PassTiming>,
     memory_bytes: Option<usize>,
     image_png: Option<String>,
     image_exr: Option<String>,
@@ -331,7 +332,7 @@ fn runs(methods: &[&'static MethodInfo], sweeps: &[(String, Vec<String>)]) -> Ve
 
 /// Applies a sweep setting to the flags.
 fn apply_setting(
-    post: &mut crate::post::PostArgs,
+    post: &mut PostArgs,
     samples: &mut Option<usize>,
     setting: &Option<(String, String)>,
 ) -> Result<()> {
@@ -380,7 +381,7 @@ fn check_run(a: &CompareArgs, run: &Run) -> Result<()> {
     let height = a.height.unwrap_or(720);
     post.settings(
         run.info.id,
-        &defocus::lens::Aperture::Disc,
+        &crate::lens::Aperture::Disc,
         a.seed,
         height,
         None,
@@ -408,7 +409,7 @@ fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> Render
         width: a.width,
         height: a.height,
         focus: a.focus.clone(),
-        fstop: a.fstop.map(defocus::frames::Keyed::constant),
+        fstop: a.fstop.map(crate::frames::Keyed::constant),
         focal_length: a.focal_length,
         sensor_width: a.sensor_width,
         aperture: a.aperture.clone(),
@@ -422,8 +423,8 @@ fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> Render
         in_sequence: false,
         timings: None,
         verbose: false,
-        exr: crate::common::ExrArgs {
-            exr_compression: crate::common::ExrCompressionArg::None,
+        exr: ExrArgs {
+            exr_compression: ExrCompressionArg::None,
             half: false,
         },
         view: a.view.clone(),
@@ -442,11 +443,11 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
         zero_depth_is_far: false,
         method: Some(method.to_string()),
         focus: match a.focus {
-            Some(crate::common::Focus::Metres(m)) => m.to_string(),
+            Some(Focus::Metres(m)) => m.to_string(),
             _ => "auto".to_string(),
         },
         focus_pixel: a.view.focus_pixel,
-        fstop: defocus::frames::Keyed::constant(a.fstop.unwrap_or(2.8)),
+        fstop: crate::frames::Keyed::constant(a.fstop.unwrap_or(2.8)),
         focal_length: a.focal_length.unwrap_or(50.0),
         sensor_width: a.sensor_width.unwrap_or(36.0),
         aperture: a.aperture.clone().unwrap_or_else(|| "disc".to_string()),
@@ -461,17 +462,51 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
         verbose: false,
         sanitize: false,
         highlights: None,
-        exr: crate::common::ExrArgs {
-            exr_compression: crate::common::ExrCompressionArg::None,
+        exr: ExrArgs {
+            exr_compression: ExrCompressionArg::None,
             half: false,
         },
         post: (*a.post).clone(),
     })
 }
 
-/// Runs the report.
-pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
-    if matches!(a.focus, Some(crate::common::Focus::Keys(_))) {
+/// How far a report has got: `done` of `total` method runs (the reference first), and what
+/// runs now.
+pub struct Progress<'a> {
+    /// Runs finished.
+    pub done: u64,
+    /// Runs in all (the frontier's `reference` runs are not counted).
+    pub total: u64,
+    /// The run under way.
+    pub running: &'a str,
+}
+
+/// A report written.
+#[derive(Debug)]
+pub struct Written {
+    /// Its page, `DIR/index.html`.
+    pub index_html: PathBuf,
+    /// What `DIR/results.json` holds.
+    pub results: serde_json::Value,
+    /// The labels of the runs that failed (their errors are in the report).
+    pub failed: Vec<String>,
+    /// The runs in all.
+    pub runs: usize,
+}
+
+/// Writes the report `a` asks for into its `--out` folder (every file staged, then renamed
+/// into it together). `progress` follows the runs; `notes` receives the lines the command line
+/// shows (the focus picked, skipped cameras). A run that fails is a row of the report, not an
+/// error: see [`Written::failed`].
+pub fn write(
+    a: &CompareArgs,
+    progress: &mut dyn FnMut(Progress),
+    notes: &mut dyn FnMut(String),
+) -> Result<Written> {
+    if !a.is_report() {
+        bail!("a report needs --scene NAME|PATH, or --color, --depth and --truth (a rendered frame and its ground truth)");
+    }
+    if matches!(a.focus, Some(Focus::Keys(_))) {
         bail!("invalid --focus: keyframes are for sequences (render or blur with --frames); a report takes one distance or auto");
     }
     let dir = a.out.clone().context(
@@ -502,14 +537,20 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     }
     std::fs::create_dir_all(&dir)
         .with_context(|| format!("could not create the report folder {}", shown(&dir)))?;
-    let bar = progress_bar(quiet, runs.len() as u64 + 1, "methods");
+    let total = runs.len() as u64 + 1;
+    let mut done = 0;
+    progress(Progress {
+        done,
+        total,
+        running: "reference",
+    });
 
     // The reference: rendered, or read.
     let mut parameters: Vec<(String, String)> = Vec::new();
     let (truth, truth_ms, title, source) = if let Some(scene) = &a.scene {
         let mut args = render_args(a, scene, "reference", &dir.join("reference.exr"));
         args.samples = Some(a.reference_samples);
-        let job = RenderJob::try_from(args)?;
+        let job = RenderJob::new(args, notes)?;
         let cam = job.camera().clone();
         let lens = cam.thin_lens()?;
         parameters.extend([
@@ -612,7 +653,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
             ),
         ));
     }
-    bar.inc(1);
+    done += 1;
     // Every file of the report is staged and renamed into the folder at the end, all together.
     let mut files = ReportFiles::new(&dir);
     files.exr("reference.exr", &truth)?;
@@ -622,8 +663,12 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
     let mut outputs: Vec<(usize, MethodOutput)> = Vec::new();
     let mut results: Vec<RunResult> = Vec::new();
     for (i, run) in runs.iter().enumerate() {
-        bar.set_message(run.label());
         let label = run.label();
+        progress(Progress {
+            done,
+            total,
+            running: &label,
+        });
         let out_path = dir.join(format!("{label}.exr"));
         let outcome: Result<MethodOutput> = (|| {
             let missing = unsupported_effects(a, run.info)?;
@@ -637,7 +682,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
                 let mut args =
                     render_args(a, a.scene.as_deref().unwrap_or(""), run.info.id, &out_path);
                 apply_setting(&mut args.post, &mut args.samples, &run.setting)?;
-                RenderJob::try_from(args)?.compute(&mut |_, _| {})
+                RenderJob::new(args, notes)?.compute(&mut |_, _| {})
             } else {
                 if run.info.input.needs_scene() {
                     bail!("not applicable: needs {}", run.info.input.describe());
@@ -648,7 +693,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
                 if samples.is_some() {
                     bail!("not applicable: the frame is given, so its samples cannot change");
                 }
-                BlurJob::try_from(&args)?.compute()
+                BlurJob::new(&args, notes)?.compute()
             }
         })();
         let mut r = RunResult {
@@ -707,7 +752,7 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
             }
         }
         results.push(r);
-        bar.inc(1);
+        done += 1;
     }
     // The frontier: `reference` at a few sample counts, with another seed than the truth's.
     let mut frontier = Vec::new();
@@ -718,11 +763,15 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
             .into_iter()
             .filter(|&n| n < a.reference_samples)
         {
-            bar.set_message(format!("frontier: reference {n}"));
+            progress(Progress {
+                done,
+                total,
+                running: &format!("frontier: reference {n}"),
+            });
             let mut args = render_args(a, scene, "reference", &dir.join("frontier.exr"));
             args.samples = Some(n);
             args.seed = seed;
-            let out = RenderJob::try_from(args)?.compute(&mut |_, _| {})?;
+            let out = RenderJob::new(args, notes)?.compute(&mut |_, _| {})?;
             let m = metrics::compare(&out.image, &truth)?;
             frontier.push(FrontierPoint {
                 samples: n,
@@ -738,7 +787,11 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
             }
         }
     }
-    bar.finish_and_clear();
+    progress(Progress {
+        done,
+        total,
+        running: "",
+    });
 
     // Error maps on one scale: the largest of the methods' 99th-percentile differences.
     let mut top = metrics::ERROR_MAP_MIN_TOP;
@@ -787,24 +840,18 @@ pub fn run(a: &CompareArgs, quiet: bool) -> Result<()> {
             let _ = std::fs::remove_file(&path);
         }
     }
-    eprintln!("report: {}", shown(&dir.join("index.html")));
-    // The report is written either way; a failed run still makes the command fail, so that a
-    // script does not take a report of errors for results.
-    let failed: Vec<&str> = report
+    let failed = report
         .runs
         .iter()
         .filter(|r| r.status == "failed")
-        .map(|r| r.label.as_str())
+        .map(|r| r.label.clone())
         .collect();
-    if !failed.is_empty() {
-        bail!(
-            "{} of {} runs failed: {} (their errors are in the report)",
-            failed.len(),
-            report.runs.len(),
-            failed.join(", ")
-        );
-    }
-    Ok(())
+    Ok(Written {
+        index_html: dir.join("index.html"),
+        results: serde_json::to_value(&report)?,
+        failed,
+        runs: report.runs.len(),
+    })
 }
 
 /// The image files `report` names besides `index.html` and `results.json`.

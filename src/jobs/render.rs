@@ -1,25 +1,27 @@
 //! `defocus render`: a scene (built-in or file) through the thin lens with one method. Its
-//! flags, the validated job and its run.
+//! flags ([`RenderArgs`], parsed by the command line or built by a program), the validated job
+//! ([`RenderJob`]) and its run. Lines the command line shows go to a `notes` sink.
 
 use std::path::{Path, PathBuf};
 
+use crate::autofocus;
+use crate::error::shown;
+use crate::frames::Keyed;
+use crate::image::io;
+use crate::lens::{Camera, SamplerKind};
+use crate::methods::registry::{self, MethodSettings, SceneOptions, DEFAULT_FRAME_SAMPLES};
+use crate::methods::MethodOutput;
+use crate::scene::{load, Scene};
+use crate::timing;
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use defocus::autofocus;
-use defocus::error::shown;
-use defocus::frames::Keyed;
-use defocus::image::io;
-use defocus::lens::{Camera, SamplerKind};
-use defocus::methods::registry::{self, MethodSettings, SceneOptions, DEFAULT_FRAME_SAMPLES};
-use defocus::methods::MethodOutput;
-use defocus::scene::{load, Scene};
-use defocus::timing;
 use glam::Vec3;
 
-use crate::common::{
-    check_output, method_parser, parse_aperture, parse_focus, parse_fstop, parse_pixel, parse_vec3,
-    progress_bar, report_timings, single_value, Focus, FrameDone, TimingFormat, IMAGE_EXTENSIONS,
+use super::flags::{
+    check_output, method_parser, parse_focus, parse_fstop, parse_pixel, parse_vec3, single_value,
+    ExrArgs, Focus, FrameDone, TimingFormat, IMAGE_EXTENSIONS,
 };
+use crate::options::{parse_aperture, PostArgs};
 
 /// Flags of `render`.
 #[derive(Debug, Args, Clone)]
@@ -108,13 +110,13 @@ pub struct RenderArgs {
     pub verbose: bool,
     /// EXR output options.
     #[command(flatten)]
-    pub exr: crate::common::ExrArgs,
+    pub exr: ExrArgs,
     /// Camera choice and placement (listed under their own heading).
     #[command(flatten)]
     pub view: Box<ViewArgs>,
     /// Options of the post-process methods (listed under their own heading).
     #[command(flatten)]
-    pub post: Box<crate::post::PostArgs>,
+    pub post: Box<PostArgs>,
 }
 
 /// Flags of `render` that choose and place the camera (boxed in [`RenderArgs`] to keep
@@ -149,7 +151,7 @@ pub struct ViewArgs {
 }
 
 /// A validated `render` job.
-pub(crate) struct RenderJob {
+pub struct RenderJob {
     scene: Scene,
     camera: Camera,
     settings: MethodSettings,
@@ -162,10 +164,15 @@ pub(crate) struct RenderJob {
     inputs: Vec<PathBuf>,
 }
 
-fn load_scene(spec: &str, camera: Option<&str>, options: &load::LoadOptions) -> Result<Scene> {
+fn load_scene(
+    spec: &str,
+    camera: Option<&str>,
+    options: &load::LoadOptions,
+    notes: &mut dyn FnMut(String),
+) -> Result<Scene> {
     let file = load::scene_by_name_or_path(spec, camera, options)?;
     if !file.skipped_cameras.is_empty() {
-        eprintln!(
+        notes(format!(
             "note: {}: {} skipped: the thin-lens model is perspective{}",
             shown(spec),
             file.skipped_cameras.join(", "),
@@ -174,15 +181,15 @@ fn load_scene(spec: &str, camera: Option<&str>, options: &load::LoadOptions) -> 
             } else {
                 ""
             }
-        );
+        ));
     }
     Ok(file.scene)
 }
 
-impl TryFrom<RenderArgs> for RenderJob {
-    type Error = anyhow::Error;
-
-    fn try_from(a: RenderArgs) -> Result<Self> {
+impl RenderJob {
+    /// Checks the flags, loads the scene and places the camera (the autofocus renders);
+    /// `notes` receives the lines the command line shows (skipped cameras, the focus picked).
+    pub fn new(a: RenderArgs, notes: &mut dyn FnMut(String)) -> Result<Self> {
         check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
         if let Some(d) = &a.depth_out {
             check_output(d, "--depth-out", &["exr"])?;
@@ -191,7 +198,7 @@ impl TryFrom<RenderArgs> for RenderJob {
         let options = load::LoadOptions {
             allow_external_files: a.allow_external_files,
         };
-        let scene = load_scene(&a.scene, a.view.camera.as_deref(), &options)?;
+        let scene = load_scene(&a.scene, a.view.camera.as_deref(), &options, notes)?;
         let defaults = scene
             .defaults
             .clone()
@@ -208,7 +215,7 @@ impl TryFrom<RenderArgs> for RenderJob {
             ("--look-at", a.view.look_at),
         ] {
             if let Some(p) = v {
-                let limit = defocus::scene::MAX_COORDINATE_M;
+                let limit = crate::scene::MAX_COORDINATE_M;
                 if p.iter().any(|c| c.abs() > limit) {
                     bail!(
                         "invalid {flag} {},{},{}: expected coordinates in metres within +-{limit:e}",
@@ -254,11 +261,11 @@ impl TryFrom<RenderArgs> for RenderJob {
                 })?;
             camera.focus_m = pick.depth_m;
             if !a.in_sequence || a.verbose {
-                eprintln!(
+                notes(format!(
                     "focus: {:.4} m (median depth of the {w}x{w} pixels around ({x}, {y}))",
                     pick.depth_m,
                     w = pick.window_px
-                );
+                ));
             }
         }
         // Validate the camera now, with the flag names in the message.
@@ -300,16 +307,14 @@ impl TryFrom<RenderArgs> for RenderJob {
             inputs,
         })
     }
-}
 
-impl RenderJob {
     /// The camera, after every override.
-    pub(crate) fn camera(&self) -> &Camera {
+    pub fn camera(&self) -> &Camera {
         &self.camera
     }
 
     /// Runs the method on the scene; `progress(done, total)` reports views.
-    pub(crate) fn compute(&self, progress: &mut dyn FnMut(usize, usize)) -> Result<MethodOutput> {
+    pub fn compute(&self, progress: &mut dyn FnMut(usize, usize)) -> Result<MethodOutput> {
         Ok(registry::run_scene(
             &self.settings,
             &self.scene,
@@ -319,34 +324,33 @@ impl RenderJob {
         )?)
     }
 
-    pub(crate) fn run(self, quiet: bool) -> Result<()> {
-        let timings = self.timings;
-        let done = self.execute(quiet)?;
-        report_timings(
-            timings,
-            done.method,
-            done.width,
-            done.height,
-            &done.timings,
-            done.memory_bytes,
-        )
+    /// The views the method renders (the size of its progress).
+    pub fn views(&self) -> usize {
+        match &self.settings {
+            MethodSettings::Reference(r) => r.samples,
+            MethodSettings::Pinhole(p) => p.samples,
+            _ => self.options.frame_samples,
+        }
     }
 
-    /// Renders and writes the outputs (a progress bar of views unless `quiet`); what it took.
-    pub(crate) fn execute(self, quiet: bool) -> Result<FrameDone> {
+    /// How `--timings` reports, if asked.
+    pub fn timing_format(&self) -> Option<TimingFormat> {
+        self.timings
+    }
+
+    /// Renders and writes the outputs (both or neither); what it took. `progress(done,
+    /// total)` reports views; `notes` receives the `--verbose` lines.
+    pub fn execute(
+        self,
+        progress: &mut dyn FnMut(usize, usize),
+        notes: &mut dyn FnMut(String),
+    ) -> Result<FrameDone> {
         for input in &self.inputs {
             for out in std::iter::once(&self.out).chain(self.depth_out.as_ref()) {
                 io::ensure_not_same_file(input, out)?;
             }
         }
-        let views = match &self.settings {
-            MethodSettings::Reference(r) => r.samples,
-            MethodSettings::Pinhole(p) => p.samples,
-            _ => self.options.frame_samples,
-        };
-        let bar = progress_bar(quiet, views as u64, "views");
-        let output: MethodOutput = self.compute(&mut |done, _| bar.set_position(done as u64))?;
-        bar.finish_and_clear();
+        let output: MethodOutput = self.compute(progress)?;
         let mut timings = output.timings.clone();
         let method = self.settings.id();
         timings.time(timing::WRITE, || {
@@ -363,24 +367,24 @@ impl RenderJob {
         })?;
         if self.verbose {
             let info = self.settings.info();
-            eprintln!("method: {} ({})", info.id, info.description);
+            notes(format!("method: {} ({})", info.id, info.description));
             if !info.paper.is_empty() {
-                eprintln!("paper: {}", info.paper);
+                notes(format!("paper: {}", info.paper));
             }
             if let Ok(lens) = self.camera.thin_lens() {
-                eprintln!(
+                notes(format!(
                     "lens: f_px {:.2}, lens radius {:.5} m, focus {:.4} m, CoC at infinity {:.2} px",
                     lens.f_px,
                     lens.lens_radius_m,
                     lens.focus_m,
                     lens.coc_at_infinity_px()
-                );
+                ));
             }
             if let Some(bytes) = output.memory_bytes {
-                eprintln!(
+                notes(format!(
                     "memory: {bytes} bytes ({:.1} MiB) peak of the method's own storage",
                     bytes as f64 / (1024.0 * 1024.0)
-                );
+                ));
             }
         }
         Ok(FrameDone {

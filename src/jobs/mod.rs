@@ -1,0 +1,16 @@
+//! The commands as typed jobs: what `defocus render`, `defocus blur` and `defocus compare` do,
+//! callable from a program with plain values in and out. The command line parses its flags
+//! into these structs and calls them; the Python package builds the same structs from its
+//! keyword arguments. The jobs never print: the lines a command shows go to a `notes` sink,
+//! progress to a callback, and results are returned.
+//!
+//! - [`render`]: a scene through the thin lens with one method ([`render::RenderJob`]).
+//! - [`blur`]: a rendered colour image with a depth pass ([`blur::BlurJob`]).
+//! - [`report`]: every method against the reference as an HTML page and JSON
+//!   ([`report::write`]).
+//! - [`flags`]: the flags they share and their parsers.
+
+pub mod blur;
+pub mod flags;
+pub mod render;
+pub mod report;
