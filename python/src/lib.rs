@@ -11,19 +11,22 @@
 //!
 //! The Python-facing signatures, docstrings and defaults are in `pysrc/defocus/__init__.py`.
 
+use std::borrow::Cow;
 use std::path::Path;
+use std::time::Instant;
 
 use clap::{CommandFactory, Parser};
 use defocus::blur::{frame_lens, DepthKind, FocusChoice, Highlights, LensSpec};
 use defocus::image::io::{self, DepthRead, Placement};
-use defocus::image::{ColorImage, GrayImage, Rgba};
+use defocus::image::{ColorImage, GrayImage};
 use defocus::jobs::report::CompareArgs;
 use defocus::lens::SamplerKind;
 use defocus::methods::registry::{self, Frame, SceneOptions, DEFAULT_FRAME_SAMPLES, METHODS};
 use defocus::options::{parse_aperture, PostArgs};
 use defocus::scene::load;
+use defocus::timing::Timings;
 use numpy::ndarray::{ArrayD, IxDyn};
-use numpy::{IntoPyArray, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -59,48 +62,65 @@ fn method_flags(flags: Vec<String>) -> PyResult<PostArgs> {
         })
 }
 
-/// Pixels of a batch of colour images as they came from NumPy.
-enum Samples {
+/// A colour array as NumPy holds it, borrowed for the call.
+enum ColorArray<'py> {
     /// Linear light, premultiplied alpha.
-    F32(Vec<f32>),
+    F32(PyReadonlyArrayDyn<'py, f32>),
     /// sRGB-encoded, straight alpha.
-    U8(Vec<u8>),
+    U8(PyReadonlyArrayDyn<'py, u8>),
+}
+
+impl<'py> ColorArray<'py> {
+    /// `array` (`name` in errors) as float32 or uint8.
+    fn of(array: &Bound<'py, PyAny>, name: &str) -> PyResult<Self> {
+        if let Ok(a) = array.extract::<PyReadonlyArrayDyn<'py, f32>>() {
+            Ok(Self::F32(a))
+        } else if let Ok(a) = array.extract::<PyReadonlyArrayDyn<'py, u8>>() {
+            Ok(Self::U8(a))
+        } else {
+            Err(PyValueError::new_err(format!(
+                "{name}: expected a NumPy array of float32 (linear light) or uint8 (sRGB)"
+            )))
+        }
+    }
+}
+
+/// Pixels of a batch of colour images: NumPy's buffer itself when the array is C-contiguous,
+/// else its samples gathered once in C order.
+enum Samples<'a> {
+    /// Linear light, premultiplied alpha.
+    F32(Cow<'a, [f32]>),
+    /// sRGB-encoded, straight alpha.
+    U8(Cow<'a, [u8]>),
 }
 
 /// A batch of colour images: `n` images of `h` x `w` pixels with `c` channels (3 or 4).
-struct ColorBatch {
+struct ColorBatch<'a> {
     n: usize,
     h: usize,
     w: usize,
     c: usize,
     /// Whether the array had a batch axis.
     batched: bool,
-    samples: Samples,
+    samples: Samples<'a>,
 }
 
-impl ColorBatch {
-    /// Reads `array` (`name` in errors): float32 or uint8, `HxWxC` or `NxHxWxC`, C = 3 or 4.
-    /// A C-contiguous array is read straight from its buffer.
-    fn from_numpy(array: &Bound<'_, PyAny>, name: &str) -> PyResult<Self> {
-        let shape_of = |shape: &[usize]| -> PyResult<(usize, usize, usize, usize, bool)> {
-            match *shape {
-                [h, w, c] if c == 3 || c == 4 => Ok((1, h, w, c, false)),
-                [n, h, w, c] if c == 3 || c == 4 => Ok((n, h, w, c, true)),
-                _ => Err(PyValueError::new_err(format!(
+impl<'a> ColorBatch<'a> {
+    /// Reads `array` (`name` in errors): `HxWxC` or `NxHxWxC`, C = 3 or 4.
+    fn new(array: &'a ColorArray<'_>, name: &str) -> PyResult<Self> {
+        let (shape, samples) = match array {
+            ColorArray::F32(a) => (a.shape(), Samples::F32(samples_of(a))),
+            ColorArray::U8(a) => (a.shape(), Samples::U8(samples_of(a))),
+        };
+        let (n, h, w, c, batched) = match *shape {
+            [h, w, c] if c == 3 || c == 4 => (1, h, w, c, false),
+            [n, h, w, c] if c == 3 || c == 4 => (n, h, w, c, true),
+            _ => {
+                return Err(PyValueError::new_err(format!(
                     "{name}: shape {shape:?}: expected HxWx3 or HxWx4 (or NxHxWxC for a batch)"
-                ))),
+                )))
             }
         };
-        let (shape, samples) = if let Ok(a) = array.extract::<PyReadonlyArrayDyn<'_, f32>>() {
-            (a.shape().to_vec(), Samples::F32(samples_of(&a)))
-        } else if let Ok(a) = array.extract::<PyReadonlyArrayDyn<'_, u8>>() {
-            (a.shape().to_vec(), Samples::U8(samples_of(&a)))
-        } else {
-            return Err(PyValueError::new_err(format!(
-                "{name}: expected a NumPy array of float32 (linear light) or uint8 (sRGB)"
-            )));
-        };
-        let (n, h, w, c, batched) = shape_of(&shape)?;
         Ok(Self {
             n,
             h,
@@ -117,10 +137,12 @@ impl ColorBatch {
         match &self.samples {
             Samples::F32(s) => {
                 let s = &s[i * len..(i + 1) * len];
-                let pixels: Vec<Rgba> = s
-                    .chunks_exact(self.c)
-                    .map(|p| [p[0], p[1], p[2], if self.c == 4 { p[3] } else { 1.0 }])
-                    .collect();
+                let c = self.c;
+                let mut pixels = recycled::colors().take(self.h * self.w);
+                pixels.par_extend(
+                    s.par_chunks_exact(c)
+                        .map(|p| [p[0], p[1], p[2], if c == 4 { p[3] } else { 1.0 }]),
+                );
                 ColorImage::from_vec(self.w, self.h, pixels)
             }
             Samples::U8(s) => {
@@ -130,60 +152,142 @@ impl ColorBatch {
     }
 }
 
-/// Output images back in the input's layout: same dtype, channels and batch axis.
-fn to_numpy(py: Python<'_>, like: &ColorBatch, images: &[ColorImage]) -> PyResult<Py<PyAny>> {
+/// Output images back in the input's layout: same dtype, channels and batch axis. The array
+/// is made once and filled in parallel, the GIL released.
+fn to_numpy(py: Python<'_>, like: &ColorBatch, mut images: Vec<ColorImage>) -> PyResult<Py<PyAny>> {
     let mut shape = vec![like.h, like.w, like.c];
     if like.batched {
         shape.insert(0, images.len());
     }
     let c = like.c;
-    let shape = IxDyn(&shape);
-    let array = match like.samples {
+    let len = like.h * like.w * c;
+    if matches!(like.samples, Samples::F32(_)) && c == 4 && images.len() == 1 {
+        // One RGBA float image: its pixels become the array, without a copy.
+        let data = images.remove(0).into_vec().into_flattened();
+        return ArrayD::from_shape_vec(IxDyn(&shape), data)
+            .map(|a| a.into_pyarray(py).into_any().unbind())
+            .map_err(|e| PyValueError::new_err(e.to_string()));
+    }
+    Ok(match like.samples {
         Samples::F32(_) => {
-            let data: Vec<f32> = images
-                .iter()
-                .flat_map(|img| img.pixels().iter().flat_map(move |p| p[..c].to_vec()))
-                .collect();
-            let a = ArrayD::from_shape_vec(shape, data)
-                .map_err(|e| PyValueError::new_err(e.to_string()))?;
-            a.into_pyarray(py).into_any().unbind()
+            let array = PyArrayDyn::<f32>::zeros(py, IxDyn(&shape), false);
+            {
+                let mut view = array.readwrite();
+                let out = view
+                    .as_slice_mut()
+                    .map_err(|e| PyValueError::new_err(e.to_string()))?;
+                py.detach(|| {
+                    out.par_chunks_mut(len).zip(&images).for_each(|(dst, img)| {
+                        dst.par_chunks_mut(like.w * c)
+                            .zip(img.pixels().par_chunks(like.w))
+                            .for_each(|(row, src)| {
+                                for (d, p) in row.chunks_exact_mut(c).zip(src) {
+                                    d.copy_from_slice(&p[..c]);
+                                }
+                            })
+                    })
+                });
+            }
+            array.into_any().unbind()
         }
         Samples::U8(_) => {
-            let data: Vec<u8> = images
-                .iter()
-                .flat_map(|img| {
-                    io::png8_samples(img)
-                        .chunks_exact(4)
-                        .flat_map(|p| p[..c].to_vec())
-                        .collect::<Vec<u8>>()
-                })
-                .collect();
-            let a = ArrayD::from_shape_vec(shape, data)
-                .map_err(|e| PyValueError::new_err(e.to_string()))?;
-            a.into_pyarray(py).into_any().unbind()
+            let array = PyArrayDyn::<u8>::zeros(py, IxDyn(&shape), false);
+            {
+                let mut view = array.readwrite();
+                let out = view
+                    .as_slice_mut()
+                    .map_err(|e| PyValueError::new_err(e.to_string()))?;
+                py.detach(|| {
+                    out.par_chunks_mut(len).zip(&images).for_each(|(dst, img)| {
+                        let rgba = io::png8_samples(img);
+                        for (d, p) in dst.chunks_exact_mut(c).zip(rgba.chunks_exact(4)) {
+                            d.copy_from_slice(&p[..c]);
+                        }
+                    })
+                });
+            }
+            array.into_any().unbind()
         }
-    };
-    Ok(array)
+    })
 }
 
 /// Depth `HxW`, or `NxHxW` for a batch, as float32 values.
-fn depth_batch(array: &Bound<'_, PyAny>) -> PyResult<(Vec<usize>, Vec<f32>)> {
-    let a = array
-        .extract::<PyReadonlyArrayDyn<'_, f32>>()
+fn depth_array<'py>(array: &Bound<'py, PyAny>) -> PyResult<PyReadonlyArrayDyn<'py, f32>> {
+    array
+        .extract::<PyReadonlyArrayDyn<'py, f32>>()
         .map_err(|_| {
             PyValueError::new_err(
                 "depth: expected a NumPy array of float32 (HxW, or NxHxW for a batch)",
             )
-        })?;
-    Ok((a.shape().to_vec(), samples_of(&a)))
+        })
 }
 
-/// An array's samples in C order: straight from its buffer when it is C-contiguous, else
-/// gathered element by element.
-fn samples_of<T: numpy::Element + Copy>(a: &PyReadonlyArrayDyn<'_, T>) -> Vec<T> {
+/// An array's samples in C order: its own buffer when it is C-contiguous, else gathered
+/// element by element.
+fn samples_of<'a, T: numpy::Element + Copy>(a: &'a PyReadonlyArrayDyn<'_, T>) -> Cow<'a, [T]> {
     match a.as_slice() {
-        Ok(s) => s.to_vec(),
-        Err(_) => a.as_array().iter().copied().collect(),
+        Ok(s) => Cow::Borrowed(s),
+        Err(_) => Cow::Owned(a.as_array().iter().copied().collect()),
+    }
+}
+
+/// The buffers the input arrays are converted into, kept from one call for the next: fresh
+/// memory costs a page fault per page on its first write, several times the copy itself (a
+/// 1280x720 frame's conversion took 6 ms in new memory, 1.5 ms in reused), and a data set is
+/// made by many calls of one size. At most a few buffers per kind, and 512 MiB in all, are
+/// kept.
+mod recycled {
+    use std::sync::{Mutex, MutexGuard};
+
+    use defocus::image::Rgba;
+
+    /// Spare buffers of one element type.
+    pub struct Pool<T> {
+        spare: Vec<Vec<T>>,
+    }
+
+    /// How many spare buffers a pool keeps: one per worker thread and one more.
+    fn most_kept() -> usize {
+        rayon::current_num_threads() + 1
+    }
+
+    /// The bytes a pool keeps at most.
+    const MOST_BYTES: usize = 256 << 20;
+
+    impl<T> Pool<T> {
+        /// An empty buffer with room for `len` elements: a spare one if one is that large.
+        pub fn take(&mut self, len: usize) -> Vec<T> {
+            match self.spare.iter().position(|v| v.capacity() >= len) {
+                Some(i) => {
+                    let mut v = self.spare.swap_remove(i);
+                    v.clear();
+                    v
+                }
+                None => Vec::with_capacity(len),
+            }
+        }
+
+        /// Keeps `v` for a later call, unless the pool is full.
+        pub fn keep(&mut self, v: Vec<T>) {
+            let bytes = |v: &Vec<T>| v.capacity() * std::mem::size_of::<T>();
+            let held: usize = self.spare.iter().map(bytes).sum();
+            if self.spare.len() < most_kept() && held + bytes(&v) <= MOST_BYTES {
+                self.spare.push(v);
+            }
+        }
+    }
+
+    static COLORS: Mutex<Pool<Rgba>> = Mutex::new(Pool { spare: Vec::new() });
+    static DEPTHS: Mutex<Pool<f32>> = Mutex::new(Pool { spare: Vec::new() });
+
+    /// The pool of colour buffers.
+    pub fn colors() -> MutexGuard<'static, Pool<Rgba>> {
+        COLORS.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The pool of depth buffers.
+    pub fn depths() -> MutexGuard<'static, Pool<f32>> {
+        DEPTHS.lock().unwrap_or_else(|e| e.into_inner())
     }
 }
 
@@ -200,8 +304,12 @@ struct BlurParams {
     post: PostArgs,
 }
 
-/// One frame of `blur`.
-fn blur_one(color: ColorImage, values: Vec<f32>, p: &BlurParams) -> defocus::Result<ColorImage> {
+/// One frame of `blur`: the image and the method's per-pass timings.
+fn blur_one(
+    color: ColorImage,
+    values: Vec<f32>,
+    p: &BlurParams,
+) -> defocus::Result<(ColorImage, Timings)> {
     let (w, h) = (color.width(), color.height());
     let source = Path::new("depth array");
     let depth = if p.kind == DepthKind::Coc {
@@ -230,11 +338,12 @@ fn blur_one(color: ColorImage, values: Vec<f32>, p: &BlurParams) -> defocus::Res
         &Placement::full(w, h),
         "color array",
     )?;
+    let start = Instant::now();
     let aperture = parse_aperture(&p.aperture)?;
     let settings = p
         .post
         .settings(&p.method, &aperture, p.seed, h, Some(&fl.lens))?;
-    let out = registry::run_frame(
+    let mut out = registry::run_frame(
         &settings,
         &Frame {
             color: &color,
@@ -242,8 +351,16 @@ fn blur_one(color: ColorImage, values: Vec<f32>, p: &BlurParams) -> defocus::Res
             lens: &fl.lens,
         },
     )?;
-    Ok(out.image)
+    // The whole library call, its passes and the work between them, as the last row.
+    out.timings
+        .add(METHOD_WALL, start.elapsed().as_secs_f64() * 1e3);
+    recycled::colors().keep(color.into_vec());
+    recycled::depths().keep(fl.depth.into_vec());
+    Ok((out.image, out.timings))
 }
+
+/// The row of `blur(..., timings=True)` that is not a pass: the library call's wall time.
+const METHOD_WALL: &str = "method";
 
 /// Parses a focus argument: a distance in metres or `"auto"`.
 fn focus_choice(
@@ -278,7 +395,7 @@ fn focus_choice(
 
 /// Depth of field for colour images with their depth (see `defocus.blur`).
 #[pyfunction]
-#[pyo3(signature = (color, depth, method, depth_kind, depth_scale, zero_depth_is_far, focus, focus_pixel, fstop, focal_length, sensor_width, aperture, seed, flags, highlights=None))]
+#[pyo3(signature = (color, depth, method, depth_kind, depth_scale, zero_depth_is_far, focus, focus_pixel, fstop, focal_length, sensor_width, aperture, seed, flags, highlights=None, timings=false))]
 #[expect(
     clippy::too_many_arguments,
     reason = "the keyword arguments of defocus.blur"
@@ -300,14 +417,18 @@ fn blur(
     seed: u64,
     flags: Vec<String>,
     highlights: Option<String>,
+    timings: bool,
 ) -> PyResult<Py<PyAny>> {
-    let batch = ColorBatch::from_numpy(color, "color")?;
+    let color = ColorArray::of(color, "color")?;
+    let batch = ColorBatch::new(&color, "color")?;
     let highlights = highlights
         .as_deref()
         .map(Highlights::parse)
         .transpose()
         .map_err(py_err)?;
-    let (dshape, dvalues) = depth_batch(depth)?;
+    let depth = depth_array(depth)?;
+    let dshape = depth.shape().to_vec();
+    let dvalues = samples_of(&depth);
     let want: Vec<usize> = if batch.batched {
         vec![batch.n, batch.h, batch.w]
     } else {
@@ -359,11 +480,12 @@ fn blur(
         post: method_flags(flags)?,
     };
     let per_image = batch.h * batch.w;
-    let results: defocus::Result<Vec<ColorImage>> = py.detach(|| {
+    let results: defocus::Result<Vec<(ColorImage, Timings)>> = py.detach(|| {
         (0..batch.n)
             .into_par_iter()
             .map(|i| {
-                let values = dvalues[i * per_image..(i + 1) * per_image].to_vec();
+                let mut values = recycled::depths().take(per_image);
+                values.extend_from_slice(&dvalues[i * per_image..(i + 1) * per_image]);
                 let mut image = batch.image(i)?;
                 if let Some(h) = &highlights {
                     h.apply(&mut image);
@@ -377,8 +499,30 @@ fn blur(
             })
             .collect()
     });
-    let images = results.map_err(py_err)?;
-    to_numpy(py, &batch, &images)
+    let (images, passes): (Vec<ColorImage>, Vec<Timings>) =
+        results.map_err(py_err)?.into_iter().unzip();
+    let array = to_numpy(py, &batch, images)?;
+    if !timings {
+        return Ok(array);
+    }
+    // Summed over a batch's images, in the order the passes ran.
+    let mut total = Timings::default();
+    for t in &passes {
+        total.extend(t);
+    }
+    let list = PyList::empty(py);
+    let mut method_ms = 0.0;
+    for p in &total.passes {
+        if p.name == METHOD_WALL {
+            method_ms = p.ms;
+        } else {
+            list.append((p.name.as_str(), p.ms))?;
+        }
+    }
+    let d = PyDict::new(py);
+    d.set_item("passes", list)?;
+    d.set_item("method_ms", method_ms)?;
+    Ok((array, d).into_pyobject(py)?.into_any().unbind())
 }
 
 /// Renders a scene (see `defocus.render`): colour `HxWx4` float32 (linear, premultiplied) and,
@@ -552,10 +696,8 @@ fn compare<'py>(
     a: &Bound<'py, PyAny>,
     b: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (a, b) = (
-        ColorBatch::from_numpy(a, "a")?,
-        ColorBatch::from_numpy(b, "b")?,
-    );
+    let (a, b) = (ColorArray::of(a, "a")?, ColorArray::of(b, "b")?);
+    let (a, b) = (ColorBatch::new(&a, "a")?, ColorBatch::new(&b, "b")?);
     if a.batched || b.batched {
         return Err(PyValueError::new_err(
             "compare takes two images, not batches",

@@ -245,3 +245,20 @@ def test_report_errors_are_value_and_os_errors(tmp_path):
     missing = tmp_path / "missing.exr"
     with pytest.raises(OSError, match="missing.exr"):
         defocus.report(tmp_path / "r", color=missing, depth=missing, truth=missing)
+
+
+def test_timings_are_the_methods_passes_and_leave_the_image_unchanged():
+    image, depth = checkerboard(), two_planes()
+    plain = defocus.blur(image, depth, "lowrank", focus=1.0, fstop=1.4)
+    out, timings = defocus.blur(image, depth, "lowrank", focus=1.0, fstop=1.4, timings=True)
+    np.testing.assert_array_equal(out, plain)
+    names = [name for name, _ in timings["passes"]]
+    assert "lowrank/horizontal" in names and "lowrank/vertical" in names
+    assert all(ms >= 0.0 for _, ms in timings["passes"])
+    # The whole call holds its passes.
+    assert timings["method_ms"] >= sum(ms for _, ms in timings["passes"])
+    # A batch sums each pass over its images: twice the images, the same passes.
+    batch, batch_timings = defocus.blur(np.stack([image, image]), np.stack([depth, depth]),
+                                        "lowrank", focus=1.0, fstop=1.4, timings=True)
+    assert [name for name, _ in batch_timings["passes"]] == names
+    np.testing.assert_array_equal(batch[1], plain)

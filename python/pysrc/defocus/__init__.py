@@ -100,8 +100,9 @@ def blur(
     zero_depth_is_far: bool = False,
     seed: int = 0,
     highlights: Optional[Union[str, Sequence[float]]] = None,
+    timings: bool = False,
     **method_options: Any,
-) -> np.ndarray:
+) -> Any:
     """Depth of field for a colour image and its depth, through a thin lens.
 
     Args:
@@ -132,11 +133,16 @@ def blur(
             channel is above ``threshold`` are scaled by up to ``gain``, reached at
             ``threshold + knee``, by default 1), so the bokeh of lights clipped at 1.0 comes
             out bright.
+        timings: also return where the time went: ``{"passes": [(name, ms), ...],
+            "method_ms": ms}``, the method's passes as ``blur --timings`` prints them and the
+            wall-clock time of the whole library call (passes and the work between them),
+            in milliseconds, summed over a batch's images.
         **method_options: the method's options, named as the command line's flags with
             underscores (``rank=3``, ``max_coc=32``, ``no_mask=True``).
 
     Returns:
-        The blurred image in the input's layout: same shape, dtype and channels.
+        The blurred image in the input's layout: same shape, dtype and channels. With
+        ``timings=True``, ``(image, timings)``.
     """
     c = _as_color(color, "color")
     d = _as_depth(depth)
@@ -162,6 +168,7 @@ def blur(
         else highlights
         if isinstance(highlights, str)
         else ",".join(str(float(v)) for v in highlights),
+        bool(timings),
     )
 
 

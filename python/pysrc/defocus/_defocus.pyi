@@ -22,7 +22,8 @@ def blur(
     seed: int,
     flags: List[str],
     highlights: Optional[str] = ...,
-) -> np.ndarray: ...
+    timings: bool = ...,
+) -> Union[np.ndarray, Tuple[np.ndarray, Dict[str, Any]]]: ...
 def render(
     scene: str,
     method: str,
