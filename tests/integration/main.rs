@@ -5,6 +5,7 @@ mod cli_post;
 mod fuzz;
 mod hammon;
 mod image_io;
+mod jobs;
 mod layered;
 mod lens;
 mod lens_effects;
