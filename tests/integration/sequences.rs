@@ -232,3 +232,95 @@ fn sequence_flags_without_a_sequence_are_refused_with_the_flag_named() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--frames"), "{}", stderr(&o));
 }
+
+/// The `openjd` command of the Open Job Description CLI: `DEFOCUS_OPENJD`, else the one
+/// `scripts/test` installs into its virtual environment, else one on the PATH.
+fn openjd() -> Option<std::path::PathBuf> {
+    if let Some(p) = std::env::var_os("DEFOCUS_OPENJD") {
+        return Some(p.into());
+    }
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-venv/bin/openjd");
+    if venv.is_file() {
+        return Some(venv);
+    }
+    let on_path = std::process::Command::new("openjd")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    on_path.then(|| "openjd".into())
+}
+
+/// The farm template (`farm/openjd/defocus-blur.yaml`) run by `openjd run` as a farm would run
+/// it: 5 frames in chunks of 2, each task one `defocus blur --frames A-B`; every frame is the
+/// one a direct `defocus blur` writes, and a missing input frame fails its task.
+#[test]
+fn openjd_template_blurs_a_sequence_in_chunks() {
+    let Some(openjd) = openjd() else {
+        eprintln!(
+            "skipped: the Open Job Description CLI is not installed (pip install openjd-cli, or \
+             set DEFOCUS_OPENJD); scripts/test installs it"
+        );
+        return;
+    };
+    let dir = temp_dir("openjd");
+    write_frames(&dir, &[1, 2, 3, 4, 5]);
+    let template = Path::new(env!("CARGO_MANIFEST_DIR")).join("farm/openjd/defocus-blur.yaml");
+    let run = |out: &str, last: i64| {
+        std::process::Command::new(&openjd)
+            .arg("run")
+            .arg(&template)
+            .args(["-p", &format!("Color={}", dir.join("c.####.exr").display())])
+            .args(["-p", &format!("Depth={}", dir.join("d.####.exr").display())])
+            .args(["-p", &format!("Out={}", dir.join(out).display())])
+            .args(["-p", "FirstFrame=1", "-p", &format!("LastFrame={last}")])
+            .args([
+                "-p",
+                "ChunkSize=2",
+                "-p",
+                "Args=--method hammon --focus 2.4 --fstop 2",
+            ])
+            .args(["-p", &format!("Defocus={}", env!("CARGO_BIN_EXE_defocus"))])
+            .output()
+            .unwrap()
+    };
+    let o = run("o.####.exr", 5);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
+    let log = String::from_utf8_lossy(&o.stdout);
+    for chunk in ["frames 1-2", "frames 3-4", "frames 5-5"] {
+        assert!(log.contains(chunk), "no task for {chunk}: {log}");
+    }
+    let direct = dir.join("direct.exr");
+    let d = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.0003.exr")),
+        "--depth",
+        s(&dir.join("d.0003.exr")),
+        "--method",
+        "hammon",
+        "--focus",
+        "2.4",
+        "--fstop",
+        "2",
+        "--out",
+        s(&direct),
+    ]);
+    assert!(d.status.success(), "{}", stderr(&d));
+    for n in 1..=5 {
+        assert!(dir.join(format!("o.{n:04}.exr")).is_file(), "frame {n}");
+    }
+    assert_eq!(
+        std::fs::read(dir.join("o.0003.exr")).unwrap(),
+        std::fs::read(&direct).unwrap()
+    );
+    // A frame missing from the input fails its task, and the run.
+    std::fs::remove_file(dir.join("c.0004.exr")).unwrap();
+    let o = run("p.####.exr", 4);
+    assert!(
+        !o.status.success(),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).contains("c.0004.exr"));
+    std::fs::remove_dir_all(dir).unwrap();
+}
