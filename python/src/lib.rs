@@ -19,7 +19,9 @@ use clap::{CommandFactory, Parser};
 use defocus::blur::{frame_lens, DepthKind, FocusChoice, Highlights, LensSpec};
 use defocus::image::io::{self, DepthRead, Placement};
 use defocus::image::{ColorImage, GrayImage};
+use defocus::jobs::blur::BlurArgs;
 use defocus::jobs::report::CompareArgs;
+use defocus::jobs::sequence::Events;
 use defocus::lens::SamplerKind;
 use defocus::methods::registry::{self, Frame, SceneOptions, DEFAULT_FRAME_SAMPLES, METHODS};
 use defocus::options::{parse_aperture, PostArgs};
@@ -48,18 +50,27 @@ fn py_err(e: defocus::Error) -> PyErr {
     }
 }
 
+/// A flag parser's error as a `ValueError` of one line: clap's message without its usage
+/// lines, with what it lists (the missing arguments, the values expected) kept.
+fn flag_error(kind: &str, e: &clap::Error) -> PyErr {
+    let text = e.to_string();
+    let lines: Vec<&str> = text
+        .lines()
+        .map(str::trim)
+        .take_while(|l| !l.starts_with("Usage:"))
+        .filter(|l| !l.is_empty() && !l.starts_with("For more information"))
+        .collect();
+    PyValueError::new_err(format!(
+        "invalid {kind} option: {}",
+        lines.join(" ").trim_start_matches("error: ")
+    ))
+}
+
 /// Parses the method options (flags built from keyword arguments by the Python layer).
 fn method_flags(flags: Vec<String>) -> PyResult<PostArgs> {
     MethodFlags::try_parse_from(flags)
         .map(|f| f.post)
-        .map_err(|e| {
-            let text = e.to_string();
-            let first = text.lines().next().unwrap_or_default();
-            PyValueError::new_err(format!(
-                "invalid method option: {}",
-                first.trim_start_matches("error: ")
-            ))
-        })
+        .map_err(|e| flag_error("method", &e))
 }
 
 /// A colour array as NumPy holds it, borrowed for the call.
@@ -671,14 +682,7 @@ fn job_err(e: anyhow::Error) -> PyErr {
 fn report(py: Python<'_>, flags: Vec<String>) -> PyResult<(String, String, Vec<String>)> {
     let args = ReportFlags::try_parse_from(flags)
         .map(|f| f.args)
-        .map_err(|e| {
-            let text = e.to_string();
-            let first = text.lines().next().unwrap_or_default();
-            PyValueError::new_err(format!(
-                "invalid report option: {}",
-                first.trim_start_matches("error: ")
-            ))
-        })?;
+        .map_err(|e| flag_error("report", &e))?;
     let written = py
         .detach(|| defocus::jobs::report::write(&args, &mut |_| {}, &mut |_| {}))
         .map_err(job_err)?;
@@ -687,6 +691,51 @@ fn report(py: Python<'_>, flags: Vec<String>) -> PyResult<(String, String, Vec<S
         written.results.to_string(),
         written.failed,
     ))
+}
+
+/// `blur`'s flags alone, parsed from the keyword arguments turned into flags.
+#[derive(Parser)]
+#[command(name = "defocus blur", no_binary_name = true)]
+struct BlurFlags {
+    #[command(flatten)]
+    args: BlurArgs,
+}
+
+/// Blurs a sequence of frame files (see `defocus.blur_sequence`): the frames written, kept and
+/// failed (each with its error), and the frames per second.
+#[pyfunction]
+#[expect(
+    clippy::type_complexity,
+    reason = "the tuple defocus.blur_sequence unpacks"
+)]
+fn blur_sequence(
+    py: Python<'_>,
+    flags: Vec<String>,
+) -> PyResult<(Vec<i64>, Vec<i64>, Vec<(i64, String)>, f64)> {
+    let args = BlurFlags::try_parse_from(flags)
+        .map(|f| f.args)
+        .map_err(|e| flag_error("blur", &e))?;
+    let done = py
+        .detach(|| {
+            if !defocus::jobs::sequence::is_blur_sequence(&args)? {
+                anyhow::bail!(
+                    "color {}: expected a frame pattern such as shot.####.exr or shot.%04d.exr",
+                    defocus::error::shown(&args.color)
+                );
+            }
+            defocus::jobs::sequence::blur(&args, &Events::none())
+        })
+        .map_err(job_err)?;
+    let failed = done
+        .failed
+        .iter()
+        .map(|(n, e)| {
+            let text: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+            (*n, defocus::error::shown(&text.join(": ")))
+        })
+        .collect();
+    let fps = done.frames_per_second();
+    Ok((done.written, done.kept, failed, fps))
 }
 
 /// MSE (linear), PSNR (dB, sRGB) and SSIM of `a` against `b` (see `defocus.compare`).
@@ -810,6 +859,7 @@ fn _defocus(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
     m.add_function(wrap_pyfunction!(report, m)?)?;
+    m.add_function(wrap_pyfunction!(blur_sequence, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;
     m.add_function(wrap_pyfunction!(scenes, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

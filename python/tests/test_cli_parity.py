@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import defocus
+from pfm import read_pfm, write_pfm
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -32,25 +33,6 @@ pytestmark = pytest.mark.skipif(
 SIZE = dict(width=64, height=36)
 LENS = dict(focus=2.0, fstop=1.4, focal_length=50.0)
 SAMPLES = {"reference": 4, "pinhole": 4, "multiview": 4}
-
-
-def read_pfm(path):
-    with open(path, "rb") as f:
-        kind = f.readline().strip()
-        w, h = map(int, f.readline().split())
-        scale = float(f.readline())
-        channels = 3 if kind == b"PF" else 1
-        data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
-    image = data.reshape(h, w, channels) if channels == 3 else data.reshape(h, w)
-    return image[::-1]  # PFM rows run bottom to top
-
-
-def write_pfm(path, image):
-    image = np.ascontiguousarray(image[::-1], dtype="<f4")
-    kind = b"PF" if image.ndim == 3 else b"Pf"
-    with open(path, "wb") as f:
-        f.write(kind + b"\n%d %d\n-1.0\n" % (image.shape[1], image.shape[0]))
-        f.write(image.tobytes())
 
 
 def cli(*args):

@@ -262,3 +262,41 @@ def test_timings_are_the_methods_passes_and_leave_the_image_unchanged():
                                         "lowrank", focus=1.0, fstop=1.4, timings=True)
     assert [name for name, _ in batch_timings["passes"]] == names
     np.testing.assert_array_equal(batch[1], plain)
+
+
+def test_blur_sequence_writes_each_frame_as_blur_does_resumes_and_names_a_bad_frame(tmp_path):
+    from pfm import read_pfm, write_pfm
+
+    frames = {}
+    for n in range(1, 5):
+        color, depth = defocus.render("glass", method="pinhole", width=48, height=27, samples=2,
+                                      seed=n, return_depth=True)
+        color = np.ascontiguousarray(color[..., :3])
+        write_pfm(tmp_path / f"c.{n:04d}.pfm", color)
+        write_pfm(tmp_path / f"z.{n:04d}.pfm", depth)
+        frames[n] = (color, depth)
+    args = (tmp_path / "c.####.pfm", tmp_path / "o.%04d.pfm", tmp_path / "z.@@@@.pfm")
+    r = defocus.blur_sequence(*args, method="hammon", focus=2.0, fstop=2.0)
+    assert r["written"] == [1, 2, 3, 4] and r["kept"] == [] and r["failed"] == {}
+    for n, (color, depth) in frames.items():
+        want = defocus.blur(color, depth, "hammon", focus=2.0, fstop=2.0)
+        np.testing.assert_array_equal(read_pfm(tmp_path / f"o.{n:04d}.pfm"), want)
+    # A rerun keeps what exists; a lost output and a missing input are handled frame by frame.
+    (tmp_path / "o.0002.pfm").unlink()
+    (tmp_path / "o.0003.pfm").unlink()
+    (tmp_path / "c.0003.pfm").unlink()
+    r = defocus.blur_sequence(*args, frames="1-4", method="hammon", focus=2.0, fstop=2.0)
+    assert r["kept"] == [1, 4] and r["written"] == [2]
+    assert list(r["failed"]) == [3] and "c.0003.pfm" in r["failed"][3]
+    # A rack focus: keys per frame, and each frame's own focus.
+    r = defocus.blur_sequence(*args, frames="1,2,4", overwrite=True, method="hammon",
+                              focus={1: 1.0, 4: 4.0}, fstop=2.0)
+    assert r["written"] == [1, 2, 4]
+    color, depth = frames[4]
+    np.testing.assert_array_equal(read_pfm(tmp_path / "o.0004.pfm"),
+                                  defocus.blur(color, depth, "hammon", focus=4.0, fstop=2.0))
+    with pytest.raises(ValueError, match="frame pattern"):
+        defocus.blur_sequence(tmp_path / "c.0001.pfm", tmp_path / "x.pfm", tmp_path / "z.0001.pfm",
+                              method="hammon")
+    with pytest.raises(ValueError, match="--depth"):
+        defocus.blur_sequence(*args[:2], method="hammon")

@@ -74,6 +74,7 @@ pub fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> 
 }
 
 /// What one run of a method took, once its outputs are written.
+#[derive(Clone, Debug)]
 pub struct FrameDone {
     /// The method's id.
     pub method: &'static str,

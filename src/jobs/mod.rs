@@ -8,9 +8,12 @@
 //! - [`blur`]: a rendered colour image with a depth pass ([`blur::BlurJob`]).
 //! - [`report`]: every method against the reference as an HTML page and JSON
 //!   ([`report::write`]).
+//! - [`sequence`]: `render` and `blur` over frame sequences ([`sequence::blur`],
+//!   [`sequence::render`]).
 //! - [`flags`]: the flags they share and their parsers.
 
 pub mod blur;
 pub mod flags;
 pub mod render;
 pub mod report;
+pub mod sequence;

@@ -38,6 +38,7 @@ __all__ = [
     "render",
     "compare",
     "report",
+    "blur_sequence",
     "methods",
     "scenes",
     "RandomDefocus",
@@ -312,6 +313,72 @@ def report(
     value["index_html"] = index_html
     value["failed"] = list(failed)
     return value
+
+
+def _keyed(value: Any) -> str:
+    """A value, or keys ``{frame: value}``, as the command line's ``F:V,...``."""
+    if isinstance(value, dict):
+        return ",".join(f"{int(f)}:{float(v)}" for f, v in sorted(value.items()))
+    return str(value)
+
+
+def blur_sequence(
+    color: Union[str, "os.PathLike[str]"],
+    out: Union[str, "os.PathLike[str]"],
+    depth: Optional[Union[str, "os.PathLike[str]"]] = None,
+    *,
+    frames: Optional[str] = None,
+    overwrite: bool = False,
+    method: str = "lowrank",
+    focus: Union[float, str, Dict[int, float]] = "auto",
+    fstop: Union[float, Dict[int, float]] = 2.8,
+    **options: Any,
+) -> Dict[str, Any]:
+    """Blurs a sequence of frame files, as ``defocus blur`` does with frame patterns: frames
+    run side by side within the memory budget, each written atomically; frames whose output
+    exists are kept (a rerun resumes) unless ``overwrite``.
+
+    Args:
+        color: the colour frames, a pattern: ``shot.####.exr``, ``shot.%04d.exr`` or
+            ``shot.@@@@.exr``.
+        out: the output frames, a pattern (``.exr``, ``.png`` or ``.pfm``).
+        depth: the depth frames, a pattern, or one file for every frame (a locked-off camera);
+            ``None`` when the depth is a channel of the colour EXR (``depth_channel=...``).
+        frames: ``"1001-1100"``, ``"1-100x2"``, ``"1,5,10-20"``; every frame of ``color``'s
+            pattern on disk when ``None``.
+        overwrite: write frames whose output exists again.
+        method: a method that reads a frame (``defocus.methods()``, those without
+            ``needs_scene``).
+        focus: metres, ``"auto"`` (per frame), or keys ``{frame: metres}`` for a rack focus
+            (interpolated linearly in 1/distance).
+        fstop: the f-number, or keys ``{frame: N}`` (interpolated in stops).
+        **options: the other flags of ``defocus blur`` with underscores: ``focal_length``,
+            ``sensor_width`` (mm), ``aperture``, ``depth_kind``, ``depth_scale``,
+            ``exr_compression``, ``coc_out`` and every method option (``rank=3``).
+
+    Returns:
+        ``{"written": [frames], "kept": [frames], "failed": {frame: message},
+        "frames_per_second": float}``. A frame that fails (a missing or bad input file) is
+        reported there, not raised, and the other frames are still written; bad arguments raise
+        ``ValueError``.
+    """
+    flags = [f"--color={os.fspath(color)}", f"--out={os.fspath(out)}", f"--method={method}"]
+    if depth is not None:
+        flags.append(f"--depth={os.fspath(depth)}")
+    if frames is not None:
+        flags.append(f"--frames={frames}")
+    if overwrite:
+        flags.append("--overwrite")
+    flags.append(f"--focus={_keyed(focus)}")
+    flags.append(f"--fstop={_keyed(fstop)}")
+    flags.extend(_flags(options))
+    written, kept, failed, fps = _defocus.blur_sequence(flags)
+    return {
+        "written": list(written),
+        "kept": list(kept),
+        "failed": {int(n): message for n, message in failed},
+        "frames_per_second": fps,
+    }
 
 
 def methods() -> List[Dict[str, Any]]:

@@ -12,7 +12,9 @@ use defocus::jobs::render::RenderJob;
 use defocus::jobs::report::{self, CompareArgs};
 
 use crate::args::{Cli, Command};
-use crate::common::{check_output, progress_bar, report_timings, IMAGE_EXTENSIONS, MAX_THREADS};
+use crate::common::{
+    check_output, print_note, progress_bar, report_timings, IMAGE_EXTENSIONS, MAX_THREADS,
+};
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
@@ -63,11 +65,6 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Command::Kernel(args) => crate::kernel::run(&args),
     }
-}
-
-/// Prints a line a job shows (on standard error, beside the progress).
-pub fn print_note(line: String) {
-    eprintln!("{line}");
 }
 
 /// `render`: the job, a progress bar of its views, the timings.

@@ -8,6 +8,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 pub use defocus::jobs::flags::*;
 pub use defocus::options::parse_aperture;
 
+/// Prints a line a job notes (a warning or a remark about its input) on standard error.
+pub fn print_note(line: String) {
+    eprintln!("{line}");
+}
+
 pub fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
     if quiet || total <= 1 {
         return ProgressBar::hidden();

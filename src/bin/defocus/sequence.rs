@@ -1,266 +1,41 @@
-//! Image sequences for `blur` and `render`: frame patterns in the file flags, `--frames`,
-//! keyframed focus and f-number, one progress bar, and resuming by keeping finished frames.
-//!
-//! Each frame is an ordinary single-image job, built from the flags with the frame's file names
-//! and lens values, so it is checked and written exactly as a lone image is (atomically). `blur`
-//! runs frames side by side, as many as the worker threads and the memory budget allow, so that
-//! one frame's reading and writing overlap another's filtering; `render` runs one frame at a
-//! time, since each frame's passes already use every core.
+//! Image sequences on the command line: the library's sequence jobs
+//! (`defocus::jobs::sequence`) with one progress bar of frames, errors printed as frames fail,
+//! a summary, `--timings`, and an exit code that says when some frame failed.
 
-use std::path::PathBuf;
-use std::time::Instant;
-
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use defocus::error::shown;
-use defocus::frames::{self, FramePattern, FrameSet, Interpolation, Keyed};
-use defocus::image::io;
+use defocus::jobs::sequence::{self, Events, Finished};
 use defocus::timing::Timings;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use defocus::jobs::blur::{BlurArgs, BlurJob};
-use defocus::jobs::render::{RenderArgs, RenderJob};
+use defocus::jobs::blur::BlurArgs;
+use defocus::jobs::render::RenderArgs;
 
-use crate::commands::print_note;
-use crate::common::Focus;
-use crate::common::{check_output, resident_peak_bytes, FrameDone, TimingFormat};
+use crate::common::{print_note, resident_peak_bytes, FrameDone, TimingFormat};
 
-/// Bytes a frame of `blur` may take at its peak, per pixel: the largest frame method's
-/// estimate (`lowrank`, 100) and the decoder's (32).
-const BLUR_FRAME_BYTES_PER_PIXEL: u64 = 132;
-
-/// Whether `blur`'s flags ask for a sequence (a frame pattern in --color). Patterns elsewhere
-/// without one there, and --frames or --overwrite without one, are refused.
-pub fn is_blur_sequence(a: &BlurArgs) -> Result<bool> {
-    if FramePattern::parse(&a.color)
-        .context("invalid --color")?
-        .is_some()
-    {
-        return Ok(true);
-    }
-    if a.frames.is_some() || a.overwrite {
-        bail!(
-            "--frames and --overwrite are for sequences: give --color a frame pattern such as \
-             shot.####.exr"
-        );
-    }
-    let others = [("--out", Some(&a.out)), ("--depth", a.depth.as_ref())];
-    for (flag, path) in others
-        .into_iter()
-        .chain([("--coc-out", a.coc_out.as_ref())])
-    {
-        if let Some(p) = path {
-            if FramePattern::parse(p)
-                .with_context(|| format!("invalid {flag}"))?
-                .is_some()
-            {
-                bail!(
-                    "{flag} {} has a frame number but --color {} has none: give --color a frame \
-                     pattern too",
-                    shown(p),
-                    shown(&a.color)
-                );
-            }
-        }
-    }
-    Ok(false)
-}
-
-/// Whether `render`'s flags ask for a sequence (--frames).
-pub fn is_render_sequence(a: &RenderArgs) -> Result<bool> {
-    let out = FramePattern::parse(&a.out).context("invalid --out")?;
-    match (&a.frames, out) {
-        (Some(_), _) => Ok(true),
-        (None, Some(_)) => bail!(
-            "--out {} is a frame pattern: give the frames to render with --frames (e.g. 1-48)",
-            shown(&a.out)
-        ),
-        (None, None) => Ok(false),
-    }
-}
-
-/// A pattern flag's pattern, or an error saying the flag needs one.
-fn pattern(path: &std::path::Path, flag: &str) -> Result<FramePattern> {
-    FramePattern::parse(path)
-        .with_context(|| format!("invalid {flag}"))?
-        .with_context(|| {
-            format!(
-                "{flag} {}: a sequence needs a frame pattern here too, such as shot.####.exr",
-                shown(&path)
-            )
-        })
-}
-
-/// Refuses keyframed values that no frame could use, before any frame runs.
-fn check_positive(k: &Keyed, flag: &str, unit: &str) -> Result<()> {
-    if let Some(v) = k.values().find(|v| v.is_nan() || *v <= 0.0) {
-        bail!("invalid {flag}: a key is {v}; expected {unit} greater than 0");
-    }
-    Ok(())
-}
+pub use defocus::jobs::sequence::{is_blur_sequence, is_render_sequence};
 
 /// `blur` over a sequence.
 pub fn blur(a: &BlurArgs, quiet: bool) -> Result<()> {
-    let color = pattern(&a.color, "--color")?;
-    let out = pattern(&a.out, "--out")?;
-    check_output(&a.out, "--out", crate::common::IMAGE_EXTENSIONS)?;
-    let coc_out = a
-        .coc_out
-        .as_ref()
-        .map(|p| pattern(p, "--coc-out"))
-        .transpose()?;
-    if let Some(c) = &a.coc_out {
-        io::check_distinct_outputs(&[("--out", &a.out), ("--coc-out", c)])?;
-    }
-    // A depth pattern, or one depth file for every frame (a locked-off camera).
-    let depth = match &a.depth {
-        Some(p) => Some(match FramePattern::parse(p).context("invalid --depth")? {
-            Some(pat) => Ok(pat),
-            None => Err(p.clone()),
-        }),
-        None => None,
-    };
-    for (flag, pat) in [("--out", Some(&out)), ("--coc-out", coc_out.as_ref())] {
-        let Some(pat) = pat else { continue };
-        let inputs = [Some(&color), depth.as_ref().and_then(|d| d.as_ref().ok())];
-        if inputs
-            .into_iter()
-            .flatten()
-            .any(|i| i.as_str() == pat.as_str())
-        {
-            bail!(
-                "{flag} {} is an input's pattern: outputs never overwrite inputs",
-                shown(pat.as_str())
-            );
-        }
-    }
-    let frames = match &a.frames {
-        Some(spec) => FrameSet::parse(spec)?.frames().to_vec(),
-        None => {
-            let found = color.frames_on_disk()?;
-            if found.is_empty() {
-                bail!(
-                    "no file matches --color {} (give --frames to name the frames)",
-                    shown(color.as_str())
-                );
-            }
-            found
-        }
-    };
-    let focus = if a.focus.trim() == "auto" {
-        None
-    } else {
-        let k = Keyed::parse(&a.focus, "--focus")?;
-        check_positive(&k, "--focus", "a distance in metres")?;
-        Some(k)
-    };
-    check_positive(&a.fstop, "--fstop", "an f-number")?;
-    let frame_args = |n: i64| {
-        let mut f = a.clone();
-        f.color = color.path(n);
-        f.depth = depth.as_ref().map(|d| match d {
-            Ok(p) => p.path(n),
-            Err(fixed) => fixed.clone(),
-        });
-        f.out = out.path(n);
-        f.coc_out = coc_out.as_ref().map(|p| p.path(n));
-        if let Some(k) = &focus {
-            f.focus = k.at(n, Interpolation::Inverse).to_string();
-        }
-        f.fstop = Keyed::constant(a.fstop.at(n, Interpolation::Logarithmic));
-        f.frames = None;
-        f.timings = None;
-        f.in_sequence = true;
-        f
-    };
-    let outputs = |n: i64| -> Vec<PathBuf> {
-        std::iter::once(out.path(n))
-            .chain(coc_out.as_ref().map(|p| p.path(n)))
-            .collect()
-    };
-    // As many frames at once as there are worker threads, within the memory budget (sized
-    // from the first frame's header).
-    let first_size = frames
-        .iter()
-        .find_map(|&n| io::image_size(&color.path(n)).ok());
-    let per_frame = first_size.map_or(0, |(w, h)| {
-        defocus::methods::registry::FIXED_PEAK_BYTES + (w * h) as u64 * BLUR_FRAME_BYTES_PER_PIXEL
-    });
-    let by_memory = defocus::budget::budget_bytes() / per_frame.max(1);
-    let workers = rayon::current_num_threads().min(by_memory.max(1) as usize);
-    run(
-        "blur",
-        &frames,
-        outputs,
-        a.overwrite,
-        workers,
-        quiet,
-        a.timings,
-        |n| BlurJob::new(&frame_args(n), &mut print_note)?.execute(),
-    )
+    let timings = a.timings;
+    shown_run("blur", quiet, timings, |events| sequence::blur(a, events))
 }
 
 /// `render` over a sequence.
 pub fn render(a: RenderArgs, quiet: bool) -> Result<()> {
-    let spec = a.frames.as_deref().context("--frames")?;
-    let frames = FrameSet::parse(spec)?.frames().to_vec();
-    let out = pattern(&a.out, "--out")?;
-    check_output(&a.out, "--out", crate::common::IMAGE_EXTENSIONS)?;
-    let depth_out = a
-        .depth_out
-        .as_ref()
-        .map(|p| pattern(p, "--depth-out"))
-        .transpose()?;
-    if let Some(d) = &a.depth_out {
-        check_output(d, "--depth-out", &["exr"])?;
-        io::check_distinct_outputs(&[("--out", &a.out), ("--depth-out", d)])?;
-    }
-    if let Some(Focus::Keys(k)) = &a.focus {
-        check_positive(k, "--focus", "a distance in metres")?;
-    }
-    if let Some(k) = &a.fstop {
-        check_positive(k, "--fstop", "an f-number")?;
-    }
-    let frame_args = |n: i64| {
-        let mut f = a.clone();
-        f.out = out.path(n);
-        f.depth_out = depth_out.as_ref().map(|p| p.path(n));
-        if let Some(Focus::Keys(k)) = &a.focus {
-            f.focus = Some(Focus::Metres(k.at(n, Interpolation::Inverse)));
-        }
-        f.fstop = a
-            .fstop
-            .as_ref()
-            .map(|k| Keyed::constant(k.at(n, Interpolation::Logarithmic)));
-        f.frames = None;
-        f.timings = None;
-        f.in_sequence = true;
-        f
-    };
-    let outputs = |n: i64| -> Vec<PathBuf> {
-        std::iter::once(out.path(n))
-            .chain(depth_out.as_ref().map(|p| p.path(n)))
-            .collect()
-    };
-    run(
-        "render",
-        &frames,
-        outputs,
-        a.overwrite,
-        1,
-        quiet,
-        a.timings,
-        |n| {
-            RenderJob::new(frame_args(n), &mut print_note)?.execute(&mut |_, _| {}, &mut print_note)
-        },
-    )
+    let timings = a.timings;
+    shown_run("render", quiet, timings, |events| {
+        sequence::render(a, events)
+    })
 }
 
-/// A progress bar of frames, with the rate and the time left.
-fn frames_bar(quiet: bool, total: u64) -> ProgressBar {
-    if quiet || total == 0 {
+/// A progress bar of frames, with the rate and the time left (its length is set when the
+/// frames to run are known).
+fn frames_bar(quiet: bool) -> ProgressBar {
+    if quiet {
         return ProgressBar::hidden();
     }
-    let bar = ProgressBar::new(total);
+    let bar = ProgressBar::new(0);
     let template =
         "{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} frames ({per_sec}, eta {eta}) {msg}";
     if let Ok(style) = ProgressStyle::with_template(template) {
@@ -269,77 +44,68 @@ fn frames_bar(quiet: bool, total: u64) -> ProgressBar {
     bar
 }
 
-/// Runs `job` on every frame whose outputs are not all there yet (or every frame with
-/// `overwrite`), `workers` at a time, reports failures as they happen and a summary at the end,
-/// and fails when any frame failed.
-#[expect(
-    clippy::too_many_arguments,
-    reason = "one call per command, each argument named"
-)]
-fn run(
+/// Runs a sequence job with a progress bar, prints each failure as it happens and a summary at
+/// the end, and fails when any frame failed.
+fn shown_run(
     command: &str,
-    frames: &[i64],
-    outputs: impl Fn(i64) -> Vec<PathBuf>,
-    overwrite: bool,
-    workers: usize,
     quiet: bool,
     timings: Option<TimingFormat>,
-    job: impl Fn(i64) -> Result<FrameDone> + Sync,
+    job: impl FnOnce(&Events) -> Result<Finished>,
 ) -> Result<()> {
-    let (todo, kept): (Vec<i64>, Vec<i64>) = frames
-        .iter()
-        .partition(|&&n| overwrite || !outputs(n).iter().all(|p| p.is_file()));
-    if !kept.is_empty() && !quiet {
-        eprintln!(
-            "{command}: {} of {} frames have their outputs already and are kept (--overwrite \
-             replaces them)",
-            kept.len(),
-            frames.len()
-        );
-    }
-    if todo.is_empty() {
+    let bar = frames_bar(quiet);
+    let events = Events {
+        start: &|todo, kept| {
+            if !kept.is_empty() && !quiet {
+                bar.suspend(|| {
+                    eprintln!(
+                        "{command}: {} of {} frames have their outputs already and are kept \
+                         (--overwrite replaces them)",
+                        kept.len(),
+                        todo.len() + kept.len()
+                    )
+                });
+            }
+            if todo.is_empty() {
+                bar.finish_and_clear();
+            } else {
+                bar.set_length(todo.len() as u64);
+                bar.reset_eta();
+            }
+        },
+        frame: &|n, r| {
+            if let Err(e) = r {
+                bar.suspend(|| eprintln!("error: frame {n}: {}", describe(e)));
+            }
+            bar.inc(1);
+        },
+        note: &|line| bar.suspend(|| print_note(line)),
+    };
+    let done = job(&events)?;
+    bar.finish_and_clear();
+    let todo = done.written.len() + done.failed.len();
+    if todo == 0 {
         return Ok(());
     }
-    let bar = frames_bar(quiet, todo.len() as u64);
-    let start = Instant::now();
-    let results = frames::run_frames(&todo, workers, &job, |n, r| {
-        if let Err(e) = r {
-            bar.suspend(|| eprintln!("error: frame {n}: {}", describe(e)));
-        }
-        bar.inc(1);
-    });
-    bar.finish_and_clear();
-    let wall_s = start.elapsed().as_secs_f64();
-    let mut total = Timings::default();
-    let mut failed = Vec::new();
-    let mut last: Option<FrameDone> = None;
-    for (n, r) in results {
-        match r {
-            Ok(done) => {
-                total.extend(&done.timings);
-                last = Some(done);
-            }
-            Err(_) => failed.push(n),
-        }
-    }
-    let written = todo.len() - failed.len();
     if !quiet {
         eprintln!(
-            "{command}: {written} frame(s) written, {} kept, {} failed, in {wall_s:.1} s ({:.2} frames/s)",
-            kept.len(),
-            failed.len(),
-            written as f64 / wall_s.max(1e-9)
+            "{}: {} frame(s) written, {} kept, {} failed, in {:.1} s ({:.2} frames/s)",
+            done.command,
+            done.written.len(),
+            done.kept.len(),
+            done.failed.len(),
+            done.wall_s,
+            done.frames_per_second()
         );
     }
-    if let (Some(format), Some(done)) = (timings, &last) {
-        report_sequence_timings(format, done, &total, written, wall_s)?;
+    if let (Some(format), Some(last)) = (timings, &done.last) {
+        report_sequence_timings(format, last, &done.timings, done.written.len(), done.wall_s)?;
     }
-    if !failed.is_empty() {
-        let list: Vec<String> = failed.iter().map(i64::to_string).collect();
+    if !done.failed.is_empty() {
+        let list: Vec<String> = done.failed.iter().map(|(n, _)| n.to_string()).collect();
         bail!(
             "{} of {} frames failed (frames {}; each error is above); the other frames are written",
-            failed.len(),
-            todo.len(),
+            done.failed.len(),
+            todo,
             list.join(", ")
         );
     }

@@ -1,0 +1,335 @@
+//! Image sequences for `blur` and `render`: frame patterns in the file flags, `--frames`,
+//! keyframed focus and f-number, and resuming by keeping finished frames.
+//!
+//! Each frame is an ordinary single-image job, built from the flags with the frame's file names
+//! and lens values, so it is checked and written exactly as a lone image is (atomically). `blur`
+//! runs frames side by side, as many as the worker threads and the memory budget allow, so that
+//! one frame's reading and writing overlap another's filtering; `render` runs one frame at a
+//! time, since each frame's passes already use every core. A failed frame does not stop the
+//! others: [`Finished`] lists it with its error.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+
+use super::blur::{BlurArgs, BlurJob};
+use super::flags::{check_output, Focus, FrameDone, IMAGE_EXTENSIONS};
+use super::render::{RenderArgs, RenderJob};
+use crate::error::shown;
+use crate::frames::{self, FramePattern, FrameSet, Interpolation, Keyed};
+use crate::image::io;
+use crate::timing::Timings;
+
+/// What a sequence reports while it runs. The callbacks are called from the threads that run
+/// the frames.
+pub struct Events<'a> {
+    /// Once, before any frame runs: the frames to run, and those kept because their outputs
+    /// exist.
+    pub start: &'a (dyn Fn(&[i64], &[i64]) + Sync),
+    /// After each frame, in the order they finish.
+    pub frame: &'a (dyn Fn(i64, &Result<FrameDone>) + Sync),
+    /// The lines a frame's job would show (the command line prints them).
+    pub note: &'a (dyn Fn(String) + Sync),
+}
+
+impl Events<'static> {
+    /// Reports nothing.
+    pub fn none() -> Self {
+        Events {
+            start: &|_, _| {},
+            frame: &|_, _| {},
+            note: &|_| {},
+        }
+    }
+}
+
+/// A sequence run to its end.
+#[derive(Debug)]
+pub struct Finished {
+    /// `blur` or `render`.
+    pub command: &'static str,
+    /// Every frame asked for.
+    pub frames: Vec<i64>,
+    /// The frames kept because their outputs existed.
+    pub kept: Vec<i64>,
+    /// The frames written.
+    pub written: Vec<i64>,
+    /// The frames that failed, each with its error.
+    pub failed: Vec<(i64, anyhow::Error)>,
+    /// Each pass summed over the written frames.
+    pub timings: Timings,
+    /// The last frame written (its method and size).
+    pub last: Option<FrameDone>,
+    /// Wall-clock seconds of the run.
+    pub wall_s: f64,
+}
+
+impl Finished {
+    /// Frames written per second of the run.
+    pub fn frames_per_second(&self) -> f64 {
+        self.written.len() as f64 / self.wall_s.max(1e-9)
+    }
+}
+
+/// Bytes a frame of `blur` may take at its peak, per pixel: the largest frame method's
+/// estimate (`lowrank`, 100) and the decoder's (32).
+const BLUR_FRAME_BYTES_PER_PIXEL: u64 = 132;
+
+/// Whether `blur`'s flags ask for a sequence (a frame pattern in --color). Patterns elsewhere
+/// without one there, and --frames or --overwrite without one, are refused.
+pub fn is_blur_sequence(a: &BlurArgs) -> Result<bool> {
+    if FramePattern::parse(&a.color)
+        .context("invalid --color")?
+        .is_some()
+    {
+        return Ok(true);
+    }
+    if a.frames.is_some() || a.overwrite {
+        bail!(
+            "--frames and --overwrite are for sequences: give --color a frame pattern such as \
+             shot.####.exr"
+        );
+    }
+    let others = [("--out", Some(&a.out)), ("--depth", a.depth.as_ref())];
+    for (flag, path) in others
+        .into_iter()
+        .chain([("--coc-out", a.coc_out.as_ref())])
+    {
+        if let Some(p) = path {
+            if FramePattern::parse(p)
+                .with_context(|| format!("invalid {flag}"))?
+                .is_some()
+            {
+                bail!(
+                    "{flag} {} has a frame number but --color {} has none: give --color a frame \
+                     pattern too",
+                    shown(p),
+                    shown(&a.color)
+                );
+            }
+        }
+    }
+    Ok(false)
+}
+
+/// Whether `render`'s flags ask for a sequence (--frames).
+pub fn is_render_sequence(a: &RenderArgs) -> Result<bool> {
+    let out = FramePattern::parse(&a.out).context("invalid --out")?;
+    match (&a.frames, out) {
+        (Some(_), _) => Ok(true),
+        (None, Some(_)) => bail!(
+            "--out {} is a frame pattern: give the frames to render with --frames (e.g. 1-48)",
+            shown(&a.out)
+        ),
+        (None, None) => Ok(false),
+    }
+}
+
+/// A pattern flag's pattern, or an error saying the flag needs one.
+fn pattern(path: &std::path::Path, flag: &str) -> Result<FramePattern> {
+    FramePattern::parse(path)
+        .with_context(|| format!("invalid {flag}"))?
+        .with_context(|| {
+            format!(
+                "{flag} {}: a sequence needs a frame pattern here too, such as shot.####.exr",
+                shown(&path)
+            )
+        })
+}
+
+/// Refuses keyframed values that no frame could use, before any frame runs.
+fn check_positive(k: &Keyed, flag: &str, unit: &str) -> Result<()> {
+    if let Some(v) = k.values().find(|v| v.is_nan() || *v <= 0.0) {
+        bail!("invalid {flag}: a key is {v}; expected {unit} greater than 0");
+    }
+    Ok(())
+}
+
+/// `blur` over a sequence.
+pub fn blur(a: &BlurArgs, events: &Events) -> Result<Finished> {
+    let color = pattern(&a.color, "--color")?;
+    let out = pattern(&a.out, "--out")?;
+    check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
+    let coc_out = a
+        .coc_out
+        .as_ref()
+        .map(|p| pattern(p, "--coc-out"))
+        .transpose()?;
+    if let Some(c) = &a.coc_out {
+        io::check_distinct_outputs(&[("--out", &a.out), ("--coc-out", c)])?;
+    }
+    // A depth pattern, or one depth file for every frame (a locked-off camera).
+    let depth = match &a.depth {
+        Some(p) => Some(match FramePattern::parse(p).context("invalid --depth")? {
+            Some(pat) => Ok(pat),
+            None => Err(p.clone()),
+        }),
+        None => None,
+    };
+    for (flag, pat) in [("--out", Some(&out)), ("--coc-out", coc_out.as_ref())] {
+        let Some(pat) = pat else { continue };
+        let inputs = [Some(&color), depth.as_ref().and_then(|d| d.as_ref().ok())];
+        if inputs
+            .into_iter()
+            .flatten()
+            .any(|i| i.as_str() == pat.as_str())
+        {
+            bail!(
+                "{flag} {} is an input's pattern: outputs never overwrite inputs",
+                shown(pat.as_str())
+            );
+        }
+    }
+    let frames = match &a.frames {
+        Some(spec) => FrameSet::parse(spec)?.frames().to_vec(),
+        None => {
+            let found = color.frames_on_disk()?;
+            if found.is_empty() {
+                bail!(
+                    "no file matches --color {} (give --frames to name the frames)",
+                    shown(color.as_str())
+                );
+            }
+            found
+        }
+    };
+    let focus = if a.focus.trim() == "auto" {
+        None
+    } else {
+        let k = Keyed::parse(&a.focus, "--focus")?;
+        check_positive(&k, "--focus", "a distance in metres")?;
+        Some(k)
+    };
+    check_positive(&a.fstop, "--fstop", "an f-number")?;
+    let frame_args = |n: i64| {
+        let mut f = a.clone();
+        f.color = color.path(n);
+        f.depth = depth.as_ref().map(|d| match d {
+            Ok(p) => p.path(n),
+            Err(fixed) => fixed.clone(),
+        });
+        f.out = out.path(n);
+        f.coc_out = coc_out.as_ref().map(|p| p.path(n));
+        if let Some(k) = &focus {
+            f.focus = k.at(n, Interpolation::Inverse).to_string();
+        }
+        f.fstop = Keyed::constant(a.fstop.at(n, Interpolation::Logarithmic));
+        f.frames = None;
+        f.timings = None;
+        f.in_sequence = true;
+        f
+    };
+    let outputs = |n: i64| -> Vec<PathBuf> {
+        std::iter::once(out.path(n))
+            .chain(coc_out.as_ref().map(|p| p.path(n)))
+            .collect()
+    };
+    // As many frames at once as there are worker threads, within the memory budget (sized
+    // from the first frame's header).
+    let first_size = frames
+        .iter()
+        .find_map(|&n| io::image_size(&color.path(n)).ok());
+    let per_frame = first_size.map_or(0, |(w, h)| {
+        crate::methods::registry::FIXED_PEAK_BYTES + (w * h) as u64 * BLUR_FRAME_BYTES_PER_PIXEL
+    });
+    let by_memory = crate::budget::budget_bytes() / per_frame.max(1);
+    let workers = rayon::current_num_threads().min(by_memory.max(1) as usize);
+    run(
+        "blur",
+        &frames,
+        outputs,
+        a.overwrite,
+        workers,
+        events,
+        |n| BlurJob::new(&frame_args(n), &mut |line| (events.note)(line))?.execute(),
+    )
+}
+
+/// `render` over a sequence.
+pub fn render(a: RenderArgs, events: &Events) -> Result<Finished> {
+    let spec = a.frames.as_deref().context("--frames")?;
+    let frames = FrameSet::parse(spec)?.frames().to_vec();
+    let out = pattern(&a.out, "--out")?;
+    check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
+    let depth_out = a
+        .depth_out
+        .as_ref()
+        .map(|p| pattern(p, "--depth-out"))
+        .transpose()?;
+    if let Some(d) = &a.depth_out {
+        check_output(d, "--depth-out", &["exr"])?;
+        io::check_distinct_outputs(&[("--out", &a.out), ("--depth-out", d)])?;
+    }
+    if let Some(Focus::Keys(k)) = &a.focus {
+        check_positive(k, "--focus", "a distance in metres")?;
+    }
+    if let Some(k) = &a.fstop {
+        check_positive(k, "--fstop", "an f-number")?;
+    }
+    let frame_args = |n: i64| {
+        let mut f = a.clone();
+        f.out = out.path(n);
+        f.depth_out = depth_out.as_ref().map(|p| p.path(n));
+        if let Some(Focus::Keys(k)) = &a.focus {
+            f.focus = Some(Focus::Metres(k.at(n, Interpolation::Inverse)));
+        }
+        f.fstop = a
+            .fstop
+            .as_ref()
+            .map(|k| Keyed::constant(k.at(n, Interpolation::Logarithmic)));
+        f.frames = None;
+        f.timings = None;
+        f.in_sequence = true;
+        f
+    };
+    let outputs = |n: i64| -> Vec<PathBuf> {
+        std::iter::once(out.path(n))
+            .chain(depth_out.as_ref().map(|p| p.path(n)))
+            .collect()
+    };
+    run("render", &frames, outputs, a.overwrite, 1, events, |n| {
+        let mut note = |line| (events.note)(line);
+        RenderJob::new(frame_args(n), &mut note)?.execute(&mut |_, _| {}, &mut note)
+    })
+}
+
+/// Runs `job` on every frame whose outputs are not all there yet (or every frame with
+/// `overwrite`), `workers` at a time, reporting to `events`.
+fn run(
+    command: &'static str,
+    frames: &[i64],
+    outputs: impl Fn(i64) -> Vec<PathBuf>,
+    overwrite: bool,
+    workers: usize,
+    events: &Events,
+    job: impl Fn(i64) -> Result<FrameDone> + Sync,
+) -> Result<Finished> {
+    let (todo, kept): (Vec<i64>, Vec<i64>) = frames
+        .iter()
+        .partition(|&&n| overwrite || !outputs(n).iter().all(|p| p.is_file()));
+    (events.start)(&todo, &kept);
+    let start = Instant::now();
+    let results = frames::run_frames(&todo, workers, &job, |n, r| (events.frame)(n, r));
+    let mut done = Finished {
+        command,
+        frames: frames.to_vec(),
+        kept,
+        written: Vec::new(),
+        failed: Vec::new(),
+        timings: Timings::default(),
+        last: None,
+        wall_s: start.elapsed().as_secs_f64(),
+    };
+    for (n, r) in results {
+        match r {
+            Ok(frame) => {
+                done.timings.extend(&frame.timings);
+                done.written.push(n);
+                done.last = Some(frame);
+            }
+            Err(e) => done.failed.push((n, e)),
+        }
+    }
+    Ok(done)
+}
