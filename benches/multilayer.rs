@@ -38,9 +38,9 @@ fn bench(c: &mut Criterion) {
                 ..MultilayerSettings::default()
             };
             g.bench_function(format!("collect/N{n}/{name}/{res}"), |b| {
-                b.iter(|| collect(&prepared, lens, &base))
+                b.iter(|| collect(&prepared, lens, 0, &base))
             });
-            let lists = collect(&prepared, lens, &base);
+            let lists = collect(&prepared, lens, 0, &base);
             for (mip, stack) in [(1usize, 3usize), (2, 2), (4, 0)] {
                 for truncation in [true, false] {
                     let s = MultilayerSettings {

@@ -146,6 +146,45 @@ pub struct FragmentLists {
     color: Vec<HalfRgba>,
     /// Finished tiles, waiting for [`FragmentLists::compact`].
     tiles: Vec<(TileRect, FragmentTile)>,
+    /// Outside the frame (in a guard band), the depths whose blur can still reach it.
+    reach: Option<Reach>,
+}
+
+/// Which fragments of a guard band around a frame can reach the frame once blurred: one at
+/// distance `d` pixels from the frame whose CoC radius `C` satisfies `factor |C| + slack_px <
+/// d` cannot, whatever the method makes of it, and is not kept (nor shaded). Such fragments
+/// are those between a depth in front of the focus and infinity, when even infinity's CoC
+/// falls short; so each pixel of the band gets a depth from which fragments are dropped, as if
+/// hidden.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reach {
+    /// The frame within the lists' pixels: left column, top row, width, height.
+    pub frame: (usize, usize, usize, usize),
+    /// The lens (for each depth's CoC).
+    pub lens: crate::lens::ThinLens,
+    /// How far a fragment reaches, in CoC radii.
+    pub factor: f32,
+    /// And in pixels besides.
+    pub slack_px: f32,
+}
+
+impl Reach {
+    /// The depth from which the fragments of pixel (`x`, `y`) cannot reach the frame (`+inf`
+    /// inside it, and wherever the far field's blur reaches it).
+    pub fn depth_limit(&self, x: usize, y: usize) -> f32 {
+        let (x0, y0, w, h) = self.frame;
+        let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
+        let dx = (x0 as f32 - px).max(px - (x0 + w) as f32).max(0.0);
+        let dy = (y0 as f32 - py).max(py - (y0 + h) as f32).max(0.0);
+        let d = (dx * dx + dy * dy).sqrt();
+        let r = (d - self.slack_px) / self.factor;
+        if r <= 0.0 || self.lens.coc_at_infinity_px().abs() >= r {
+            return f32::INFINITY;
+        }
+        // In front of the focus |C| = r at this depth, and is smaller behind it up to
+        // infinity.
+        self.lens.depth_for_coc_px(-r)
+    }
 }
 
 impl FragmentLists {
@@ -160,7 +199,15 @@ impl FragmentLists {
             depth: Vec::new(),
             color: Vec::new(),
             tiles: Vec::new(),
+            reach: None,
         }
+    }
+
+    /// Drops, as it rasterizes, the fragments outside the frame that cannot reach it once
+    /// blurred (see [`Reach`]).
+    pub fn with_reach(mut self, reach: Reach) -> Self {
+        self.reach = Some(reach);
+        self
     }
 
     /// Builds lists directly from per-pixel fragments `(depth_m, premultiplied colour)` in any
@@ -294,6 +341,9 @@ pub struct FragmentTile {
     /// Farthest depth held by each full pixel, raised by [`SAME_SURFACE`] so that a fragment
     /// that may still merge with it is not rejected early (+inf while it has fewer than N).
     farthest: Vec<f32>,
+    /// Depth from which each pixel's fragments are dropped: `+inf`, or in a guard band where
+    /// they cannot reach the frame ([`Reach`]).
+    limit: Vec<f32>,
     /// N slots per pixel.
     slots: Vec<HeldFragment>,
     /// After `finish`: depths, pixel after pixel, nearest first.
@@ -330,7 +380,7 @@ impl TileSink for FragmentTile {
         };
         if slots[..n].iter_mut().any(|s| s.merge(&held)) {
             if n == self.cap {
-                self.farthest[i] = far_of(slots);
+                self.farthest[i] = far_of(slots).min(self.limit[i]);
             }
             return;
         }
@@ -338,7 +388,7 @@ impl TileSink for FragmentTile {
             slots[n] = held;
             self.counts[i] += 1;
             if n + 1 == self.cap {
-                self.farthest[i] = far_of(slots);
+                self.farthest[i] = far_of(slots).min(self.limit[i]);
             }
         } else {
             // Replace the farthest (the last of equals, so the earlier fragment wins ties),
@@ -353,7 +403,7 @@ impl TileSink for FragmentTile {
                 return;
             }
             slots[far] = held;
-            self.farthest[i] = far_of(slots);
+            self.farthest[i] = far_of(slots).min(self.limit[i]);
         }
     }
 
@@ -371,6 +421,7 @@ impl TileSink for FragmentTile {
         }
         self.slots = Vec::new();
         self.farthest = Vec::new();
+        self.limit = Vec::new();
     }
 }
 
@@ -379,11 +430,18 @@ impl Sink for FragmentLists {
 
     fn begin_tile(&self, rect: TileRect) -> FragmentTile {
         let n = rect.width() * rect.height();
+        let limit: Vec<f32> = match &self.reach {
+            Some(reach) => (0..n)
+                .map(|k| reach.depth_limit(rect.x0 + k % rect.width(), rect.y0 + k / rect.width()))
+                .collect(),
+            None => vec![f32::INFINITY; n],
+        };
         FragmentTile {
             rect,
             cap: self.cap,
             counts: vec![0; n],
-            farthest: vec![f32::INFINITY; n],
+            farthest: limit.clone(),
+            limit,
             slots: vec![HeldFragment::EMPTY; n * self.cap],
             out_depth: Vec::new(),
             out_color: Vec::new(),
@@ -392,5 +450,68 @@ impl Sink for FragmentLists {
 
     fn end_tile(&mut self, rect: TileRect, tile: FragmentTile) {
         self.tiles.push((rect, tile));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lens::ThinLens;
+
+    /// `C(z) = 10 (1/2 - 1/z)` pixels: in focus at 2 m, 5 px at infinity.
+    fn reach() -> Reach {
+        Reach {
+            frame: (40, 40, 100, 60),
+            lens: ThinLens {
+                width_px: 180,
+                height_px: 140,
+                f_px: 1000.0,
+                lens_radius_m: 0.01,
+                focus_m: 2.0,
+                near_m: 0.01,
+                far_m: 1e4,
+            },
+            factor: 2.0,
+            slack_px: 1.0,
+        }
+    }
+
+    #[test]
+    fn reach_limit_is_where_the_blur_stops_reaching_the_frame() {
+        let r = reach();
+        // Inside the frame, and near it where even infinity's 5 px reach: everything is kept.
+        assert_eq!(r.depth_limit(90, 70), f32::INFINITY);
+        assert_eq!(r.depth_limit(35, 70), f32::INFINITY); // 4.5 px out: 2 x 5 + 1 reach it
+                                                          // 31.5 px left of the frame: only CoCs of (31.5 - 1) / 2 = 15.25 px or more reach it,
+                                                          // which lie in front of 1 / (1/2 + 1.525) m.
+        let z = r.depth_limit(8, 70);
+        assert!((z - 1.0 / 2.025).abs() < 1e-5, "{z}");
+        assert!((r.lens.coc_px(z) + 15.25).abs() < 1e-3);
+        assert!(2.0 * r.lens.coc_px(z * 0.99).abs() + 1.0 > 31.5);
+        // The same distance diagonally off a corner gives the same depth.
+        let d = 31.5 / 2f32.sqrt();
+        let (x, y) = ((40.0 - d - 0.5) as usize, (40.0 - d - 0.5) as usize);
+        let z_corner = r.depth_limit(x, y);
+        assert!(
+            z_corner.is_finite() && z_corner > z * 0.9,
+            "{z_corner} vs {z}"
+        );
+    }
+
+    /// A fragment at or behind the limit is dropped as if hidden, nearer ones are kept.
+    #[test]
+    fn a_tile_drops_what_cannot_reach_the_frame() {
+        let r = reach();
+        let lists = FragmentLists::new(180, 140, 4).with_reach(r);
+        let tile = lists.begin_tile(TileRect {
+            x0: 0,
+            y0: 64,
+            x1: 16,
+            y1: 72,
+        });
+        let z = r.depth_limit(8, 70);
+        assert!(tile.occluded(8, 70, z));
+        assert!(tile.occluded(8, 70, 50.0));
+        assert!(!tile.occluded(8, 70, z * 0.99));
     }
 }

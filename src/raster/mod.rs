@@ -37,7 +37,7 @@ use glam::{Vec2, Vec3, Vec4};
 use rayon::prelude::*;
 
 pub use fragments::{
-    from_half, nearest_depths, to_half, FragmentLists, FragmentTile, HalfRgba, HeldFragment,
+    from_half, nearest_depths, to_half, FragmentLists, FragmentTile, HalfRgba, HeldFragment, Reach,
     MAX_FRAGMENTS_PER_PIXEL, SAME_SURFACE,
 };
 pub use gbuffer::{GBuffer, GBufferTile};
@@ -619,12 +619,14 @@ impl BinnedView {
 }
 
 /// Collects the fragment lists of one view of `prepared`, at most `cap` per pixel, sampled at
-/// pixel centres, or with coverage masks when `coverage` (see [`BinnedView::with_coverage`]).
+/// pixel centres, or with coverage masks when `coverage` (see [`BinnedView::with_coverage`]);
+/// with `reach`, without the guard band's fragments that cannot reach the frame.
 pub fn render_fragment_lists(
     prepared: &PreparedScene,
     view: &View,
     cap: usize,
     coverage: bool,
+    reach: Option<Reach>,
 ) -> FragmentLists {
     let binned = if coverage {
         BinnedView::with_coverage(prepared, view)
@@ -632,6 +634,9 @@ pub fn render_fragment_lists(
         BinnedView::new(prepared, view)
     };
     let mut lists = FragmentLists::new(view.lens.width_px, view.lens.height_px, cap);
+    if let Some(reach) = reach {
+        lists = lists.with_reach(reach);
+    }
     binned.rasterize(prepared, &mut lists);
     lists.compact();
     lists

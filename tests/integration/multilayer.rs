@@ -22,6 +22,7 @@ fn lists_of(scene: &Scene, camera: &Camera, cap: usize) -> defocus::raster::Frag
         &View::pinhole(camera.thin_lens().unwrap()),
         cap,
         false,
+        None,
     )
 }
 

@@ -354,6 +354,7 @@ pub fn render_scene(
             &View::pinhole(lens),
             settings.layers,
             settings.input.coverage,
+            None,
         )
     });
     let max = settings.max_coc_px;
