@@ -169,6 +169,12 @@ pub struct Reach {
 }
 
 impl Reach {
+    /// Whether the tile `rect` lies within the frame (where nothing is dropped).
+    pub fn holds(&self, rect: &TileRect) -> bool {
+        let (x0, y0, w, h) = self.frame;
+        rect.x0 >= x0 && rect.y0 >= y0 && rect.x1 <= x0 + w && rect.y1 <= y0 + h
+    }
+
     /// The depth from which the fragments of pixel (`x`, `y`) cannot reach the frame (`+inf`
     /// inside it, and wherever the far field's blur reaches it).
     pub fn depth_limit(&self, x: usize, y: usize) -> f32 {
@@ -431,10 +437,10 @@ impl Sink for FragmentLists {
     fn begin_tile(&self, rect: TileRect) -> FragmentTile {
         let n = rect.width() * rect.height();
         let limit: Vec<f32> = match &self.reach {
-            Some(reach) => (0..n)
+            Some(reach) if !reach.holds(&rect) => (0..n)
                 .map(|k| reach.depth_limit(rect.x0 + k % rect.width(), rect.y0 + k / rect.width()))
                 .collect(),
-            None => vec![f32::INFINITY; n],
+            _ => vec![f32::INFINITY; n],
         };
         FragmentTile {
             rect,
