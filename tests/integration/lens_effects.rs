@@ -719,3 +719,233 @@ fn poisson_clips_its_taps_into_the_cats_eye_lemon() {
     });
     assert_extents_close("poisson cat's eye", lit_extent(&out.image), want);
 }
+
+/// Where the near bulb of `lights` (4 mm at 0.72 m, right of the card, in front of the focus)
+/// blurs to at `width` x `height`: its pixel and its signed CoC radius, from the scene's camera
+/// and the thin lens alone.
+fn lights_near_bulb(camera: &Camera) -> (Vec2, f32) {
+    let lens = camera.thin_lens().unwrap();
+    let world = glam::Vec3::new(0.21, 1.49, -0.72);
+    let (x, y, z) = lens
+        .project(camera.camera_from_world.transform_point3(world))
+        .unwrap();
+    (Vec2::new(x, y), lens.coc_px(z))
+}
+
+/// The extent (as [`lit_extent_of`]) of the bokeh around `q` in channel `c` of a `w`-wide
+/// image: the pixels above half its level (the median of the bright pixels within 2 px of
+/// `q`) connected to `q`, so that other lights' bokeh elsewhere in the frame do not count.
+fn bokeh_extent(img: &ColorImage, c: usize, q: Vec2) -> (f32, f32, f32, f32) {
+    let (w, h) = (img.width(), img.height());
+    let (qx, qy) = (q.x as usize, q.y as usize);
+    let mut core: Vec<f32> = Vec::new();
+    for y in qy - 2..=qy + 2 {
+        for x in qx - 2..=qx + 2 {
+            core.push(img.get(x, y)[c]);
+        }
+    }
+    core.sort_by(f32::total_cmp);
+    let threshold = 0.5 * core[core.len() / 2];
+    let mut seen = vec![false; w * h];
+    let mut stack = vec![(qx, qy)];
+    let (mut x0, mut x1, mut y0, mut y1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+    while let Some((x, y)) = stack.pop() {
+        if seen[y * w + x] || img.get(x, y)[c] <= threshold {
+            continue;
+        }
+        seen[y * w + x] = true;
+        let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
+        x0 = x0.min(px);
+        x1 = x1.max(px);
+        y0 = y0.min(py);
+        y1 = y1.max(py);
+        if x > 0 && x + 1 < w && y > 0 && y + 1 < h {
+            stack.extend([(x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)]);
+        }
+    }
+    (x0, x1, y0, y1)
+}
+
+/// The extent of a small round light's bokeh at half its level, worked out from the lens alone:
+/// the light's pinhole image is a disc of radius `rho` around `q`, each of its points is spread
+/// over `q' + C u` for the lens points `u` that `inside(u, p)` lets reach pixel `p`, and the
+/// bokeh's level at `p` is the share of the disc that reaches it (sampled on a 0.25 px grid of
+/// `p` and 400 points of the disc).
+fn analytic_bulb_extent(
+    q: Vec2,
+    coc: f32,
+    rho: f32,
+    inside: impl Fn(Vec2, Vec2) -> bool,
+) -> (f32, f32, f32, f32) {
+    let disc: Vec<Vec2> = (0..21 * 21)
+        .map(|k| Vec2::new((k % 21) as f32 - 10.0, (k / 21) as f32 - 10.0) / 10.0)
+        .filter(|b| b.length() <= 1.0)
+        .map(|b| q + rho * b)
+        .collect();
+    let reach = 2.0 * coc.abs() + rho + 2.0;
+    let n = (2.0 * reach / 0.25) as usize;
+    let (mut x0, mut x1, mut y0, mut y1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+    for j in 0..=n {
+        for i in 0..=n {
+            let p = q - Vec2::splat(reach) + 0.25 * Vec2::new(i as f32, j as f32);
+            let hit = disc.iter().filter(|&&b| inside((p - b) / coc, p)).count();
+            if 2 * hit > disc.len() {
+                x0 = x0.min(p.x);
+                x1 = x1.max(p.x);
+                y0 = y0.min(p.y);
+                y1 = y1.max(p.y);
+            }
+        }
+    }
+    (x0, x1, y0, y1)
+}
+
+/// The check on the `lights` scene itself, at 640x360 with its 6-blade aperture, on its
+/// near bulb (CoC about -8.9 px, 259 px right of and 111 px above the centre): `reference` with
+/// each effect gives the bokeh the lens says. Anamorphic 0.5: the hexagon squeezed to 0.71
+/// across and 1.41 up. Cat's eye (a barrel 30 mm in front of the aperture, seen 0.68 aperture
+/// radii off-centre from there): the hexagon cut by the barrel's disc, narrower along the
+/// radius. Chromatic 0.2 dioptres: each channel's hexagon at its own CoC, blue the widest in
+/// front of the focus. Edges within 2 px of the analytic bokeh's: each shape spread over the
+/// bulb's own image, a disc 5 px across ([`analytic_bulb_extent`]).
+#[test]
+fn lights_at_640x360_near_bulb_takes_each_effects_shape() {
+    let scene = defocus::scene::builtin::load("lights").unwrap();
+    let defaults = scene.defaults.clone().unwrap();
+    let mut camera = defaults.camera;
+    camera.width_px = 640;
+    camera.height_px = 360;
+    let lens = camera.thin_lens().unwrap();
+    let aperture = defaults.aperture;
+    let (q, coc) = lights_near_bulb(&camera);
+    assert!(coc < -8.0 && coc > -10.0, "{coc}");
+    // The bulb's radius, 2 mm at 0.72 m, in pixels.
+    let rho = lens.f_px * 0.002 / 0.72;
+    let run = |effects: LensEffects| {
+        reference::render(
+            &scene,
+            &camera,
+            &ReferenceSettings {
+                samples: 256,
+                aperture: aperture.clone(),
+                effects,
+                ..ReferenceSettings::default()
+            },
+            &mut |_, _| {},
+        )
+        .unwrap()
+        .image
+    };
+    let hexagon = |u: Vec2| aperture.density(u) > 0.0;
+    // The ideal lens first: the hexagon of the bulb's CoC.
+    let ideal = run(LensEffects::default());
+    assert_extents_close(
+        "lights, ideal",
+        bokeh_extent(&ideal, 0, q),
+        analytic_bulb_extent(q, coc, rho, |u, _| hexagon(u)),
+    );
+    // Anamorphic: lens point u comes from the aperture's point (u.x / s, u.y s).
+    let s = 0.5f32.sqrt();
+    let img = run(LensEffects {
+        aspect: 0.5,
+        ..LensEffects::default()
+    });
+    assert_extents_close(
+        "lights, anamorphic 0.5",
+        bokeh_extent(&img, 0, q),
+        analytic_bulb_extent(q, coc, rho, |u, _| hexagon(Vec2::new(u.x / s, u.y * s))),
+    );
+    // Cat's eye: pixel q + C u takes u when the barrel seen from that pixel passes it.
+    let effects = LensEffects {
+        barrel_distance_m: 0.03,
+        ..LensEffects::default()
+    };
+    let (shift, _) = effects.barrel(&lens, q);
+    assert!(shift.length() > 0.6, "{shift}");
+    let img = run(effects);
+    let lemon = bokeh_extent(&img, 0, q);
+    assert_extents_close(
+        "lights, cat's eye 30 mm",
+        lemon,
+        analytic_bulb_extent(q, coc, rho, |u, p| {
+            hexagon(u) && effects.passes(effects.barrel(&lens, p), u)
+        }),
+    );
+    let round = bokeh_extent(&ideal, 0, q);
+    assert!(
+        lemon.1 - lemon.0 < 0.8 * (round.1 - round.0),
+        "{lemon:?} vs {round:?}"
+    );
+    // Chromatic: channel c's CoC through its own focus, 1/z_f + (0.2, 0, -0.2) dioptres.
+    let img = run(LensEffects {
+        chroma_dpt: 0.2,
+        ..LensEffects::default()
+    });
+    let z = lens.depth_for_coc_px(coc);
+    let mut widths = [0.0f32; 3];
+    for (c, width) in widths.iter_mut().enumerate() {
+        let inv_focus = 1.0 / lens.focus_m + [0.2, 0.0, -0.2][c];
+        let coc_c = lens.f_px * lens.lens_radius_m * (inv_focus - 1.0 / z);
+        let got = bokeh_extent(&img, c, q);
+        assert_extents_close(
+            &format!("lights, chromatic 0.2, channel {c}"),
+            got,
+            analytic_bulb_extent(q, coc_c, rho, |u, _| hexagon(u)),
+        );
+        *width = got.1 - got.0;
+    }
+    assert!(widths[2] > widths[1] && widths[1] > widths[0], "{widths:?}");
+}
+
+/// Each method that renders the cat's eye or chromatic aberration agrees with `reference`
+/// (1024 samples) on `lights` at 320x180 with the effect, within 1.5 dB of what it measured
+/// (printed), as it does with the ideal lens.
+#[test]
+fn methods_with_the_cats_eye_or_chromatic_aberration_agree_with_reference_on_lights() {
+    let dir = crate::cli::temp_dir("lights-effects");
+    let run = |method: &str, samples: &str, name: &str, extra: &[&str]| {
+        let out = dir.join(name);
+        let mut args = vec![
+            "render",
+            "--scene",
+            "lights",
+            "--width",
+            "320",
+            "--height",
+            "180",
+            "--method",
+            method,
+            "--samples",
+            samples,
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = defocus(&args);
+        assert!(o.status.success(), "{method} {extra:?}: {}", stderr(&o));
+        defocus::image::io::read_color(&out).unwrap()
+    };
+    // (effect, method, samples, dB measured here at 320x180)
+    let cases: [(&[&str], &str, &str, f64); 6] = [
+        (&["--cats-eye", "60"], "poisson", "16", 24.88),
+        (&["--cats-eye", "60"], "multiview", "64", 27.13),
+        (&["--chromatic", "0.08"], "poisson", "16", 26.23),
+        (&["--chromatic", "0.08"], "multiview", "64", 26.63),
+        (&["--chromatic", "0.08"], "splat", "16", 29.81),
+        (&["--chromatic", "0.08"], "lowrank", "16", 29.37),
+    ];
+    let mut truth: Option<(&[&str], ColorImage)> = None;
+    for (i, (effect, method, samples, measured)) in cases.into_iter().enumerate() {
+        if truth.as_ref().is_none_or(|(e, _)| *e != effect) {
+            truth = Some((
+                effect,
+                run("reference", "1024", &format!("t{i}.exr"), effect),
+            ));
+        }
+        let ours = run(method, samples, &format!("m{i}.exr"), effect);
+        let reference = &truth.as_ref().unwrap().1;
+        let psnr = defocus::metrics::compare(&ours, reference).unwrap().psnr_db;
+        eprintln!("{method} {effect:?} against reference: {psnr:.2} dB");
+        assert!(psnr > measured - 1.5, "{method} {effect:?}: {psnr} dB");
+    }
+}
