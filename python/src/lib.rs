@@ -179,47 +179,48 @@ fn to_numpy(py: Python<'_>, like: &ColorBatch, mut images: Vec<ColorImage>) -> P
             .map(|a| a.into_pyarray(py).into_any().unbind())
             .map_err(|e| PyValueError::new_err(e.to_string()));
     }
-    Ok(match like.samples {
-        Samples::F32(_) => {
-            let array = PyArrayDyn::<f32>::zeros(py, IxDyn(&shape), false);
-            {
-                let mut view = array.readwrite();
-                let out = view
-                    .as_slice_mut()
-                    .map_err(|e| PyValueError::new_err(e.to_string()))?;
-                py.detach(|| {
-                    out.par_chunks_mut(len).zip(&images).for_each(|(dst, img)| {
-                        dst.par_chunks_mut(like.w * c)
-                            .zip(img.pixels().par_chunks(like.w))
-                            .for_each(|(row, src)| {
-                                for (d, p) in row.chunks_exact_mut(c).zip(src) {
-                                    d.copy_from_slice(&p[..c]);
-                                }
-                            })
-                    })
-                });
+    let w = like.w;
+    match like.samples {
+        Samples::F32(_) => filled::<f32>(py, &shape, len, &images, |dst, img| {
+            dst.par_chunks_mut(w * c)
+                .zip(img.pixels().par_chunks(w))
+                .for_each(|(row, src)| {
+                    for (d, p) in row.chunks_exact_mut(c).zip(src) {
+                        d.copy_from_slice(&p[..c]);
+                    }
+                })
+        }),
+        Samples::U8(_) => filled::<u8>(py, &shape, len, &images, |dst, img| {
+            let rgba = io::png8_samples(img);
+            for (d, p) in dst.chunks_exact_mut(c).zip(rgba.chunks_exact(4)) {
+                d.copy_from_slice(&p[..c]);
             }
-            array.into_any().unbind()
-        }
-        Samples::U8(_) => {
-            let array = PyArrayDyn::<u8>::zeros(py, IxDyn(&shape), false);
-            {
-                let mut view = array.readwrite();
-                let out = view
-                    .as_slice_mut()
-                    .map_err(|e| PyValueError::new_err(e.to_string()))?;
-                py.detach(|| {
-                    out.par_chunks_mut(len).zip(&images).for_each(|(dst, img)| {
-                        let rgba = io::png8_samples(img);
-                        for (d, p) in dst.chunks_exact_mut(c).zip(rgba.chunks_exact(4)) {
-                            d.copy_from_slice(&p[..c]);
-                        }
-                    })
-                });
-            }
-            array.into_any().unbind()
-        }
-    })
+        }),
+    }
+}
+
+/// A new array of `shape`, each image's `len` samples filled by `fill` in parallel, the GIL
+/// released.
+fn filled<T: numpy::Element + Send>(
+    py: Python<'_>,
+    shape: &[usize],
+    len: usize,
+    images: &[ColorImage],
+    fill: impl Fn(&mut [T], &ColorImage) + Sync,
+) -> PyResult<Py<PyAny>> {
+    let array = PyArrayDyn::<T>::zeros(py, IxDyn(shape), false);
+    {
+        let mut view = array.readwrite();
+        let out = view
+            .as_slice_mut()
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        py.detach(|| {
+            out.par_chunks_mut(len)
+                .zip(images)
+                .for_each(|(dst, img)| fill(dst, img))
+        });
+    }
+    Ok(array.into_any().unbind())
 }
 
 /// Depth `HxW`, or `NxHxW` for a batch, as float32 values.

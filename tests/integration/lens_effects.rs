@@ -543,32 +543,44 @@ fn splat_and_lowrank_stretch_their_kernels_into_the_anamorphic_shape() {
     }
 }
 
+/// `render --scene lights` at 320x180 with `method`, `samples` and the `extra` flags, written to
+/// `dir/name` and read back.
+fn lights_320(
+    dir: &std::path::Path,
+    method: &str,
+    samples: &str,
+    name: &str,
+    extra: &[&str],
+) -> ColorImage {
+    let out = dir.join(name);
+    let mut args = vec![
+        "render",
+        "--scene",
+        "lights",
+        "--width",
+        "320",
+        "--height",
+        "180",
+        "--method",
+        method,
+        "--samples",
+        samples,
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = defocus(&args);
+    assert!(o.status.success(), "{method} {extra:?}: {}", stderr(&o));
+    defocus::image::io::read_color(&out).unwrap()
+}
+
 #[test]
 fn methods_with_the_anamorphic_aperture_agree_with_reference_on_lights() {
     // Measured at 320x180 against reference (1024 samples): poisson 25.95 dB with
     // --anamorphic 0.5 (26.5 dB with the ideal lens); the bound leaves 1.5 dB.
     let dir = crate::cli::temp_dir("poisson-anamorphic");
     let run = |method: &str, samples: &str, name: &str, extra: &[&str]| {
-        let out = dir.join(name);
-        let mut args = vec![
-            "render",
-            "--scene",
-            "lights",
-            "--width",
-            "320",
-            "--height",
-            "180",
-            "--method",
-            method,
-            "--samples",
-            samples,
-            "--out",
-            out.to_str().unwrap(),
-        ];
-        args.extend_from_slice(extra);
-        let o = defocus(&args);
-        assert!(o.status.success(), "{}", stderr(&o));
-        defocus::image::io::read_color(&out).unwrap()
+        lights_320(&dir, method, samples, name, extra)
     };
     let squeeze = ["--anamorphic", "0.5"];
     let truth = run("reference", "1024", "t.exr", &squeeze);
@@ -949,26 +961,7 @@ fn lights_at_640x360_chromatic_near_bulb_fringes_blue() {
 fn methods_with_the_cats_eye_or_chromatic_aberration_agree_with_reference_on_lights() {
     let dir = crate::cli::temp_dir("lights-effects");
     let run = |method: &str, samples: &str, name: &str, extra: &[&str]| {
-        let out = dir.join(name);
-        let mut args = vec![
-            "render",
-            "--scene",
-            "lights",
-            "--width",
-            "320",
-            "--height",
-            "180",
-            "--method",
-            method,
-            "--samples",
-            samples,
-            "--out",
-            out.to_str().unwrap(),
-        ];
-        args.extend_from_slice(extra);
-        let o = defocus(&args);
-        assert!(o.status.success(), "{method} {extra:?}: {}", stderr(&o));
-        defocus::image::io::read_color(&out).unwrap()
+        lights_320(&dir, method, samples, name, extra)
     };
     // (effect, method, samples, dB measured here at 320x180)
     let cases: [(&[&str], &str, &str, f64); 6] = [

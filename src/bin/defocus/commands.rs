@@ -13,7 +13,7 @@ use defocus::jobs::report::{self, CompareArgs};
 
 use crate::args::{Cli, Command};
 use crate::common::{
-    check_output, print_note, progress_bar, report_timings, IMAGE_EXTENSIONS, MAX_THREADS,
+    check_output, print_note, progress_bar, report_done, IMAGE_EXTENSIONS, MAX_THREADS,
 };
 
 /// Runs the parsed command line.
@@ -47,14 +47,7 @@ pub fn run(cli: Cli) -> Result<()> {
             let job = BlurJob::new(args.as_ref(), &mut print_note)?;
             let format = job.timing_format();
             let done = job.execute()?;
-            report_timings(
-                format,
-                done.method,
-                done.width,
-                done.height,
-                &done.timings,
-                done.memory_bytes,
-            )
+            report_done(format, &done)
         }
         Command::Compare(args) => {
             if args.is_report() {
@@ -76,14 +69,7 @@ fn render(args: defocus::jobs::render::RenderArgs, quiet: bool) -> Result<()> {
         bar.suspend(|| print_note(line))
     })?;
     bar.finish_and_clear();
-    report_timings(
-        format,
-        done.method,
-        done.width,
-        done.height,
-        &done.timings,
-        done.memory_bytes,
-    )
+    report_done(format, &done)
 }
 
 /// `compare --scene`/`--color`: the report, a progress bar of its runs. The report is written

@@ -8,6 +8,18 @@ use indicatif::{ProgressBar, ProgressStyle};
 pub use defocus::jobs::flags::*;
 pub use defocus::options::parse_aperture;
 
+/// `--timings` of one finished frame, if asked.
+pub fn report_done(format: Option<TimingFormat>, done: &FrameDone) -> anyhow::Result<()> {
+    report_timings(
+        format,
+        done.method,
+        done.width,
+        done.height,
+        &done.timings,
+        done.memory_bytes,
+    )
+}
+
 /// Prints a line a job notes (a warning or a remark about its input) on standard error.
 pub fn print_note(line: String) {
     eprintln!("{line}");
