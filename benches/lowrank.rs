@@ -13,7 +13,7 @@
 )]
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use defocus::image::ColorImage;
+use defocus::image::{ColorImage, GrayImage};
 use defocus::lens::Aperture;
 use defocus::methods::lowrank::filter::{
     filter_full_2d_channels, filter_separable_channels, filter_separable_with, Channels, Schedule,
@@ -88,6 +88,39 @@ fn filters(c: &mut Criterion) {
             group.bench_function(format!("rgba/full2d/k17/{w}x{h}"), |b| {
                 b.iter(|| filter_full_2d_channels(&img, &kernel, Channels::Rgba))
             });
+        }
+        // The depth-of-field path on a uniform CoC of 65 px diameter (radius 32.5) with the
+        // 6-blade aperture: every pass of `blur --method lowrank` (kernel, edges, separable,
+        // fallback), the work of the fixed filter above plus what a spatially varying filter
+        // adds; `lowrank/dof_uniform/separable/...` is the filter alone.
+        if w == 1280 {
+            let coc = GrayImage::new(w, h, 32.5);
+            let settings = LowRankSettings {
+                aperture: Aperture::parse("poly:6").expect("aperture"),
+                ..LowRankSettings::default()
+            };
+            group.bench_function(format!("dof_uniform/hex65/{w}x{h}"), |b| {
+                b.iter(|| lowrank::render_coc(&img, &coc, &settings).expect("lowrank"))
+            });
+            let spec = KernelSpec::new(settings.aperture.clone(), 67);
+            let lr = decompose(&kernel_image(&spec).expect("kernel")).expect("svd");
+            let bank = lowrank::dof::KernelBank::new(&lr, 3, 32.5).expect("bank");
+            let edges = lowrank::dof::edges(&coc, settings.edge_threshold_px);
+            for (name, schedule) in [("", Schedule::Banded), ("fig2/", Schedule::Fig2)] {
+                group.bench_function(format!("dof_uniform/{name}separable/{w}x{h}"), |b| {
+                    b.iter(|| {
+                        lowrank::dof::filter_with_schedule(
+                            &img,
+                            Some(&edges),
+                            &coc,
+                            &bank,
+                            Channels::Auto,
+                            schedule,
+                            &mut Default::default(),
+                        )
+                    })
+                });
+            }
         }
         // The kernel pass alone: rasterize and decompose a 65 px kernel.
         if w == 1280 {

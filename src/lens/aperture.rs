@@ -195,10 +195,21 @@ impl Aperture {
     /// Density of the aperture at `v` (image axes): 1 inside, 0 outside for shapes; the image
     /// value for [`Aperture::Image`].
     pub fn density(&self, v: Vec2) -> f32 {
+        self.density_among(&self.vertices(), v)
+    }
+
+    /// [`Aperture::density`] for many points: the polygon's vertices (a sine and a cosine per
+    /// blade) are worked out once, not per point. The same values bit for bit.
+    pub fn density_fn(&self) -> impl Fn(Vec2) -> f32 + Send + Sync + '_ {
+        let verts = self.vertices();
+        move |v| self.density_among(&verts, v)
+    }
+
+    /// [`Aperture::density`] given [`Aperture::vertices`].
+    fn density_among(&self, verts: &[Vec2], v: Vec2) -> f32 {
         match self {
             Aperture::Disc => f32::from(v.length_squared() <= 1.0),
             Aperture::Polygon { blade_radius, .. } => {
-                let verts = self.vertices();
                 let n = verts.len();
                 for k in 0..n {
                     let a = verts[k];

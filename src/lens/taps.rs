@@ -45,7 +45,8 @@ impl Taps {
         }
         let mut rng = SplitMix64::new(seed ^ crate::lens::SAMPLER_SEED_SALT);
         let mut points: Vec<Vec2> = Vec::with_capacity(count);
-        if aperture.density(Vec2::ZERO) > 0.0 {
+        let density = aperture.density_fn();
+        if density(Vec2::ZERO) > 0.0 {
             points.push(Vec2::ZERO);
         }
         // Shapes covering less than 1/64 of the square are refused rather than looped on.
@@ -56,7 +57,7 @@ impl Taps {
                 let mut candidate = None;
                 for _ in 0..max_draws {
                     let v = Vec2::new(rng.next_f32() * 2.0 - 1.0, rng.next_f32() * 2.0 - 1.0);
-                    if aperture.density(v) > 0.0 {
+                    if density(v) > 0.0 {
                         candidate = Some(v);
                         break;
                     }
@@ -81,7 +82,7 @@ impl Taps {
         }
         let weights = points
             .iter()
-            .map(|&v| aperture.density(v) * aberration_profile(aberration, v.length_squared()))
+            .map(|&v| density(v) * aberration_profile(aberration, v.length_squared()))
             .collect();
         Ok(Self { points, weights })
     }

@@ -121,10 +121,19 @@ pub fn level_count(max_radius_px: f32) -> usize {
     (max_radius_px.max(0.0) * LEVELS_PER_PX).ceil() as usize + 1
 }
 
-/// Level of a CoC radius `|coc_px|` (0 to `levels - 1`).
+/// Level of a CoC radius `|coc_px|` (0 to `levels - 1`): `|coc_px| LEVELS_PER_PX` rounded half
+/// away from zero, as `f32::round` does, without its library call (the fraction `v - trunc v`
+/// is exact in f32, so the comparison with 1/2 is too; NaN gives level 0).
 #[inline]
 pub fn level_of(coc_px: f32, levels: usize) -> usize {
-    ((coc_px.abs() * LEVELS_PER_PX).round() as usize).min(levels - 1)
+    let v = coc_px.abs() * LEVELS_PER_PX;
+    let t = v as usize;
+    let rounded = if v - t as f32 >= 0.5 {
+        t.saturating_add(1)
+    } else {
+        t
+    };
+    rounded.min(levels - 1)
 }
 
 /// Radius in pixels of level `level`.

@@ -754,6 +754,91 @@ fn dof_passes_match_their_naive_twin_on_odd_and_one_pixel_images() {
     }
 }
 
+/// A CoC map with blocks of one CoC (both signs) beside the varying map of [`test_coc`], so
+/// that groups of rows share a kernel over long runs of columns and others mix kernels.
+fn blocky_coc(w: usize, h: usize, seed: u64) -> GrayImage {
+    let mut c = test_coc(w, h, seed);
+    for y in 0..h {
+        for x in 0..w {
+            if x < w / 3 {
+                *c.get_mut(x, y) = 5.0;
+            } else if y < h / 2 && x < 2 * w / 3 {
+                *c.get_mut(x, y) = -7.25;
+            }
+        }
+    }
+    c
+}
+
+/// The banded schedule of the spatially varying filter (the default) sums each pixel's
+/// products in fig. 2's order, so both give the same image bit for bit (a zero's sign aside),
+/// whatever the thread count (the slabs, and where each starts its window, follow it), in
+/// colour only and RGBA, with and without the edge channel.
+#[test]
+fn dof_banded_schedule_is_fig2_bit_for_bit() {
+    let bits = |img: &ColorImage| -> Vec<u32> {
+        img.pixels()
+            .iter()
+            .flat_map(|p| p.map(|v| if v == 0.0 { 0 } else { v.to_bits() }))
+            .collect()
+    };
+    let gray_bits = |img: &GrayImage| -> Vec<u32> {
+        let zero = |v: &f32| if *v == 0.0 { 0 } else { v.to_bits() };
+        img.pixels().iter().map(zero).collect()
+    };
+    for (w, h) in [(1, 1), (9, 1), (1, 9), (150, 40), (97, 70), (64, 130)] {
+        let mut img = random_image(w, h, (w * 13 + h) as u64);
+        let coc = blocky_coc(w, h, 11);
+        let max_r = coc.pixels().iter().fold(0.0f32, |m, c| m.max(c.abs()));
+        let edges = dof::edges(&coc, 1.0);
+        for (aperture, rank) in [("poly:6", 3), ("disc", 2)] {
+            let spec = KernelSpec::new(Aperture::parse(aperture).unwrap(), 25);
+            let lr = decompose(&kernel_image(&spec).unwrap()).unwrap();
+            let bank = dof::KernelBank::new(&lr, rank, max_r).unwrap();
+            for opaque in [false, true] {
+                if opaque {
+                    for p in img.pixels_mut() {
+                        p[3] = 1.0;
+                    }
+                }
+                let mut timings = defocus::timing::Timings::default();
+                for edge_image in [Some(&edges), None] {
+                    let run = |schedule| {
+                        dof::filter_with_schedule(
+                            &img,
+                            edge_image,
+                            &coc,
+                            &bank,
+                            filter::Channels::Auto,
+                            schedule,
+                            &mut defocus::timing::Timings::default(),
+                        )
+                    };
+                    let (fig2, fig2_edges) = run(filter::Schedule::Fig2);
+                    for threads in [1, 2, 3] {
+                        let pool = rayon::ThreadPoolBuilder::new()
+                            .num_threads(threads)
+                            .build()
+                            .unwrap();
+                        let (banded, banded_edges) = pool.install(|| run(filter::Schedule::Banded));
+                        let at =
+                            format!("{w}x{h} {aperture} r{rank} opaque {opaque} {threads} threads");
+                        let first_diff =
+                            |a: Vec<u32>, b: Vec<u32>| a.iter().zip(&b).position(|(p, q)| p != q);
+                        assert_eq!(first_diff(bits(&banded), bits(&fig2)), None, "{at}");
+                        assert_eq!(banded_edges.is_some(), fig2_edges.is_some());
+                        if let (Some(b), Some(f)) = (&banded_edges, &fig2_edges) {
+                            assert_eq!(first_diff(gray_bits(b), gray_bits(f)), None, "{at} edges");
+                        }
+                    }
+                }
+                let (_, _) = dof::filter(&img, Some(&edges), &coc, &bank, &mut timings);
+                assert!(timings.passes.iter().any(|p| p.name == "lowrank/separable"));
+            }
+        }
+    }
+}
+
 /// The spatially varying filter on an opaque image carries only the colour channels: their
 /// values are bit-identical to the RGBA path's, and alpha is 1 (every pixel's kernel sums to
 /// 1; the RGBA path gets 1 up to rounding). The edge channel is unchanged.
@@ -897,8 +982,7 @@ fn depth_edge_mask_covers_the_pixels_whose_kernel_crosses_a_depth_jump() {
             "lowrank/coc",
             "lowrank/kernel",
             "lowrank/edges",
-            "lowrank/horizontal",
-            "lowrank/vertical",
+            "lowrank/separable",
             "lowrank/fallback"
         ]
     );
@@ -1113,5 +1197,96 @@ fn lowrank_is_closer_to_reference_than_the_gaussian_on_lights_and_railing() {
             100.0 * (m_lr / m_ga - 1.0)
         );
         assert!(m_lr < m_ga, "{name}: lowrank {m_lr} vs gaussian {m_ga}");
+    }
+}
+
+/// `level_of` rounds `4 |C|` half away from zero without `f32::round`: the same level as
+/// `round` for halves, the floats either side of them, zeros, NaN, infinities and huge values.
+#[test]
+fn level_of_rounds_as_f32_round() {
+    let by_round = |c: f32, levels: usize| ((c.abs() * 4.0).round() as usize).min(levels - 1);
+    let mut values = vec![
+        0.0f32,
+        -0.0,
+        f32::NAN,
+        f32::INFINITY,
+        -f32::INFINITY,
+        1e30,
+        3e9,
+    ];
+    for k in 0..2000 {
+        let half = (k as f32 + 0.5) / 4.0;
+        values.extend([
+            half,
+            -half,
+            half.next_up(),
+            half.next_down(),
+            k as f32 / 4.0,
+        ]);
+    }
+    let mut rng = Rng(9);
+    values.extend((0..10_000).map(|_| (rng.next_f32() - 0.5) * 300.0));
+    for levels in [1, 7, 1000, usize::MAX] {
+        for &c in &values {
+            assert_eq!(
+                dof::level_of(c, levels),
+                by_round(c, levels),
+                "{c} {levels}"
+            );
+        }
+    }
+}
+
+/// The bank's vectorised key loop gives each CoC the key of `KernelBank::key` (level by
+/// `level_of`, near field after the far one), for halves, their neighbours, values past the
+/// last level, zeros of both signs and NaN.
+#[test]
+fn bank_keys_into_matches_key() {
+    let spec = KernelSpec::new(Aperture::Disc, 17);
+    let lr = decompose(&kernel_image(&spec).unwrap()).unwrap();
+    let bank = dof::KernelBank::new(&lr, 2, 7.9).unwrap();
+    let mut values = vec![
+        0.0f32,
+        -0.0,
+        f32::NAN,
+        -f32::NAN,
+        f32::INFINITY,
+        -1e30,
+        7.9,
+        8.0,
+    ];
+    for k in 0..80 {
+        let half = (k as f32 + 0.5) / 4.0;
+        for v in [half, half.next_up(), half.next_down(), k as f32 / 4.0] {
+            values.extend([v, -v]);
+        }
+    }
+    let mut keys = vec![0; values.len()];
+    bank.keys_into(&values, &mut keys);
+    for (&c, &k) in values.iter().zip(&keys) {
+        assert_eq!(k, bank.key(c), "{c}");
+    }
+}
+
+/// `edges` marks exactly the pixels whose CoC differs from a 4-neighbour's by more than the
+/// threshold (fig. 15), at the borders too, on images of one row, one column and more.
+#[test]
+fn edges_mark_jumps_to_any_four_neighbour() {
+    for (w, h) in [(1, 1), (1, 7), (9, 1), (37, 21)] {
+        let coc = test_coc(w, h, 4);
+        let e = dof::edges(&coc, 1.5);
+        for y in 0..h {
+            for x in 0..w {
+                let c = coc.get(x, y);
+                let mut jump = false;
+                for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
+                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+                    if (0..w as i64).contains(&nx) && (0..h as i64).contains(&ny) {
+                        jump |= (c - coc.get(nx as usize, ny as usize)).abs() > 1.5;
+                    }
+                }
+                assert_eq!(e.get(x, y), f32::from(u8::from(jump)), "{w}x{h} at {x},{y}");
+            }
+        }
     }
 }

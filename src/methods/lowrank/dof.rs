@@ -48,7 +48,8 @@
 use rayon::prelude::*;
 
 use super::filter::{
-    filter_span, filter_span_add, is_opaque, pad_row, Channels, ROW_BLOCK, STRIP_PX,
+    filter_rows, filter_span, filter_span_add, is_opaque, pad_row, Channels, Schedule, BAND_ROWS,
+    MAX_ROWS, ROW_BLOCK, STRIP_PX,
 };
 use super::svd::LowRank;
 use crate::image::{ColorImage, GrayImage, Rgba};
@@ -69,8 +70,8 @@ pub struct KernelBank {
     levels: usize,
     nmax: usize,
     stride: usize,
-    /// Taps on each side of the centre per level: horizontal and vertical (they differ when
-    /// the aperture is squeezed, [`KernelBank::with_squeeze`]).
+    /// Taps on each side of the centre per table key (`sign * levels + level`): horizontal
+    /// and vertical (they differ when the aperture is squeezed, [`KernelBank::with_squeeze`]).
     half_h: Vec<usize>,
     half_v: Vec<usize>,
     /// `[(sign * levels + level) * rank + i] * stride + j`, the weight of offset `nmax - j`
@@ -205,6 +206,8 @@ impl KernelBank {
                 }
             }
         }
+        // Indexed by table key: the far field's levels, then the near field's.
+        let (half_h, half_v) = (half_h.repeat(2), half_v.repeat(2));
         Ok(Self {
             rank,
             levels,
@@ -239,16 +242,31 @@ impl KernelBank {
         (usize::from(coc_px < 0.0) * self.levels + level) as u32
     }
 
+    /// [`KernelBank::key`] of each CoC of `coc_px` into `keys`, in a loop the compiler can
+    /// vectorise: the level is `4 |C|` clamped to the last level first, then rounded half up
+    /// (the same level as [`level_of`] for every float, NaN included: 0).
+    pub fn keys_into(&self, coc_px: &[f32], keys: &mut [u32]) {
+        let top = (self.levels - 1) as f32;
+        let near = self.levels as u32;
+        for (k, &c) in keys.iter_mut().zip(coc_px) {
+            let v = c.abs() * LEVELS_PER_PX;
+            let v = if v > top { top } else { v };
+            let t = v as u32;
+            let level = t + u32::from(v - t as f32 >= 0.5);
+            *k = level + u32::from(c < 0.0) * near;
+        }
+    }
+
     /// Horizontal half taps of the pixel with table key `key`.
     #[inline]
     fn half_h_of(&self, key: u32) -> usize {
-        self.half_h[key as usize % self.levels]
+        self.half_h[key as usize]
     }
 
     /// Vertical half taps of the pixel with table key `key`.
     #[inline]
     fn half_v_of(&self, key: u32) -> usize {
-        self.half_v[key as usize % self.levels]
+        self.half_v[key as usize]
     }
 }
 
@@ -260,26 +278,34 @@ pub fn edges(coc_px: &GrayImage, threshold_px: f32) -> GrayImage {
     if w == 0 || h == 0 {
         return out;
     }
+    let c = coc_px.pixels();
+    // The largest of the absolute differences, in comparisons the compiler vectorises (the CoC
+    // is finite: no NaN to order).
+    let biggest = |a: f32, b: f32| if a > b { a } else { b };
     out.pixels_mut()
         .par_chunks_mut(w)
         .enumerate()
         .for_each(|(y, row)| {
-            let c = coc_px.row(y);
+            let here = &c[y * w..(y + 1) * w];
+            // A missing neighbour is the pixel itself: a difference of 0.
+            let above = &c[y.saturating_sub(1) * w..][..w];
+            let below = &c[(y + 1).min(h - 1) * w..][..w];
+            let vertical =
+                |x: usize| biggest((here[x] - above[x]).abs(), (here[x] - below[x]).abs());
             for (x, e) in row.iter_mut().enumerate() {
-                let mut d = 0.0f32;
-                if x > 0 {
-                    d = d.max((c[x] - c[x - 1]).abs());
+                *e = vertical(x);
+            }
+            // Left and right neighbours, for the pixels that have them.
+            if w > 1 {
+                for (e, (&v, &l)) in row[1..].iter_mut().zip(here[1..].iter().zip(here)) {
+                    *e = biggest(*e, (v - l).abs());
                 }
-                if x + 1 < w {
-                    d = d.max((c[x] - c[x + 1]).abs());
+                for (e, (&v, &r)) in row.iter_mut().zip(here.iter().zip(&here[1..])) {
+                    *e = biggest(*e, (v - r).abs());
                 }
-                if y > 0 {
-                    d = d.max((c[x] - coc_px.get(x, y - 1)).abs());
-                }
-                if y + 1 < h {
-                    d = d.max((c[x] - coc_px.get(x, y + 1)).abs());
-                }
-                *e = f32::from(u8::from(d > threshold_px));
+            }
+            for e in row.iter_mut() {
+                *e = f32::from(u8::from(*e > threshold_px));
             }
         });
     out
@@ -316,11 +342,15 @@ impl Intermediate {
     }
 }
 
-/// Passes `horizontal` and `vertical` for every rank, one rank after the other (fig. 2: one
-/// intermediate image, the vertical results accumulated into the output), then the final
-/// touch: pixels with no taps beyond their own get `color` back exactly, and negative results
-/// of the low-rank kernel's ringing are clamped to 0. Returns the image and, with an edge
-/// image, the filtered edge image. `edge_image` and `coc_px` must have the size of `color`.
+/// Passes `horizontal` and `vertical` for every rank, then the final touch: pixels with no taps
+/// beyond their own get `color` back exactly, and negative results of the low-rank kernel's
+/// ringing are clamped to 0. Returns the image and, with an edge image, the filtered edge
+/// image. `edge_image` and `coc_px` must have the size of `color`.
+///
+/// The passes run band by band ([`Schedule::Banded`], timed as `lowrank/separable`): each pixel
+/// gets the same products summed in the same order as in fig. 2's schedule
+/// ([`filter_with_schedule`] with [`Schedule::Fig2`]), so the two give the same image (bit for
+/// bit but for the sign of a zero).
 ///
 /// An opaque image ([`super::filter::is_opaque`]) is filtered in its three colour channels
 /// only, a quarter less work: its colour is bit-identical to [`Channels::Rgba`]'s, and its
@@ -345,14 +375,37 @@ pub fn filter_channels(
     channels: Channels,
     timings: &mut Timings,
 ) -> (ColorImage, Option<GrayImage>) {
-    if channels == Channels::Auto && is_opaque(color) {
-        filter_with::<3>(color, edge_image, coc_px, bank, timings)
-    } else {
-        filter_with::<4>(color, edge_image, coc_px, bank, timings)
+    let schedule = Schedule::Banded;
+    filter_with_schedule(color, edge_image, coc_px, bank, channels, schedule, timings)
+}
+
+/// [`filter`] with the channels and the order of the passes chosen by the caller.
+/// [`Schedule::Fig2`] runs fig. 2's order, timed as `lowrank/horizontal` and `lowrank/vertical`:
+/// for each rank a horizontal pass over the whole image into one intermediate image, then a
+/// vertical pass from it, accumulated into the output.
+pub fn filter_with_schedule(
+    color: &ColorImage,
+    edge_image: Option<&GrayImage>,
+    coc_px: &GrayImage,
+    bank: &KernelBank,
+    channels: Channels,
+    schedule: Schedule,
+    timings: &mut Timings,
+) -> (ColorImage, Option<GrayImage>) {
+    let three = channels == Channels::Auto && is_opaque(color);
+    match (schedule, three) {
+        (Schedule::Banded, true) => timings.time("lowrank/separable", || {
+            banded::<3>(color, edge_image, coc_px, bank)
+        }),
+        (Schedule::Banded, false) => timings.time("lowrank/separable", || {
+            banded::<4>(color, edge_image, coc_px, bank)
+        }),
+        (Schedule::Fig2, true) => fig2::<3>(color, edge_image, coc_px, bank, timings),
+        (Schedule::Fig2, false) => fig2::<4>(color, edge_image, coc_px, bank, timings),
     }
 }
 
-fn filter_with<const CH: usize>(
+fn fig2<const CH: usize>(
     color: &ColorImage,
     edge_image: Option<&GrayImage>,
     coc_px: &GrayImage,
@@ -373,6 +426,354 @@ fn filter_with<const CH: usize>(
     }
     let image = timings.time("lowrank/vertical", || finish(color, &inter, bank, &out));
     (image, edge_out)
+}
+
+/// The horizontally filtered rows of every rank for a window of source rows that slides down
+/// the image with the bands of [`banded`]: source row `y` lives in slot `y % cap`, so any `cap`
+/// consecutive rows have slots of their own, and a band keeps the rows it shares with the band
+/// above.
+struct Window {
+    /// Slots: the rows one band reads, `BAND_ROWS + 2 nmax`.
+    cap: usize,
+    /// Rows `lo..hi` are held.
+    lo: usize,
+    hi: usize,
+    /// Per rank, `cap` rows of `w` pixels of `CH` floats.
+    colour: Vec<Vec<f32>>,
+    /// Per rank, `cap` rows of `w` floats (empty without an edge image).
+    edges: Vec<Vec<f32>>,
+    /// Per slot: whether the source row's edge values are not all 0 (a row of zeros filters to
+    /// zeros, so its taps are skipped).
+    edge_rows: Vec<bool>,
+    /// Per slot, each pixel's table key.
+    keys: Vec<u32>,
+    /// Scratch: padded colour and edge rows, a tap list, and the source rows' offsets of a
+    /// group.
+    padded_c: Vec<f32>,
+    padded_e: Vec<f32>,
+    list: Vec<(f32, usize)>,
+    base: Vec<usize>,
+    /// The band's sums over the ranks (`BAND_ROWS` rows of `w` pixels of `CH` floats) and its
+    /// column runs per group of rows: `(start, end, key)`, `u32::MAX` for columns whose rows
+    /// have different keys.
+    sum: Vec<f32>,
+    runs: Vec<(usize, usize, u32)>,
+}
+
+/// Column runs of a group of rows mixing keys.
+const MIXED: u32 = u32::MAX;
+
+impl Window {
+    fn new(bank: &KernelBank, w: usize, ch: usize, with_edges: bool) -> Self {
+        let cap = BAND_ROWS + 2 * bank.nmax;
+        Self {
+            cap,
+            lo: 0,
+            hi: 0,
+            colour: (0..bank.rank).map(|_| vec![0.0; cap * w * ch]).collect(),
+            edges: (0..bank.rank)
+                .map(|_| vec![0.0; if with_edges { cap * w } else { 0 }])
+                .collect(),
+            edge_rows: vec![false; cap],
+            keys: vec![0; cap * w],
+            padded_c: Vec::new(),
+            padded_e: Vec::new(),
+            list: Vec::new(),
+            base: Vec::new(),
+            sum: vec![0.0; BAND_ROWS * w * ch],
+            runs: Vec::new(),
+        }
+    }
+
+    /// Makes the window hold source rows `a..b` (at most `cap` of them), filtering the rows it
+    /// does not hold yet.
+    fn slide<const CH: usize>(
+        &mut self,
+        (a, b): (usize, usize),
+        color: &ColorImage,
+        edge_image: Option<&GrayImage>,
+        coc_px: &GrayImage,
+        bank: &KernelBank,
+    ) {
+        if !(self.lo <= a && a <= self.hi) {
+            self.hi = a;
+        }
+        for y in self.hi.max(a)..b {
+            self.filter_row::<CH>(y, color, edge_image, coc_px, bank);
+        }
+        (self.lo, self.hi) = (a, b);
+    }
+
+    /// The horizontal pass of source row `y` for every rank, into its slot: each run of pixels
+    /// `[a, b)` sharing a kernel is one [`filter_span`] per rank, tap `j` reading
+    /// `padded[a + j..]`, as [`horizontal_row`] does.
+    fn filter_row<const CH: usize>(
+        &mut self,
+        y: usize,
+        color: &ColorImage,
+        edge_image: Option<&GrayImage>,
+        coc_px: &GrayImage,
+        bank: &KernelBank,
+    ) {
+        let w = color.width();
+        let (nmax, stride, r) = (bank.nmax, bank.stride, bank.rank);
+        let slot = y % self.cap;
+        let keys = &mut self.keys[slot * w..(slot + 1) * w];
+        bank.keys_into(coc_px.row(y), keys);
+        pad_row::<CH>(color.row(y), nmax, nmax, &mut self.padded_c);
+        let edge_row = edge_image
+            .map(|e| e.row(y))
+            .filter(|e| e.iter().any(|&v| v != 0.0));
+        self.edge_rows[slot] = edge_row.is_some();
+        if let Some(e) = edge_row {
+            pad(e, nmax, &mut self.padded_e);
+        }
+        let keys = &self.keys[slot * w..(slot + 1) * w];
+        for (a, b, key) in runs(keys) {
+            let n = bank.half_h_of(key);
+            for i in 0..r {
+                let table = (key as usize * r + i) * stride;
+                self.list.clear();
+                for j in nmax - n..=nmax + n {
+                    let wt = bank.horizontal[table + j];
+                    if wt != 0.0 {
+                        self.list.push((wt, a + j));
+                    }
+                }
+                if let Some(edges) = self.edges.get_mut(i).filter(|e| !e.is_empty()) {
+                    let out = &mut edges[slot * w + a..slot * w + b];
+                    if edge_row.is_some() {
+                        filter_span(out, &self.list, &self.padded_e);
+                    } else {
+                        out.fill(0.0);
+                    }
+                }
+                for t in self.list.iter_mut() {
+                    t.1 *= CH;
+                }
+                let out = &mut self.colour[i][(slot * w + a) * CH..(slot * w + b) * CH];
+                filter_span(out, &self.list, &self.padded_c);
+            }
+        }
+    }
+
+    /// The column runs of output rows `y..y + m` (all in the window): maximal runs of columns
+    /// whose `m` rows share one key, and runs of columns that mix keys ([`MIXED`]).
+    fn group_runs(&mut self, y: usize, m: usize, w: usize) {
+        self.runs.clear();
+        let slots: Vec<usize> = (y..y + m).map(|yy| yy % self.cap * w).collect();
+        let key_at = |x: usize| {
+            let k = self.keys[slots[0] + x];
+            if slots[1..].iter().all(|&s| self.keys[s + x] == k) {
+                k
+            } else {
+                MIXED
+            }
+        };
+        let mut a = 0;
+        while a < w {
+            let k = key_at(a);
+            let mut b = a + 1;
+            while b < w && key_at(b) == k {
+                b += 1;
+            }
+            self.runs.push((a, b, k));
+            a = b;
+        }
+    }
+}
+
+/// The banded schedule of [`filter`]: the image's rows split into one slab per worker thread,
+/// each slab walked band by band of [`BAND_ROWS`] rows. For each band, the [`Window`] slides to
+/// the source rows the band's vertical taps read (filtering the rows it does not hold yet, for
+/// every rank), then for each rank the vertical taps sum the window into the band's sums: eight
+/// rows at once ([`filter_rows`]) over the columns where they share a kernel, row by row and run
+/// by run elsewhere, in column strips of [`STRIP_PX`]. The band is then finished into the
+/// output. No intermediate image is stored; a slab filters `2 nmax` rows above and below it
+/// twice.
+fn banded<const CH: usize>(
+    color: &ColorImage,
+    edge_image: Option<&GrayImage>,
+    coc_px: &GrayImage,
+    bank: &KernelBank,
+) -> (ColorImage, Option<GrayImage>) {
+    let (w, h) = (color.width(), color.height());
+    let mut out = ColorImage::new(w, h, [0.0; 4]);
+    let mut edge_out = edge_image.map(|_| GrayImage::new(w, h, 0.0));
+    if w == 0 || h == 0 || coc_px.width() != w || coc_px.height() != h {
+        return (out, edge_out);
+    }
+    let edge_image = edge_image.filter(|e| (e.width(), e.height()) == (w, h));
+    let bands = h.div_ceil(BAND_ROWS);
+    let slabs = rayon::current_num_threads().clamp(1, bands);
+    let slab_rows = bands.div_ceil(slabs) * BAND_ROWS;
+    let slab = |index: usize, out: &mut [Rgba], mut edge_out: Option<&mut [f32]>| {
+        let mut win = Window::new(bank, w, CH, edge_image.is_some());
+        let y_start = index * slab_rows;
+        let rows = out.len() / w;
+        for b0 in (0..rows).step_by(BAND_ROWS) {
+            let m_rows = BAND_ROWS.min(rows - b0);
+            let y0 = y_start + b0;
+            let reach = (
+                y0.saturating_sub(bank.nmax),
+                (y0 + m_rows + bank.nmax).min(h),
+            );
+            win.slide::<CH>(reach, color, edge_image, coc_px, bank);
+            let edge_band = edge_out
+                .as_deref_mut()
+                .map(|e| &mut e[b0 * w..(b0 + m_rows) * w]);
+            band_vertical::<CH>(&mut win, bank, (y0, m_rows), (w, h), edge_band);
+            band_finish::<CH>(&win, bank, color, y0, &mut out[b0 * w..(b0 + m_rows) * w]);
+        }
+    };
+    let chunks = out.pixels_mut().par_chunks_mut(slab_rows * w).enumerate();
+    match edge_out.as_mut() {
+        Some(e) => chunks
+            .zip(e.pixels_mut().par_chunks_mut(slab_rows * w))
+            .for_each(|((i, o), e)| slab(i, o, Some(e))),
+        None => chunks.for_each(|(i, o)| slab(i, o, None)),
+    }
+    (out, edge_out)
+}
+
+/// The vertical pass of every rank for output rows `y0..y0 + m_rows` from the window, into
+/// `win.sum` (overwritten by rank 0, added to by the others) and `edge_band` (the band's rows of
+/// the filtered edge image). Each pixel gets its nonzero taps in order, as in [`vertical`].
+fn band_vertical<const CH: usize>(
+    win: &mut Window,
+    bank: &KernelBank,
+    (y0, m_rows): (usize, usize),
+    (w, h): (usize, usize),
+    mut edge_band: Option<&mut [f32]>,
+) {
+    let (nmax, stride, r, cap) = (bank.nmax, bank.stride, bank.rank, win.cap);
+    let slot_of = |y: isize| (y.clamp(0, h as isize - 1) as usize) % cap;
+    for g0 in (0..m_rows).step_by(MAX_ROWS) {
+        let m = MAX_ROWS.min(m_rows - g0);
+        let yg = y0 + g0;
+        win.group_runs(yg, m, w);
+        for x0 in (0..w).step_by(STRIP_PX) {
+            let x1 = (x0 + STRIP_PX).min(w);
+            for ri in 0..win.runs.len() {
+                let (a, b, key) = win.runs[ri];
+                let (a, b) = (a.max(x0), b.min(x1));
+                if a >= b {
+                    continue;
+                }
+                for i in 0..r {
+                    let add = i > 0;
+                    if key != MIXED {
+                        // The group's rows share this kernel: source row `k` of the list is
+                        // row `yg + k - n`, and tap `t` of output row `g` reads entry `t + g`.
+                        let n = bank.half_v_of(key);
+                        let table = (key as usize * r + i) * stride;
+                        let taps = &bank.vertical[table + nmax - n..=table + nmax + n];
+                        let rows = (0..2 * n + m).map(|k| slot_of((yg + k) as isize - n as isize));
+                        win.base.clear();
+                        win.base.extend(rows.map(|s| (s * w + a) * CH));
+                        let sum = &mut win.sum[g0 * w * CH..(g0 + m) * w * CH];
+                        let mut outs: [&mut [f32]; MAX_ROWS] = std::array::from_fn(|_| &mut [][..]);
+                        for (o, row) in outs.iter_mut().zip(sum.chunks_mut(w * CH)) {
+                            *o = &mut row[a * CH..b * CH];
+                        }
+                        filter_rows(&mut outs[..m], taps, &win.base, &win.colour[i], add);
+                        if let Some(e) = edge_band.as_deref_mut() {
+                            let e = &mut e[g0 * w..(g0 + m) * w];
+                            let lit = (0..2 * n + m)
+                                .any(|k| win.edge_rows[slot_of((yg + k) as isize - n as isize)]);
+                            if lit {
+                                for v in win.base.iter_mut() {
+                                    *v /= CH;
+                                }
+                                let mut outs: [&mut [f32]; MAX_ROWS] =
+                                    std::array::from_fn(|_| &mut [][..]);
+                                for (o, row) in outs.iter_mut().zip(e.chunks_mut(w)) {
+                                    *o = &mut row[a..b];
+                                }
+                                filter_rows(&mut outs[..m], taps, &win.base, &win.edges[i], add);
+                            } else if !add {
+                                for row in e.chunks_mut(w) {
+                                    row[a..b].fill(0.0);
+                                }
+                            }
+                        }
+                    } else {
+                        for g in 0..m {
+                            let y = yg + g;
+                            let slot = y % cap;
+                            let keys = &win.keys[slot * w + a..slot * w + b];
+                            for (ra, rb, key) in runs(keys) {
+                                let (ra, rb) = (a + ra, a + rb);
+                                let n = bank.half_v_of(key);
+                                let table = (key as usize * r + i) * stride;
+                                win.list.clear();
+                                let mut lit = false;
+                                for j in nmax - n..=nmax + n {
+                                    let wt = bank.vertical[table + j];
+                                    if wt != 0.0 {
+                                        let s = slot_of((y + j) as isize - nmax as isize);
+                                        lit |= win.edge_rows[s];
+                                        win.list.push((wt, s * w + ra));
+                                    }
+                                }
+                                if let Some(e) = edge_band.as_deref_mut() {
+                                    let e = &mut e[(g0 + g) * w + ra..(g0 + g) * w + rb];
+                                    if lit {
+                                        if add {
+                                            filter_span_add(e, &win.list, &win.edges[i]);
+                                        } else {
+                                            filter_span(e, &win.list, &win.edges[i]);
+                                        }
+                                    } else if !add {
+                                        e.fill(0.0);
+                                    }
+                                }
+                                for t in win.list.iter_mut() {
+                                    t.1 *= CH;
+                                }
+                                let o = &mut win.sum
+                                    [((g0 + g) * w + ra) * CH..((g0 + g) * w + rb) * CH];
+                                if add {
+                                    filter_span_add(o, &win.list, &win.colour[i]);
+                                } else {
+                                    filter_span(o, &win.list, &win.colour[i]);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// [`finish`] for the band from row `y0`: its sums in `win.sum` into `out`.
+fn band_finish<const CH: usize>(
+    win: &Window,
+    bank: &KernelBank,
+    color: &ColorImage,
+    y0: usize,
+    out: &mut [Rgba],
+) {
+    let w = color.width();
+    for (g, (row, sums)) in out.chunks_mut(w).zip(win.sum.chunks(w * CH)).enumerate() {
+        let slot = (y0 + g) % win.cap;
+        let keys = &win.keys[slot * w..(slot + 1) * w];
+        let c_row = color.row(y0 + g);
+        for (((o, s), &key), &c) in row
+            .iter_mut()
+            .zip(sums.chunks_exact(CH))
+            .zip(keys)
+            .zip(c_row)
+        {
+            *o = if bank.half_h_of(key) == 0 && bank.half_v_of(key) == 0 {
+                c
+            } else {
+                let v = |k: usize| if k < CH { s[k].max(0.0) } else { 1.0 };
+                [v(0), v(1), v(2), v(3)]
+            };
+        }
+    }
 }
 
 /// Pass `horizontal` for rank `i`: `U_i(x, y) = sum_d h_i(d; C(x, y)) img(x - d, y)`, and the

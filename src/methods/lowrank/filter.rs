@@ -350,21 +350,23 @@ pub(crate) fn pad_row<const CH: usize>(
     right: usize,
     out: &mut Vec<f32>,
 ) {
-    out.clear();
-    let first = row[0];
-    let last = row[row.len() - 1];
-    for _ in 0..left {
-        out.extend_from_slice(&first[..CH]);
+    let (Some(first), Some(last)) = (row.first(), row.last()) else {
+        out.clear();
+        return;
+    };
+    // Sized once and filled pixel by pixel in place (a push per pixel, with its capacity
+    // check, was most of a row's padding).
+    out.resize((left + row.len() + right) * CH, 0.0);
+    let (head, rest) = out.split_at_mut(left * CH);
+    let (body, tail) = rest.split_at_mut(row.len() * CH);
+    for p in head.chunks_exact_mut(CH) {
+        p.copy_from_slice(&first[..CH]);
     }
-    if CH == 4 {
-        out.extend_from_slice(row.as_flattened());
-    } else {
-        for p in row {
-            out.extend_from_slice(&p[..CH]);
-        }
+    for (o, p) in body.chunks_exact_mut(CH).zip(row) {
+        o.copy_from_slice(&p[..CH]);
     }
-    for _ in 0..right {
-        out.extend_from_slice(&last[..CH]);
+    for p in tail.chunks_exact_mut(CH) {
+        p.copy_from_slice(&last[..CH]);
     }
 }
 

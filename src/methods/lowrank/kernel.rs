@@ -170,9 +170,10 @@ fn shape_coverage(aperture: &Aperture, n: usize, s: usize, a: f32) -> Vec<f64> {
     // Unit-aperture coordinate of pixel edge `i` (0..=n) and of sub-sample `k` of pixel `i`.
     let edge = |i: usize| (i as f32 - radius_px) / radius_px;
     let sub = |i: usize, k: usize| (i as f32 + (k as f32 + 0.5) / s as f32 - radius_px) / radius_px;
+    let density = aperture.density_fn();
     let corner: Vec<bool> = (0..=n)
         .flat_map(|j| (0..=n).map(move |i| (i, j)))
-        .map(|(i, j)| aperture.density(Vec2::new(edge(i), edge(j))) > 0.0)
+        .map(|(i, j)| density(Vec2::new(edge(i), edge(j))) > 0.0)
         .collect();
     let mut data = vec![0.0f64; n * n];
     for j in 0..n {
@@ -191,7 +192,7 @@ fn shape_coverage(aperture: &Aperture, n: usize, s: usize, a: f32) -> Vec<f64> {
                 let y = sub(j, ky);
                 for kx in 0..s {
                     let v = Vec2::new(sub(i, kx), y);
-                    let d = if inside { 1.0 } else { aperture.density(v) };
+                    let d = if inside { 1.0 } else { density(v) };
                     if d > 0.0 {
                         sum += (d * aberration_profile(a, v.length_squared())) as f64;
                     }

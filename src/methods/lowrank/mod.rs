@@ -23,17 +23,19 @@
 //!    horizontal and vertical taps of every CoC radius in steps of 1/4 px, both orientations.
 //! 3. `edges` ([`dof::edges`]): reads the CoC; writes 1 where it jumps by more than
 //!    `edge_threshold_px` to a 4-neighbour (fig. 15, centre).
-//! 4. `horizontal` ([`dof::horizontal`]), for rank `i`: reads colour, edges and CoC; writes the
-//!    intermediate image `U_i` (colour and edge channel), each pixel using the taps of its own
-//!    CoC.
-//! 5. `vertical` ([`dof::vertical`]), for rank `i`: reads `U_i`; accumulates into the output
-//!    colour and the filtered edge image (no `V_i` stored). Passes 4 and 5 alternate rank by rank
-//!    as in fig. 2, so one intermediate image is reused ([`dof::filter`]); their times are summed
-//!    over the ranks. A last step restores in-focus pixels exactly and clamps negative ringing.
-//!    An opaque frame (every alpha 1, as rendered scenes are) carries only its three colour
-//!    channels through passes 4 and 5, a quarter fewer floats, and gets alpha 1 back; the
-//!    colour is bit for bit that of the four-channel passes (tested).
-//! 6. `fallback` ([`crate::methods::poisson::gather_into`]): where the filtered edge image exceeds
+//! 4. `separable` ([`dof::filter`]): for every rank, the horizontal pass (reads colour, edges
+//!    and CoC; each pixel uses the taps of its own CoC) into the intermediate rows `U_i`, and the
+//!    vertical pass from them (accumulated into the output colour and the filtered edge image,
+//!    no `V_i` stored). They run band by band ([`filter::Schedule::Banded`]): a window of `U_i`
+//!    rows slides down each thread's slab of the image, so no intermediate image is stored and
+//!    eight output rows sharing a kernel are filtered at once ([`filter::filter_rows`]); each
+//!    pixel's sums are fig. 2's, in its order, so the image is the same bit for bit as with
+//!    [`dof::filter_with_schedule`] and [`filter::Schedule::Fig2`] (one rank after the other
+//!    over the whole image, timed as `horizontal` and `vertical`; tested). A last step restores
+//!    in-focus pixels exactly and clamps negative ringing. An opaque frame (every alpha 1, as
+//!    rendered scenes are) carries only its three colour channels, a quarter fewer floats, and
+//!    gets alpha 1 back; the colour is bit for bit that of the four-channel passes (tested).
+//! 5. `fallback` ([`crate::methods::poisson::gather_into`]): where the filtered edge image exceeds
 //!    `mask_threshold` (fig. 15, right), the pixel is recomputed by the Scheuermann-style
 //!    gather with depth rejection, with `fallback_taps` Poisson-disc taps in the same aperture
 //!    and aberration profile.
@@ -106,6 +108,7 @@ use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, LensEffects, ThinLens};
 use crate::timing::Timings;
 use crate::{Error, Result};
+use rayon::prelude::*;
 
 /// Smallest base kernel chosen automatically, in pixels.
 pub const MIN_AUTO_KERNEL_PX: usize = 17;
@@ -357,20 +360,20 @@ fn run(
         }
         let threshold = settings.mask_threshold;
         let mask: Vec<bool> = timings.time("lowrank/fallback", || {
+            // A pixel has taps beyond its own (`half_taps > 0`) where its radius exceeds 1/2.
             let mask: Vec<bool> = filtered
                 .pixels()
-                .iter()
+                .par_iter()
                 .zip(coc_px.pixels())
-                .map(|(&e, &c)| e > threshold && dof::half_taps(c.abs()) > 0)
+                .map(|(&e, &c)| e > threshold && c.abs() > 0.5)
                 .collect();
-            poisson::gather_into(&mut image, color, &coc_px, &taps, Some(&mask));
+            if mask.par_iter().any(|&m| m) {
+                poisson::gather_into(&mut image, color, &coc_px, &taps, Some(&mask));
+            }
             mask
         });
-        let mut m = GrayImage::new(color.width(), color.height(), 0.0);
-        for (p, &b) in m.pixels_mut().iter_mut().zip(&mask) {
-            *p = f32::from(u8::from(b));
-        }
-        mask_image = Some(m);
+        let pixels = mask.par_iter().map(|&b| f32::from(u8::from(b))).collect();
+        mask_image = GrayImage::from_vec(color.width(), color.height(), pixels).ok();
     }
     Ok(Detailed {
         output: MethodOutput {
