@@ -4,7 +4,8 @@ through its Python binding (`pip install OpenEXR`), on the same files as `defocu
 
 Reads a colour EXR and a depth EXR (the time `io/read` covers: both files decoded to float
 pixels), then writes the colour as RGBA float32 with no compression, ZIP and PIZ (the time
-`io/write` covers, without our fsync). Prints the least of `--runs` runs of each, and the same
+`io/write` covers), both as it is and followed by an fsync of the file, the guarantee our
+writes give before their rename. Prints the least of `--runs` runs of each, and the same
 for `defocus blur --method hammon --timings json --exr-compression C` on the same files.
 
     python benches/external/openexr_io.py COLOR.exr DEPTH.exr [--runs 5] [--binary target/release/defocus]
@@ -41,6 +42,15 @@ def write(rgba, path, compression):
         f.write(path)
 
 
+def flush(path):
+    """Waits until the file's bytes are on the disk, as our write does before its rename."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 def ours(binary, color, depth, out, compression):
     done = subprocess.run(
         [binary, "blur", "--color", color, "--depth", depth, "--method", "hammon",
@@ -73,9 +83,15 @@ def main():
                 rgba = np.stack([channels[k] for k in ("R", "G", "B", "A")], axis=-1)
             for name, comp in (("none", OpenEXR.NO_COMPRESSION), ("zip", OpenEXR.ZIP_COMPRESSION),
                                ("piz", OpenEXR.PIZ_COMPRESSION)):
+                path = os.path.join(tmp, f"o-{name}.exr")
                 t = time.perf_counter()
-                write(rgba, os.path.join(tmp, f"o-{name}.exr"), comp)
+                write(rgba, path, comp)
                 keep(f"OpenEXR write RGBA, {name}", 1e3 * (time.perf_counter() - t))
+                os.remove(path)
+                t = time.perf_counter()
+                write(rgba, path, comp)
+                flush(path)
+                keep(f"OpenEXR write RGBA, {name}, then fsync", 1e3 * (time.perf_counter() - t))
             for comp in ("none", "zip", "piz"):
                 r, w = ours(a.binary, a.color, a.depth, os.path.join(tmp, "ours.exr"), comp)
                 keep("defocus io/read colour + depth", r)

@@ -21,6 +21,7 @@ mod openexr;
 mod pfm;
 mod png;
 mod write;
+mod zip;
 
 pub use depth::{
     depth_from_values, radial_to_view_depth, radial_to_view_depth_about, read_coc, read_depth,

@@ -167,6 +167,9 @@ pub(super) fn exr_channels_from<R: Read + std::io::Seek>(
             ));
         }
     }
+    if let Some(blocks) = ScanlineBlocks::of(&chunks) {
+        return blocks.read_channels(path, chunks);
+    }
     let image = exr::prelude::read()
         .no_deep_data()
         .largest_resolution_level()
@@ -289,6 +292,9 @@ pub(super) fn read_exr_color(path: &Path) -> Result<ColorImage> {
     for header in chunks.headers() {
         check_file_size(path, header.layer_size.0, header.layer_size.1)?;
     }
+    if let Some(blocks) = ScanlineBlocks::of(&chunks) {
+        return blocks.read_rgba(path, chunks);
+    }
     let image = exr::prelude::read()
         .no_deep_data()
         .largest_resolution_level()
@@ -305,6 +311,270 @@ pub(super) fn read_exr_color(path: &Path) -> Result<ColorImage> {
     let size = image.layer_data.size;
     let (_, pixels) = image.layer_data.channel_data.pixels;
     ColorImage::from_vec(size.0, size.1, pixels)
+}
+
+/// A file of one flat scanline part, every channel sampled at every pixel: the common file of
+/// renderers and compositors, whose blocks this module decodes itself, in parallel, straight into
+/// the image (ZIP and ZIPS blocks inflated by libdeflate, [`super::zip`]; the other compressions
+/// by the `exr` crate's codecs). Any other file goes through the crate's reader.
+struct ScanlineBlocks {
+    /// Width and height of the data window.
+    width: usize,
+    height: usize,
+    /// Lines per block of the compression.
+    lines: usize,
+    /// The channels in the file's order: name, and bytes per sample (2 for f16, 4 for f32 and
+    /// u32) with the sample type.
+    channels: Vec<(String, exr::meta::attribute::SampleType)>,
+}
+
+/// Hands each sample of one channel's line (f16, f32 or u32, little-endian, as the file stores
+/// them) to `put(i, value)`, in a loop per sample type.
+#[inline(always)]
+fn convert_line(
+    line: &[u8],
+    sample_type: exr::meta::attribute::SampleType,
+    mut put: impl FnMut(usize, f32),
+) {
+    use exr::meta::attribute::SampleType;
+    match sample_type {
+        SampleType::F16 => {
+            for (i, c) in line.chunks_exact(2).enumerate() {
+                put(i, half::f16::from_le_bytes([c[0], c[1]]).to_f32());
+            }
+        }
+        SampleType::F32 => {
+            for (i, c) in line.chunks_exact(4).enumerate() {
+                put(i, f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+            }
+        }
+        SampleType::U32 => {
+            for (i, c) in line.chunks_exact(4).enumerate() {
+                put(i, u32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f32);
+            }
+        }
+    }
+}
+
+impl ScanlineBlocks {
+    /// The layout of the file `chunks` reads, when it is such a file.
+    fn of<R: Read + std::io::Seek>(chunks: &exr::block::reader::Reader<R>) -> Option<Self> {
+        use exr::meta::attribute::SampleType;
+        use exr::meta::BlockDescription;
+        let [header] = chunks.headers() else {
+            return None;
+        };
+        let flat = !header.deep
+            && matches!(header.blocks, BlockDescription::ScanLines)
+            && header
+                .channels
+                .list
+                .iter()
+                .all(|c| c.sampling == Vec2(1, 1));
+        if !flat || !cfg!(target_endian = "little") {
+            return None;
+        }
+        let channels = header
+            .channels
+            .list
+            .iter()
+            .map(|c| (c.name.to_string(), c.sample_type))
+            .collect::<Vec<(String, SampleType)>>();
+        Some(Self {
+            width: header.layer_size.0,
+            height: header.layer_size.1,
+            lines: header.compression.scan_lines_per_block(),
+            channels,
+        })
+    }
+
+    /// Bytes of one line of every channel.
+    fn line_bytes(&self) -> usize {
+        self.channels
+            .iter()
+            .map(|(_, t)| t.bytes_per_sample() * self.width)
+            .sum()
+    }
+
+    /// Reads every chunk of the file (in file order, compressed), each in the slot of its block
+    /// from the top of the data window; a missing block is an error naming its lines.
+    fn chunks<R: Read + std::io::Seek>(
+        &self,
+        path: &Path,
+        chunks: exr::block::reader::Reader<R>,
+    ) -> Result<(exr::meta::MetaData, Vec<exr::block::chunk::Chunk>)> {
+        let meta = chunks.meta_data().clone();
+        let blocks = self.height.div_ceil(self.lines.max(1));
+        let mut slots: Vec<Option<exr::block::chunk::Chunk>> = vec![None; blocks];
+        let header = &meta.headers[0];
+        for chunk in chunks
+            .all_chunks(false)
+            .map_err(|e| exr_read_error(path, e))?
+        {
+            let chunk = chunk.map_err(|e| exr_read_error(path, e))?;
+            let index = header
+                .get_block_data_indices(&chunk.compressed_block)
+                .map_err(|e| exr_read_error(path, e))?;
+            if let Some(slot) = slots.get_mut(index.tile_index.1) {
+                *slot = Some(chunk);
+            }
+        }
+        let mut out = Vec::with_capacity(blocks);
+        for (b, slot) in slots.into_iter().enumerate() {
+            let Some(chunk) = slot else {
+                let y = b * self.lines;
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "the block of lines {y} to {} of the data window is missing: the file is truncated or damaged",
+                        (y + self.lines).min(self.height) - 1
+                    ),
+                ));
+            };
+            out.push(chunk);
+        }
+        Ok((meta, out))
+    }
+
+    /// Decodes `chunk` (block `b`) into `bytes`: its lines' samples, little-endian, channel by
+    /// channel within each line.
+    fn decode(
+        &self,
+        path: &Path,
+        meta: &exr::meta::MetaData,
+        chunk: exr::block::chunk::Chunk,
+        bytes: &mut Vec<u8>,
+    ) -> Result<()> {
+        use exr::block::chunk::CompressedBlock;
+        use exr::compression::Compression;
+        let header = &meta.headers[0];
+        let CompressedBlock::ScanLine(block) = &chunk.compressed_block else {
+            return Err(Error::format(path, "a block is not a flat scanline block"));
+        };
+        let y = i64::from(block.y_coordinate) - i64::from(header.own_attributes.layer_position.1);
+        let lines = usize::try_from(y)
+            .ok()
+            .map_or(0, |y| self.lines.min(self.height.saturating_sub(y)));
+        let expected = lines * self.line_bytes();
+        let zip = matches!(header.compression, Compression::ZIP1 | Compression::ZIP16);
+        let raw = block.compressed_pixels_le.len() == expected;
+        if zip && !raw {
+            bytes.resize(expected, 0);
+            return super::zip::decompress(&block.compressed_pixels_le, bytes).map_err(|e| {
+                Error::format(path, format!("lines from {y} of the data window: {e}"))
+            });
+        }
+        let data = exr::block::UncompressedBlock::decompress_chunk(chunk, meta, false)
+            .map_err(|e| exr_read_error(path, e))?
+            .data;
+        if data.len() != expected {
+            return Err(Error::format(
+                path,
+                format!(
+                    "lines from {y} of the data window: {} bytes decoded, expected {expected}",
+                    data.len()
+                ),
+            ));
+        }
+        // Native-endian from the crate: little-endian here (`of` checks).
+        *bytes = data;
+        Ok(())
+    }
+
+    /// The colour of an R, G, B (A) file: alpha 1 where there is no A.
+    fn read_rgba<R: Read + std::io::Seek>(
+        self,
+        path: &Path,
+        chunks: exr::block::reader::Reader<R>,
+    ) -> Result<ColorImage> {
+        use rayon::prelude::*;
+        let (meta, blocks) = self.chunks(path, chunks)?;
+        let (w, h) = (self.width, self.height);
+        let has_alpha = self.channels.iter().any(|(n, _)| n == "A");
+        let mut pixels = vec![[0.0f32; 4]; w * h];
+        pixels
+            .par_chunks_mut((self.lines * w).max(1))
+            .zip(blocks)
+            .try_for_each_init(Vec::new, |bytes, (rows, chunk)| -> Result<()> {
+                self.decode(path, &meta, chunk, bytes)?;
+                let mut at = 0;
+                for row in rows.chunks_mut(w) {
+                    for (name, t) in &self.channels {
+                        let k = match name.as_str() {
+                            "R" => 0,
+                            "G" => 1,
+                            "B" => 2,
+                            _ => 3,
+                        };
+                        let n = t.bytes_per_sample() * w;
+                        convert_line(&bytes[at..at + n], *t, |i, v| row[i][k] = v);
+                        at += n;
+                    }
+                    if !has_alpha {
+                        for p in row.iter_mut() {
+                            p[3] = 1.0;
+                        }
+                    }
+                }
+                Ok(())
+            })?;
+        ColorImage::from_vec(w, h, pixels)
+    }
+
+    /// Every channel as an `f32` plane.
+    fn read_channels<R: Read + std::io::Seek>(
+        self,
+        path: &Path,
+        chunks: exr::block::reader::Reader<R>,
+    ) -> Result<ExrChannels> {
+        use rayon::prelude::*;
+        let (meta, blocks) = self.chunks(path, chunks)?;
+        let (w, h) = (self.width, self.height);
+        // A part's name prefixes its channels, as the crate's reader has it.
+        let prefix = match meta.headers[0].own_attributes.layer_name.as_ref() {
+            Some(name) if !name.to_string().is_empty() => format!("{name}."),
+            _ => String::new(),
+        };
+        let decoded: Vec<Vec<u8>> = blocks
+            .into_par_iter()
+            .map(|chunk| {
+                let mut bytes = Vec::new();
+                self.decode(path, &meta, chunk, &mut bytes).map(|()| bytes)
+            })
+            .collect::<Result<_>>()?;
+        let line_bytes = self.line_bytes();
+        // Where channel c starts within a line.
+        let starts: Vec<usize> = self
+            .channels
+            .iter()
+            .scan(0, |at, (_, t)| {
+                let s = *at;
+                *at += t.bytes_per_sample() * w;
+                Some(s)
+            })
+            .collect();
+        let channels = self
+            .channels
+            .par_iter()
+            .zip(starts)
+            .map(|((name, t), start)| {
+                let mut plane = vec![0.0f32; w * h];
+                for (rows, bytes) in plane.chunks_mut((self.lines * w).max(1)).zip(&decoded) {
+                    let n = t.bytes_per_sample() * w;
+                    for (r, row) in rows.chunks_mut(w).enumerate() {
+                        let line = &bytes[r * line_bytes + start..][..n];
+                        convert_line(line, *t, |i, v| row[i] = v);
+                    }
+                }
+                (format!("{prefix}{name}"), plane)
+            })
+            .collect();
+        Ok(ExrChannels {
+            width: w,
+            height: h,
+            channels,
+        })
+    }
 }
 
 pub(super) fn color_from_exr(path: &Path, ch: &ExrChannels) -> Result<ColorImage> {
@@ -646,6 +916,40 @@ pub(super) fn write_rgba_blocks<W: std::io::Write + std::io::Seek>(
     })
 }
 
+/// A block of native-endian samples as a chunk of the file: ZIP and ZIPS scanline blocks by
+/// libdeflate ([`super::zip`]) on little-endian machines (where native is the file's order),
+/// every other block by the `exr` crate's codecs.
+fn compress_block(
+    headers: &[exr::meta::header::Header],
+    index: exr::block::BlockIndex,
+    data: Vec<u8>,
+) -> exr::error::Result<exr::block::chunk::Chunk> {
+    use exr::block::chunk::{Chunk, CompressedBlock, CompressedScanLineBlock};
+    use exr::compression::Compression;
+    use exr::meta::BlockDescription;
+    let header = &headers[index.layer];
+    let zip = matches!(header.compression, Compression::ZIP1 | Compression::ZIP16);
+    let scanlines = matches!(header.blocks, BlockDescription::ScanLines);
+    let expected = header.channels.bytes_per_pixel * index.pixel_size.area();
+    if !(zip && scanlines && cfg!(target_endian = "little"))
+        || header.deep
+        || data.len() != expected
+    {
+        return exr::block::UncompressedBlock { index, data }.compress_to_chunk(headers);
+    }
+    let y = i32::try_from(index.pixel_position.1)
+        .ok()
+        .and_then(|y| y.checked_add(header.own_attributes.layer_position.1))
+        .ok_or(exr::error::Error::Invalid("block position".into()))?;
+    Ok(Chunk {
+        layer_index: index.layer,
+        compressed_block: CompressedBlock::ScanLine(CompressedScanLineBlock {
+            y_coordinate: y,
+            compressed_pixels_le: super::zip::compress(&data).unwrap_or(data),
+        }),
+    })
+}
+
 /// Blocks of a scanline EXR compressed at a time: a bound on the compressed bytes held.
 const BLOCKS_PER_BATCH: usize = 64;
 
@@ -661,7 +965,6 @@ fn write_blocks<W: std::io::Write + std::io::Seek>(
 ) -> exr::error::UnitResult {
     use exr::block::chunk::Chunk;
     use exr::block::writer::ChunksWriter;
-    use exr::block::UncompressedBlock;
     use rayon::prelude::*;
     exr::block::write(out, headers, true, |meta, writer| {
         let bytes_per_pixel = meta.headers[0].channels.bytes_per_pixel;
@@ -677,7 +980,7 @@ fn write_blocks<W: std::io::Write + std::io::Seek>(
                     for y in y0..y0 + bh {
                         fill(y, x0, bw, &mut data);
                     }
-                    UncompressedBlock { index, data }.compress_to_chunk(&meta.headers)
+                    compress_block(&meta.headers, index, data)
                 })
                 .collect();
             for (&(i, _), chunk) in batch.iter().zip(chunks) {
