@@ -796,17 +796,19 @@ pub(super) fn write_exr(
     set.write(path, |out| {
         write_blocks(out, headers, |y, x0, bw, data| {
             let line = y * width + x0..y * width + x0 + bw;
+            // Each channel's line sized once, then filled sample by sample in place.
+            fn put<const N: usize, T>(data: &mut Vec<u8>, v: &[T], bytes: impl Fn(&T) -> [u8; N]) {
+                let start = data.len();
+                data.resize(start + N * v.len(), 0);
+                for (d, x) in data[start..].chunks_exact_mut(N).zip(v) {
+                    d.copy_from_slice(&bytes(x));
+                }
+            }
             for channel in planes {
                 match &channel.sample_data {
-                    FlatSamples::F16(v) => {
-                        data.extend(v[line.clone()].iter().flat_map(|h| h.to_ne_bytes()))
-                    }
-                    FlatSamples::F32(v) => {
-                        data.extend(v[line.clone()].iter().flat_map(|f| f.to_ne_bytes()))
-                    }
-                    FlatSamples::U32(v) => {
-                        data.extend(v[line.clone()].iter().flat_map(|u| u.to_ne_bytes()))
-                    }
+                    FlatSamples::F16(v) => put(data, &v[line.clone()], |h| h.to_ne_bytes()),
+                    FlatSamples::F32(v) => put(data, &v[line.clone()], |f| f.to_ne_bytes()),
+                    FlatSamples::U32(v) => put(data, &v[line.clone()], |u| u.to_ne_bytes()),
                 }
             }
         })
@@ -905,12 +907,21 @@ pub(super) fn write_rgba_blocks<W: std::io::Write + std::io::Seek>(
     write_blocks(out, headers, |y, x0, bw, data| {
         let line = &pixels[y * width + x0..y * width + x0 + bw];
         for &(k, sample_type) in &order {
+            // Sized once, then filled sample by sample in place.
+            let start = data.len();
             match sample_type {
-                SampleType::F16 => data.extend(
-                    line.iter()
-                        .flat_map(|c| half::f16::from_f32(c[k]).to_ne_bytes()),
-                ),
-                _ => data.extend(line.iter().flat_map(|c| c[k].to_ne_bytes())),
+                SampleType::F16 => {
+                    data.resize(start + 2 * bw, 0);
+                    for (d, c) in data[start..].chunks_exact_mut(2).zip(line) {
+                        d.copy_from_slice(&half::f16::from_f32(c[k]).to_ne_bytes());
+                    }
+                }
+                _ => {
+                    data.resize(start + 4 * bw, 0);
+                    for (d, c) in data[start..].chunks_exact_mut(4).zip(line) {
+                        d.copy_from_slice(&c[k].to_ne_bytes());
+                    }
+                }
             }
         }
     })

@@ -95,7 +95,8 @@ pub(super) fn decompress(compressed: &[u8], out: &mut [u8]) -> Result<(), String
 
 /// Undoes the differences in place: `t[i] = t[i - 1] + t[i] - 128` from the second byte on, a
 /// running sum. With SSE2 (every x86-64) 16 bytes at a time: their running sum within the
-/// register in four shifted adds, plus the last byte of the 16 before.
+/// register in four shifted adds (independent of the blocks before), plus the last byte of the
+/// block before, carried from register to register in a few shuffles.
 fn undo_differences(t: &mut [u8]) {
     let Some((&mut first, rest)) = t.split_first_mut() else {
         return;
@@ -109,6 +110,7 @@ fn undo_differences(t: &mut [u8]) {
         // the 16 bytes of each block.
         unsafe {
             let bias = _mm_set1_epi8(-128);
+            let mut carry = _mm_set1_epi8(previous as i8);
             for block in &mut blocks {
                 let p = block.as_mut_ptr().cast::<__m128i>();
                 let mut x = _mm_add_epi8(_mm_loadu_si128(p), bias);
@@ -116,10 +118,14 @@ fn undo_differences(t: &mut [u8]) {
                 x = _mm_add_epi8(x, _mm_slli_si128::<2>(x));
                 x = _mm_add_epi8(x, _mm_slli_si128::<4>(x));
                 x = _mm_add_epi8(x, _mm_slli_si128::<8>(x));
-                x = _mm_add_epi8(x, _mm_set1_epi8(previous as i8));
+                x = _mm_add_epi8(x, carry);
                 _mm_storeu_si128(p, x);
-                previous = block[15];
+                // Byte 15 into every byte: to byte 0, doubled to a word, to every word.
+                let last = _mm_srli_si128::<15>(x);
+                let last = _mm_unpacklo_epi8(last, last);
+                carry = _mm_shuffle_epi32::<0>(_mm_shufflelo_epi16::<0>(last));
             }
+            previous = _mm_cvtsi128_si32(carry) as u8;
         }
         blocks.into_remainder()
     };
