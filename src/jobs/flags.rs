@@ -108,8 +108,8 @@ pub enum ExrCompressionArg {
 #[command(next_help_heading = "EXR output")]
 pub struct ExrArgs {
     /// Lossless compression of EXR outputs. Measured on a 1280x720 RGBA f32 `blur` output of
-    /// `railing` (2 cores, `io/write` with the fsync): none 24 ms / 14.8 MB, rle 32 ms / 13.5 MB,
-    /// zips 103 ms / 8.4 MB, zip 145 ms / 8.0 MB, piz 150 ms / 7.9 MB.
+    /// `railing` (2 cores, `io/write` with the fsync, least of 3): none 24 ms / 14.8 MB, rle 40 ms
+    /// / 13.5 MB, zips 73 ms / 8.3 MB, zip 72 ms / 7.9 MB (both by libdeflate), piz 166 ms / 7.8 MB.
     #[arg(long, value_enum, default_value_t = ExrCompressionArg::None)]
     pub exr_compression: ExrCompressionArg,
     /// Write EXR colour as 16-bit half floats (half the size; values above 65504 become inf).
