@@ -58,7 +58,8 @@ use crate::image::{check_size, srgb_decode, srgb_encode, ColorImage, GrayImage, 
 pub use crate::output::OutputSet;
 use crate::{Error, Result};
 
-/// Compression of written OpenEXR files: the lossless ones Blender and Nuke read.
+/// Compression of written OpenEXR files: the lossless ones, and the lossy ones compositors use
+/// for review and playback (B44, DWA), all read by Blender and Nuke.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum ExrCompression {
     /// No compression: the fastest to write, the largest files. The default: measured on a
@@ -74,10 +75,28 @@ pub enum ExrCompression {
     Zip,
     /// Wavelet + Huffman over blocks of 32 scanlines (PIZ): small for noisy, grainy images.
     Piz,
+    /// Lossy, fixed rate: each 4x4 block of a half-float channel in 14 bytes (B44, for real-time
+    /// playback); float channels are stored as they are, so use it with `--half`.
+    B44,
+    /// B44 that also stores flat 4x4 blocks in 3 bytes (B44A).
+    B44a,
+    /// Lossy DCT of the colour over blocks of 32 scanlines (DWAA, level 45, OpenEXR's default);
+    /// other channels such as alpha stay lossless.
+    Dwaa,
+    /// DWAA over blocks of 256 scanlines (DWAB): smaller, slower to read a part of.
+    Dwab,
 }
 
 impl ExrCompression {
-    /// Every compression, for benchmarks and tests.
+    /// The lossy compressions: what they read back is not what was written.
+    pub const LOSSY: [ExrCompression; 4] = [
+        ExrCompression::B44,
+        ExrCompression::B44a,
+        ExrCompression::Dwaa,
+        ExrCompression::Dwab,
+    ];
+
+    /// Every lossless compression, for benchmarks and tests.
     pub const ALL: [ExrCompression; 5] = [
         ExrCompression::None,
         ExrCompression::Rle,
@@ -94,6 +113,10 @@ impl ExrCompression {
             ExrCompression::Zips => "zips",
             ExrCompression::Zip => "zip",
             ExrCompression::Piz => "piz",
+            ExrCompression::B44 => "b44",
+            ExrCompression::B44a => "b44a",
+            ExrCompression::Dwaa => "dwaa",
+            ExrCompression::Dwab => "dwab",
         }
     }
 
@@ -105,6 +128,10 @@ impl ExrCompression {
             ExrCompression::Zips => Compression::ZIP1,
             ExrCompression::Zip => Compression::ZIP16,
             ExrCompression::Piz => Compression::PIZ,
+            ExrCompression::B44 => Compression::B44,
+            ExrCompression::B44a => Compression::B44A,
+            ExrCompression::Dwaa => Compression::DWAA(None),
+            ExrCompression::Dwab => Compression::DWAB(None),
         };
         Encoding {
             compression,
