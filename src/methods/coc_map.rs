@@ -89,7 +89,11 @@ pub fn coc(depth: &GrayImage, lens: &ThinLens, max_coc_px: f32) -> Result<GrayIm
 pub fn clamp_coc(coc_px: &GrayImage, max_coc_px: f32) -> Result<GrayImage> {
     check_max_coc(max_coc_px)?;
     let w = coc_px.width().max(1);
-    if let Some(i) = coc_px.pixels().iter().position(|c| !c.is_finite()) {
+    if let Some(i) = coc_px
+        .pixels()
+        .par_iter()
+        .position_first(|c| !c.is_finite())
+    {
         return Err(Error::invalid(
             "CoC map",
             format!(
@@ -100,7 +104,12 @@ pub fn clamp_coc(coc_px: &GrayImage, max_coc_px: f32) -> Result<GrayImage> {
             ),
         ));
     }
-    Ok(coc_px.map(|c| c.clamp(-max_coc_px, max_coc_px)))
+    let clamped = coc_px
+        .pixels()
+        .par_iter()
+        .map(|c| c.clamp(-max_coc_px, max_coc_px))
+        .collect();
+    GrayImage::from_vec(coc_px.width(), coc_px.height(), clamped)
 }
 
 /// CoC radii are quantised to steps of 1 / `LEVELS_PER_PX` pixel.

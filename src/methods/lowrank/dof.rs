@@ -598,18 +598,28 @@ fn banded<const CH: usize>(
     bank: &KernelBank,
 ) -> (ColorImage, Option<GrayImage>) {
     let (w, h) = (color.width(), color.height());
-    let mut out = ColorImage::new(w, h, [0.0; 4]);
     let mut edge_out = edge_image.map(|_| GrayImage::new(w, h, 0.0));
     if w == 0 || h == 0 || coc_px.width() != w || coc_px.height() != h {
-        return (out, edge_out);
+        return (ColorImage::new(w, h, [0.0; 4]), edge_out);
     }
     let edge_image = edge_image.filter(|e| (e.width(), e.height()) == (w, h));
     let bands = h.div_ceil(BAND_ROWS);
     let slabs = rayon::current_num_threads().clamp(1, bands);
     let slab_rows = bands.div_ceil(slabs) * BAND_ROWS;
-    let slab = |index: usize, out: &mut [Rgba], mut edge_out: Option<&mut [f32]>| {
+    // Each slab's rows of the filtered edge image, taken by the slab that fills them.
+    let edge_parts: Vec<Option<&mut [f32]>> = match edge_out.as_mut() {
+        Some(e) => e.pixels_mut().chunks_mut(slab_rows * w).map(Some).collect(),
+        None => Vec::new(),
+    };
+    let edge_parts = std::sync::Mutex::new(edge_parts);
+    let slab = |_: &mut (), y_start: usize, out: &mut [std::mem::MaybeUninit<Rgba>]| {
+        let index = y_start / slab_rows;
+        let mut edge_out = edge_parts
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get_mut(index)
+            .and_then(Option::take);
         let mut win = Window::new(bank, w, CH, edge_image.is_some());
-        let y_start = index * slab_rows;
         let rows = out.len() / w;
         for b0 in (0..rows).step_by(BAND_ROWS) {
             let m_rows = BAND_ROWS.min(rows - b0);
@@ -625,14 +635,11 @@ fn banded<const CH: usize>(
             band_vertical::<CH>(&mut win, bank, (y0, m_rows), (w, h), edge_band);
             band_finish::<CH>(&win, bank, color, y0, &mut out[b0 * w..(b0 + m_rows) * w]);
         }
+        false
     };
-    let chunks = out.pixels_mut().par_chunks_mut(slab_rows * w).enumerate();
-    match edge_out.as_mut() {
-        Some(e) => chunks
-            .zip(e.pixels_mut().par_chunks_mut(slab_rows * w))
-            .for_each(|((i, o), e)| slab(i, o, Some(e))),
-        None => chunks.for_each(|(i, o)| slab(i, o, None)),
-    }
+    // SAFETY: a slab's bands cover its rows, and `band_finish` writes every pixel of a band
+    // (one per pixel of its rows, from the band's sums, which hold `w * CH` floats a row).
+    let (out, _) = unsafe { ColorImage::par_from_bands(w, h, slab_rows, || (), slab) };
     (out, edge_out)
 }
 
@@ -753,7 +760,7 @@ fn band_finish<const CH: usize>(
     bank: &KernelBank,
     color: &ColorImage,
     y0: usize,
-    out: &mut [Rgba],
+    out: &mut [std::mem::MaybeUninit<Rgba>],
 ) {
     let w = color.width();
     for (g, (row, sums)) in out.chunks_mut(w).zip(win.sum.chunks(w * CH)).enumerate() {
@@ -766,12 +773,12 @@ fn band_finish<const CH: usize>(
             .zip(keys)
             .zip(c_row)
         {
-            *o = if bank.half_h_of(key) == 0 && bank.half_v_of(key) == 0 {
+            o.write(if bank.half_h_of(key) == 0 && bank.half_v_of(key) == 0 {
                 c
             } else {
                 let v = |k: usize| if k < CH { s[k].max(0.0) } else { 1.0 };
                 [v(0), v(1), v(2), v(3)]
-            };
+            });
         }
     }
 }

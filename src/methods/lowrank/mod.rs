@@ -249,7 +249,7 @@ pub fn render(
             render(color, depth, channel, &mono)
         });
     }
-    render_detailed(color, depth, lens, settings).map(|d| d.output)
+    render_with(color, depth, lens, settings, false).map(|d| d.output)
 }
 
 /// [`render`], also returning the CoC, the edges and the mask.
@@ -259,13 +259,24 @@ pub fn render_detailed(
     lens: &ThinLens,
     settings: &LowRankSettings,
 ) -> Result<Detailed> {
+    render_with(color, depth, lens, settings, true)
+}
+
+/// [`render_detailed`], with the mask image made only when `detailed`.
+fn render_with(
+    color: &ColorImage,
+    depth: &GrayImage,
+    lens: &ThinLens,
+    settings: &LowRankSettings,
+    detailed: bool,
+) -> Result<Detailed> {
     settings.validate()?;
     coc_map::check_frame(color, depth, lens)?;
     let mut timings = Timings::default();
     let coc_px = timings.time("lowrank/coc", || {
         coc_map::coc(depth, lens, settings.max_coc_px)
     })?;
-    run(color, coc_px, settings, timings)
+    run(color, coc_px, settings, timings, detailed)
 }
 
 /// Filters `color` with the spatially varying low-rank filter for a given CoC map (signed
@@ -275,7 +286,7 @@ pub fn render_coc(
     coc_px: &GrayImage,
     settings: &LowRankSettings,
 ) -> Result<MethodOutput> {
-    render_coc_detailed(color, coc_px, settings).map(|d| d.output)
+    render_coc_with(color, coc_px, settings, false).map(|d| d.output)
 }
 
 /// [`render_coc`], also returning the CoC, the edges and the mask.
@@ -283,6 +294,16 @@ pub fn render_coc_detailed(
     color: &ColorImage,
     coc_px: &GrayImage,
     settings: &LowRankSettings,
+) -> Result<Detailed> {
+    render_coc_with(color, coc_px, settings, true)
+}
+
+/// [`render_coc_detailed`], with the mask image made only when `detailed`.
+fn render_coc_with(
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    settings: &LowRankSettings,
+    detailed: bool,
 ) -> Result<Detailed> {
     settings.validate()?;
     if !color.same_size(coc_px) {
@@ -304,15 +325,16 @@ pub fn render_coc_detailed(
     let coc_px = timings.time("lowrank/coc", || {
         coc_map::clamp_coc(coc_px, settings.max_coc_px)
     })?;
-    run(color, coc_px, settings, timings)
+    run(color, coc_px, settings, timings, detailed)
 }
 
-/// Passes 2 to 6 (see the module documentation).
+/// Passes 2 to 5 (see the module documentation); the mask image only when `detailed`.
 fn run(
     color: &ColorImage,
     coc_px: GrayImage,
     settings: &LowRankSettings,
     mut timings: Timings,
+    detailed: bool,
 ) -> Result<Detailed> {
     settings.effects.check_for_method("lowrank")?;
     if settings.effects.is_chromatic() {
@@ -323,7 +345,11 @@ fn run(
         ));
     }
     let squeeze = settings.effects.squeeze(glam::Vec2::ONE);
-    let max_radius = coc_px.pixels().iter().fold(0.0f32, |m, c| m.max(c.abs()));
+    let max_radius = coc_px
+        .pixels()
+        .par_iter()
+        .map(|c| c.abs())
+        .reduce(|| 0.0f32, f32::max);
     let spec = settings.kernel_spec(max_radius);
     let bank = timings.time("lowrank/kernel", || -> Result<dof::KernelBank> {
         let lr = decompose(&kernel_image(&spec)?)?;
@@ -372,8 +398,10 @@ fn run(
             }
             mask
         });
-        let pixels = mask.par_iter().map(|&b| f32::from(u8::from(b))).collect();
-        mask_image = GrayImage::from_vec(color.width(), color.height(), pixels).ok();
+        if detailed {
+            let pixels = mask.par_iter().map(|&b| f32::from(u8::from(b))).collect();
+            mask_image = GrayImage::from_vec(color.width(), color.height(), pixels).ok();
+        }
     }
     Ok(Detailed {
         output: MethodOutput {
