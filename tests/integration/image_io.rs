@@ -1128,3 +1128,33 @@ fn an_inverted_exr_window_is_refused_naming_it() {
         );
     }
 }
+
+#[test]
+fn exr_block_off_its_boundary_is_a_format_error() {
+    // A ZIP file (16 lines a block) whose second block claims to start at line 17: the block
+    // decoder sizes and places blocks by their start, so it must refuse it, naming the file.
+    let dir = TempDir::new("exr-misaligned");
+    let img = ldr_image(5, 40);
+    let path = dir.join("m.exr");
+    let options = ExrOptions {
+        compression: ExrCompression::Zip,
+        half: false,
+        placement: None,
+    };
+    write_color_with(&path, &img, &options).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let u64_at = |b: &[u8], p: usize| u64::from_le_bytes(b[p..p + 8].try_into().unwrap());
+    // The offset table of 3 blocks ends where its first entry points.
+    let table = (0..bytes.len() - 24)
+        .find(|&p| u64_at(&bytes, p) == (p + 24) as u64)
+        .expect("offset table");
+    let second = u64_at(&bytes, table + 8) as usize;
+    assert_eq!(
+        i32::from_le_bytes(bytes[second..second + 4].try_into().unwrap()),
+        16
+    );
+    bytes[second..second + 4].copy_from_slice(&17i32.to_le_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+    let err = read_color(&path).unwrap_err().to_string();
+    assert!(err.contains("m.exr") && err.contains("line 17"), "{err}");
+}

@@ -415,6 +415,23 @@ impl ScanlineBlocks {
             let index = header
                 .get_block_data_indices(&chunk.compressed_block)
                 .map_err(|e| exr_read_error(path, e))?;
+            // A block must start on its block's first line: the decoder sizes each block's
+            // lines from its start, and places them in its slot's rows.
+            let start = match &chunk.compressed_block {
+                exr::block::chunk::CompressedBlock::ScanLine(b) => {
+                    i64::from(b.y_coordinate) - i64::from(header.own_attributes.layer_position.1)
+                }
+                _ => -1,
+            };
+            if start != (index.tile_index.1 * self.lines) as i64 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "a block starts at line {start} of the data window: expected a multiple of {} lines",
+                        self.lines
+                    ),
+                ));
+            }
             if let Some(slot) = slots.get_mut(index.tile_index.1) {
                 *slot = Some(chunk);
             }

@@ -4,8 +4,9 @@
 //! the buffer), each byte replaced by its difference from the one before plus 128, and the
 //! result deflated in a zlib stream; a block whose stream would not be smaller than its bytes is
 //! stored as they are (OpenEXR's `ImfZip.cpp`, and the `exr` crate's codec, which this replaces
-//! for speed: libdeflate inflates a frame's blocks about twice as fast as the crate's decoder
-//! and deflates them several times faster). The other compressions stay the crate's.
+//! for speed: a 1920x1080 RGBA f32 ZIP write went from 290 to 118 ms, and the read of a ZIP
+//! colour frame with its depth from 60 to 50 ms, README "Reading and writing EXR"). The other
+//! compressions stay the crate's.
 
 use std::cell::RefCell;
 
