@@ -816,6 +816,7 @@ fn visible_depth<T: TileSink>(
 /// at a time: texture coordinates, levels of detail and texture lookups lane by lane
 /// ([`shade::Shader::shade_batch`]), then the fragments in pixel order. A triangle covers a
 /// pixel once, so the sink sees the same calls as pixel by pixel.
+#[inline(always)]
 pub(crate) fn raster_triangle<T: TileSink>(
     tri: &SetupTriangle,
     rect: &TileRect,

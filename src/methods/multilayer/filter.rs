@@ -51,6 +51,11 @@ pub struct Level {
     pub depth: Vec<f32>,
     /// Premultiplied linear RGBA of each fragment, half precision.
     pub color: Vec<HalfRgba>,
+    /// Where each fragment's light lies in its cell: the centroid of its energy (colour plus
+    /// opacity, premultiplied) in pixels from the cell's centre, so that a small light keeps its
+    /// place inside a box many pixels wide. Empty when not tracked (every centroid at the
+    /// centre: level 0, or levels only the box accumulation reads).
+    pub centroid: Vec<[f32; 2]>,
 }
 
 impl Level {
@@ -65,7 +70,27 @@ impl Level {
             offsets: lists.offsets().to_vec(),
             depth: lists.depths().to_vec(),
             color: lists.colors().to_vec(),
+            centroid: Vec::new(),
         }
+    }
+
+    /// The centroids of the fragments of cell `(x, y)` (empty when not tracked).
+    #[inline]
+    pub fn cell_centroids(&self, x: usize, y: usize) -> &[[f32; 2]] {
+        if self.centroid.is_empty() {
+            return &[];
+        }
+        let i = y * self.width + x;
+        &self.centroid[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+    }
+
+    /// Image position in pixels of the centre of cell `(x, y)`.
+    #[inline]
+    pub fn centre_px(&self, x: usize, y: usize) -> [f32; 2] {
+        [
+            self.origin_px + self.stride_px * x as f32,
+            self.origin_px + self.stride_px * y as f32,
+        ]
     }
 
     /// The fragments of cell `(x, y)`.
@@ -88,6 +113,19 @@ impl Level {
         (c(x, self.width), c(y, self.height))
     }
 
+    /// Among the cells (of `n` along one axis) whose index is a multiple of `step`, the two
+    /// whose centres lie on either side of the centre of image pixel `p`, and the weight of the
+    /// second for linear interpolation (clamped at the borders).
+    #[inline]
+    pub fn between(&self, p: usize, n: usize, step: usize) -> ((usize, usize), f32) {
+        let t = ((p as f32 + 0.5 - self.origin_px) / (self.stride_px * step as f32)).max(0.0);
+        let last = (n - 1) / step;
+        // Truncation is the floor once negatives are clamped to 0.
+        let k0 = (t as usize).min(last);
+        let f = (t - k0 as f32).clamp(0.0, 1.0);
+        ((k0 * step, (k0 + 1).min(last) * step), f)
+    }
+
     /// Number of fragments stored.
     pub fn len(&self) -> usize {
         self.depth.len()
@@ -100,7 +138,10 @@ impl Level {
 
     /// Bytes of the compact storage.
     pub fn bytes(&self) -> usize {
-        self.offsets.len() * 4 + self.depth.len() * 4 + self.color.len() * 8
+        self.offsets.len() * 4
+            + self.depth.len() * 4
+            + self.color.len() * 8
+            + self.centroid.len() * 8
     }
 }
 
@@ -130,20 +171,40 @@ struct Partial {
     p: [f32; 4],
     depth_weight: f32,
     depth_sum: f32,
+    /// Energy (opacity plus colour, as composited) and its first moments in x and y.
+    energy: f32,
+    moment: [f32; 2],
+}
+
+/// One source list of [`merge4`]: depths, colours and centroids (empty: at the cell's centre).
+pub type Source<'a> = (&'a [f32], &'a [HalfRgba], &'a [[f32; 2]]);
+
+/// The centres of [`merge4`]'s four source cells relative to the merged cell's, in pixels.
+pub type SourceCentres = [[f32; 2]; 4];
+
+/// Where [`merge4`] writes the merged fragments.
+pub struct MergeOut<'a> {
+    /// Merged depths.
+    pub depth: &'a mut Vec<f32>,
+    /// Merged colours.
+    pub color: &'a mut Vec<HalfRgba>,
+    /// With the centres of the four source cells relative to the merged cell's, in pixels:
+    /// each merged fragment's energy centroid goes here.
+    pub centroid: Option<(&'a mut Vec<[f32; 2]>, SourceCentres)>,
 }
 
 /// Merges four depth-sorted lists into `out` (see the module documentation). `keep(z)` says
 /// whether a merged fragment at depth `z` is kept (truncation).
 #[inline(always)]
 pub fn merge4(
-    sources: [(&[f32], &[HalfRgba]); 4],
+    sources: [Source; 4],
     epsilon: f32,
     keep: &dyn Fn(f32) -> bool,
-    out_depth: &mut Vec<f32>,
-    out_color: &mut Vec<HalfRgba>,
+    out: &mut MergeOut,
 ) -> usize {
     let mut idx = [0usize; 4];
     let mut emitted = 0;
+    let track = out.centroid.is_some();
     loop {
         // The nearest remaining fragment opens the merged fragment.
         let mut z0 = f32::INFINITY;
@@ -162,7 +223,7 @@ pub fn merge4(
         let limit = z0 + epsilon * z0.abs();
         let mut parts = [Partial::default(); 4];
         for j in 0..4 {
-            let (depths, colors) = sources[j];
+            let (depths, colors, centroids) = sources[j];
             let part = &mut parts[j];
             while let Some(&z) = depths.get(idx[j]) {
                 if z > limit {
@@ -176,6 +237,13 @@ pub fn merge4(
                 let w = t * c[3];
                 part.depth_weight += w;
                 part.depth_sum += w * z;
+                if track {
+                    let e = (t * (c[0] + c[1] + c[2] + c[3])).max(0.0);
+                    let at = centroids.get(idx[j]).copied().unwrap_or([0.0; 2]);
+                    part.energy += e;
+                    part.moment[0] += e * at[0];
+                    part.moment[1] += e * at[1];
+                }
                 idx[j] += 1;
             }
         }
@@ -190,17 +258,34 @@ pub fn merge4(
         }
         let z = if dw > 0.0 { ds / dw } else { z0 };
         if p[3] > 0.0 && keep(z) && emitted < MAX_LEVEL_FRAGMENTS {
-            out_depth.push(z);
-            out_color.push(to_half(p));
+            out.depth.push(z);
+            out.color.push(to_half(p));
+            if let Some((centroid, centres)) = out.centroid.as_mut() {
+                let (mut e, mut mx, mut my) = (0.0f32, 0.0f32, 0.0f32);
+                for (part, at) in parts.iter().zip(centres.iter()) {
+                    e += part.energy;
+                    mx += part.moment[0] + part.energy * at[0];
+                    my += part.moment[1] + part.energy * at[1];
+                }
+                centroid.push(if e > 0.0 { [mx / e, my / e] } else { [0.0; 2] });
+            }
             emitted += 1;
         }
     }
     emitted
 }
 
-/// Applies one step to `level`. `keep(z)` filters the merged fragments (truncation).
-pub fn step(level: &Level, step: Step, epsilon: f32, keep: &(dyn Fn(f32) -> bool + Sync)) -> Level {
-    step_with(level, step, epsilon, keep, step_row)
+/// Applies one step to `level`. `keep(z)` filters the merged fragments (truncation);
+/// `centroids` tracks where each merged fragment's energy lies in its cell
+/// ([`Level::centroid`]).
+pub fn step(
+    level: &Level,
+    step: Step,
+    epsilon: f32,
+    keep: &(dyn Fn(f32) -> bool + Sync),
+    centroids: bool,
+) -> Level {
+    step_with(level, step, epsilon, keep, centroids, step_row)
 }
 
 /// [`step`] built for the portable baseline only (no run-time dispatch): the twin the
@@ -210,12 +295,14 @@ pub fn step_baseline(
     step: Step,
     epsilon: f32,
     keep: &(dyn Fn(f32) -> bool + Sync),
+    centroids: bool,
 ) -> Level {
-    step_with(level, step, epsilon, keep, step_row_inner)
+    step_with(level, step, epsilon, keep, centroids, step_row_inner)
 }
 
-/// One output row of a step: per cell the number of fragments, then their depths and colours.
-type Row = (Vec<u32>, Vec<f32>, Vec<HalfRgba>);
+/// One output row of a step: per cell the number of fragments, then their depths, colours and
+/// centroids (empty when not tracked).
+type Row = (Vec<u32>, Vec<f32>, Vec<HalfRgba>, Vec<[f32; 2]>);
 
 /// What every row of a step reads: the level, the step, its source distance `d`, the output
 /// width, `epsilon` and `keep`.
@@ -226,6 +313,9 @@ struct RowInputs<'a> {
     nw: usize,
     epsilon: f32,
     keep: &'a (dyn Fn(f32) -> bool + Sync),
+    /// The output level's cell centres (`origin + stride * i` pixels), when centroids are
+    /// tracked.
+    centres: Option<(f32, f32)>,
 }
 
 fn step_with(
@@ -233,6 +323,7 @@ fn step_with(
     step: Step,
     epsilon: f32,
     keep: &(dyn Fn(f32) -> bool + Sync),
+    centroids: bool,
     row_fn: impl Fn(&RowInputs, usize) -> Row + Sync,
 ) -> Level {
     let (w, h) = (level.width, level.height);
@@ -267,6 +358,7 @@ fn step_with(
         nw,
         epsilon,
         keep,
+        centres: centroids.then_some((origin, stride)),
     };
     let rows: Vec<Row> = (0..nh)
         .into_par_iter()
@@ -277,13 +369,15 @@ fn step_with(
     let total: usize = rows.iter().map(|r| r.1.len()).sum();
     let mut depth = Vec::with_capacity(total);
     let mut color = Vec::with_capacity(total);
-    for (counts, d, c) in rows {
+    let mut centroid = Vec::with_capacity(if centroids { total } else { 0 });
+    for (counts, d, c, m) in rows {
         for n in counts {
             let last = *offsets.last().unwrap_or(&0);
             offsets.push(last + n);
         }
         depth.extend_from_slice(&d);
         color.extend_from_slice(&c);
+        centroid.extend_from_slice(&m);
     }
     Level {
         width: nw,
@@ -294,6 +388,7 @@ fn step_with(
         offsets,
         depth,
         color,
+        centroid,
     }
 }
 
@@ -317,11 +412,13 @@ fn step_row_inner(inputs: &RowInputs, y: usize) -> Row {
         nw,
         epsilon,
         keep,
+        centres,
     } = *inputs;
     let (w, h) = (level.width, level.height);
     let mut counts = Vec::with_capacity(nw);
     let mut depth = Vec::new();
     let mut color = Vec::new();
+    let mut centroid = Vec::new();
     // Source cells of a row or column: (lo, hi), clamped to the level (border cells
     // extended, fig. 4).
     let pair = |i: usize, n: usize| -> (usize, usize) {
@@ -334,14 +431,25 @@ fn step_row_inner(inputs: &RowInputs, y: usize) -> Row {
     let (sy, y1) = pair(y, h);
     for x in 0..nw {
         let (sx, x1) = pair(x, w);
-        let sources = [
-            level.cell(sx, sy),
-            level.cell(x1, sy),
-            level.cell(sx, y1),
-            level.cell(x1, y1),
-        ];
-        let n = merge4(sources, epsilon, keep, &mut depth, &mut color);
+        let cells = [(sx, sy), (x1, sy), (sx, y1), (x1, y1)];
+        let sources = cells.map(|(cx, cy)| {
+            let (d, c) = level.cell(cx, cy);
+            (d, c, level.cell_centroids(cx, cy))
+        });
+        let mut out = MergeOut {
+            depth: &mut depth,
+            color: &mut color,
+            centroid: centres.map(|(origin, stride)| {
+                let at = [origin + stride * x as f32, origin + stride * y as f32];
+                let rel = cells.map(|(cx, cy)| {
+                    let c = level.centre_px(cx, cy);
+                    [c[0] - at[0], c[1] - at[1]]
+                });
+                (&mut centroid, rel)
+            }),
+        };
+        let n = merge4(sources, epsilon, keep, &mut out);
         counts.push(n as u32);
     }
-    (counts, depth, color)
+    (counts, depth, color, centroid)
 }

@@ -400,7 +400,7 @@ pub fn filter(
 }
 
 /// A step of the filter pass (see [`filter::step`]).
-type StepFn = fn(&Level, Step, f32, &(dyn Fn(f32) -> bool + Sync)) -> Level;
+type StepFn = fn(&Level, Step, f32, &(dyn Fn(f32) -> bool + Sync), bool) -> Level;
 
 fn filter_with(
     lists: &FragmentLists,
@@ -414,7 +414,7 @@ fn filter_with(
     let keep_all = |_: f32| true;
     let mut k = settings.supersample;
     while k > 1 {
-        base = step_fn(&base, Step::Mip, eps, &keep_all);
+        base = step_fn(&base, Step::Mip, eps, &keep_all, false);
         peak = peak.max(lists.bytes() + base.bytes());
         k /= 2;
     }
@@ -435,8 +435,25 @@ fn filter_with(
     for (i, st) in filter::y_map(mip, stack).into_iter().enumerate() {
         let s = i + 1;
         let truncate = settings.truncation;
-        let keep = move |z: f32| !truncate || borders.lambda(z) > s as f32 - 1.0;
-        let next = step_fn(&levels[i], st, eps, &keep);
+        // With bokeh in the shape, CoCs from the threshold are read only by the gather of the
+        // level whose band holds them, so a level keeps those at or above its band; smaller
+        // ones go to the box levels, truncated as in the paper.
+        let shaped = settings.bokeh == Bokeh::Shape && s >= shape::FIRST_SHAPE_LEVEL;
+        let (threshold, band_lo) = (shape::shape_threshold_px(), shape::band_px(s, usize::MAX).0);
+        let keep = move |z: f32| {
+            if !truncate {
+                return true;
+            }
+            let r = borders.lens.coc_px(z).abs();
+            if shaped && r >= threshold {
+                r >= band_lo
+            } else {
+                borders.lambda(z) > s as f32 - 1.0
+            }
+        };
+        // Only the levels gathered in the aperture's shape read where a fragment's energy lies.
+        let centroids = settings.bokeh == Bokeh::Shape && s >= shape::FIRST_SHAPE_LEVEL;
+        let next = step_fn(&levels[i], st, eps, &keep, centroids);
         levels.push(next);
         total = total.max(levels.iter().map(Level::bytes).sum::<usize>());
     }
