@@ -330,9 +330,11 @@ fn check_memory(lens: &ThinLens, settings: &MultilayerSettings) -> Result<()> {
 }
 
 /// How far a fragment's blur reaches in multilayer, in CoC radii: the shape gather reads cells
-/// up to the aperture's extent (at most `sqrt 2` radii, for image apertures) plus its edge
-/// ramp of one cell and half a cell's box, cells being at most 1/2.5 of the radius (0.6 radii
-/// in all); the paper's box levels reach `sqrt 3` radii. With a margin.
+/// up to the aperture's extent (at most `sqrt 2` radii, for image apertures) plus half its edge
+/// ramp of one cell, half a cell's box, the fragment's centroid up to `sqrt 2 / 2` cells from
+/// its cell's centre, and pixels read gathered cells up to half a box away, cells being at most
+/// 1/2.5 of the radius (0.88 radii in all, 2.3 with the extent); the paper's box levels reach
+/// `sqrt 3` radii. With a margin.
 const REACH_RADII: f32 = 2.5;
 
 /// And in pixels besides (small CoCs, whose box levels are a few pixels wide).
