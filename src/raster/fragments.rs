@@ -23,7 +23,7 @@
 
 use half::f16;
 
-use super::{Fragment, Sink, TileRect, TileSink, FULL_COVERAGE};
+use super::{Fragment, Sink, TileRect, TileSink, COVERAGE_SAMPLES, FULL_COVERAGE};
 use crate::image::Rgba;
 
 /// Relative depth difference within which two fragments of one pixel with disjoint coverage
@@ -44,6 +44,10 @@ pub struct HeldFragment {
     pub mask: u16,
     /// From an alpha-blended surface.
     pub blend: bool,
+    /// Its mask is a share of the samples, not where its geometry lies ([`Fragment::dithered`]).
+    pub dithered: bool,
+    /// CoC radius in pixels at its depth, when the lists resolve coincident surfaces (else 0).
+    pub coc_px: f32,
 }
 
 impl HeldFragment {
@@ -53,6 +57,8 @@ impl HeldFragment {
         color: [0.0; 4],
         mask: 0,
         blend: false,
+        dithered: false,
+        coc_px: 0.0,
     };
 
     /// A rasterized fragment, premultiplied by its opacity and coverage.
@@ -64,6 +70,8 @@ impl HeldFragment {
             color: [f.color[0] * a, f.color[1] * a, f.color[2] * a, a],
             mask: f.coverage,
             blend: f.blend,
+            dithered: f.dithered,
+            coc_px: 0.0,
         }
     }
 
@@ -79,6 +87,7 @@ impl HeldFragment {
     #[inline]
     pub fn merge(&mut self, other: &Self) -> bool {
         if self.blend != other.blend
+            || self.dithered != other.dithered
             || self.mask & other.mask != 0
             || (self.depth_m - other.depth_m).abs() > SAME_SURFACE * self.depth_m.min(other.depth_m)
         {
@@ -148,6 +157,9 @@ pub struct FragmentLists {
     tiles: Vec<(TileRect, FragmentTile)>,
     /// Outside the frame (in a guard band), the depths whose blur can still reach it.
     reach: Option<Reach>,
+    /// With coverage masks: the lens whose CoCs tell which surfaces of a pixel no blur can
+    /// separate ([`hide_coincident`]).
+    coincident: Option<crate::lens::ThinLens>,
 }
 
 /// Which fragments of a guard band around a frame can reach the frame once blurred: one at
@@ -206,7 +218,15 @@ impl FragmentLists {
             color: Vec::new(),
             tiles: Vec::new(),
             reach: None,
+            coincident: None,
         }
+    }
+
+    /// Resolves the coverage masks of surfaces that no blur through `lens` can separate, as
+    /// the fragments of each pixel are finished ([`hide_coincident`]).
+    pub fn with_coincident_surfaces(mut self, lens: crate::lens::ThinLens) -> Self {
+        self.coincident = Some(lens);
+        self
     }
 
     /// Drops, as it rasterizes, the fragments outside the frame that cannot reach it once
@@ -335,6 +355,84 @@ impl FragmentLists {
     }
 }
 
+/// The largest difference in CoC radius, in pixels, between two surfaces of a pixel that a blur
+/// does not separate: seen from any point of the lens their images move apart by at most this
+/// much. Measured at 640x360 against `reference` (1024 samples): 0.5 px leaves some of the back
+/// faces of `traps`' bars (0.7 px behind their fronts) in the lists, 1 and 2 px give the same
+/// images to 0.01 dB, 4 px costs `railing` 0.9 dB (surfaces a blur does show beside each other).
+pub const COINCIDENT_COC_PX: f32 = 1.0;
+
+/// Makes the fragments of one pixel (sorted near to far) composite, with the over operator, as
+/// their coverage masks do wherever a nearer opaque surface lies within [`COINCIDENT_COC_PX`] of
+/// their CoC. Such a pair is one place seen at one time: the two sides of a thin closed mesh at
+/// its silhouette (a double-sided cylinder's back faces behind its front ones, on the same
+/// samples), ink printed on a board. The over operator treats the farther one's coverage as
+/// independent of the nearer one's, so the back of a cylinder at its silhouette would darken the
+/// edge a second time (measured: a bar's anti-aliased edge over a white chart at 0.23 instead of
+/// 0.47). Instead the farther fragment's opacity becomes its share of the samples those nearer
+/// surfaces leave free (`|mask \ U| / |not U|`), which the over operator turns back into exactly
+/// the samples it covers; hidden entirely, it is dropped (opacity 0). Surfaces further apart in
+/// CoC keep their own coverage: a blur can show one beside the other, and which of their samples
+/// overlap then is not known from the pinhole view. Masks from alpha to coverage
+/// ([`Fragment::dithered`]) neither hide nor are hidden: their samples are a share, not a place.
+pub(crate) fn hide_coincident(slots: &mut [HeldFragment]) {
+    for k in 1..slots.len() {
+        let back = slots[k];
+        if back.dithered || back.mask == 0 {
+            continue;
+        }
+        let hiding = samples_hiding(&slots[..k], &back);
+        if hiding == 0 {
+            continue;
+        }
+        let free = COVERAGE_SAMPLES - hiding.count_ones();
+        let seen = (back.mask & !hiding).count_ones();
+        let scale = if free == 0 || seen == 0 {
+            0.0
+        } else {
+            (seen * COVERAGE_SAMPLES) as f32 / (free * back.mask.count_ones()) as f32
+        };
+        slots[k].color = back.color.map(|v| v * scale);
+    }
+}
+
+/// The samples of `back` covered by the opaque surfaces among `others` that lie in front of it
+/// within [`COINCIDENT_COC_PX`] of its CoC (none when `back`'s mask is dithered).
+#[inline]
+pub(crate) fn samples_hiding(others: &[HeldFragment], back: &HeldFragment) -> u16 {
+    if back.dithered {
+        return 0;
+    }
+    others
+        .iter()
+        .filter(|s| {
+            s.depth_m < back.depth_m
+                && !s.blend
+                && !s.dithered
+                && (s.coc_px - back.coc_px).abs() <= COINCIDENT_COC_PX
+        })
+        .fold(0u16, |m, s| m | s.mask)
+}
+
+/// Removes from the first `n` slots the fragments whose every sample is hidden by coincident
+/// surfaces in front of them ([`samples_hiding`]): the back of a closed mesh behind its front,
+/// which would otherwise take the slots of what a blur reveals. Returns the number left.
+#[inline]
+fn drop_hidden(slots: &mut [HeldFragment], mut n: usize) -> usize {
+    let mut k = 0;
+    while k < n {
+        let s = slots[k];
+        if s.mask & !samples_hiding(&slots[..n], &s) == 0 && !s.dithered {
+            slots[k] = slots[n - 1];
+            slots[n - 1] = HeldFragment::EMPTY;
+            n -= 1;
+        } else {
+            k += 1;
+        }
+    }
+    n
+}
+
 /// Per-tile state of [`FragmentLists`]: N slots per pixel holding the N nearest fragments so
 /// far, so that an opaque fragment behind all N of a full pixel is rejected before it is shaded
 /// (the rasterizer's early test), and a nearer one replaces the farthest.
@@ -356,6 +454,8 @@ pub struct FragmentTile {
     out_depth: Vec<f32>,
     /// After `finish`: colours, pixel after pixel.
     out_color: Vec<HalfRgba>,
+    /// See [`FragmentLists::with_coincident_surfaces`].
+    coincident: Option<crate::lens::ThinLens>,
 }
 
 impl TileSink for FragmentTile {
@@ -377,39 +477,71 @@ impl TileSink for FragmentTile {
         if f.depth_m >= self.farthest[i] {
             return;
         }
-        let held = HeldFragment::of(f);
+        let mut held = HeldFragment::of(f);
         let slots = &mut self.slots[i * self.cap..(i + 1) * self.cap];
         let n = self.counts[i] as usize;
         let raise = 1.0 + SAME_SURFACE;
         let far_of = |slots: &[HeldFragment]| {
             slots.iter().map(|s| s.depth_m).fold(f32::MIN, f32::max) * raise
         };
-        if slots[..n].iter_mut().any(|s| s.merge(&held)) {
-            if n == self.cap {
-                self.farthest[i] = far_of(slots).min(self.limit[i]);
-            }
-            return;
-        }
-        if n < self.cap {
-            slots[n] = held;
-            self.counts[i] += 1;
-            if n + 1 == self.cap {
-                self.farthest[i] = far_of(slots).min(self.limit[i]);
-            }
-        } else {
-            // Replace the farthest (the last of equals, so the earlier fragment wins ties),
-            // when this one is nearer.
-            let mut far = 0;
-            for (k, s) in slots.iter().enumerate() {
-                if s.depth_m >= slots[far].depth_m {
-                    far = k;
-                }
-            }
-            if f.depth_m >= slots[far].depth_m {
+        let coincident = self.coincident.is_some();
+        if let Some(lens) = &self.coincident {
+            held.coc_px = lens.coc_px(held.depth_m);
+            // Hidden at every sample by coincident surfaces in front: it takes no slot.
+            if !held.dithered && held.mask & !samples_hiding(&slots[..n], &held) == 0 {
                 return;
             }
-            slots[far] = held;
-            self.farthest[i] = far_of(slots).min(self.limit[i]);
+        }
+        let at = match slots[..n].iter_mut().position(|s| s.merge(&held)) {
+            Some(k) => {
+                if n == self.cap {
+                    self.farthest[i] = far_of(slots).min(self.limit[i]);
+                }
+                k
+            }
+            None if n < self.cap => {
+                slots[n] = held;
+                self.counts[i] += 1;
+                if n + 1 == self.cap {
+                    self.farthest[i] = far_of(slots).min(self.limit[i]);
+                }
+                n
+            }
+            None => {
+                // Replace the farthest (the last of equals, so the earlier fragment wins
+                // ties), when this one is nearer.
+                let mut far = 0;
+                for (k, s) in slots.iter().enumerate() {
+                    if s.depth_m >= slots[far].depth_m {
+                        far = k;
+                    }
+                }
+                if f.depth_m >= slots[far].depth_m {
+                    return;
+                }
+                slots[far] = held;
+                self.farthest[i] = far_of(slots).min(self.limit[i]);
+                far
+            }
+        };
+        // An opaque surface that arrived or grew may now hide, at every sample, coincident
+        // ones behind it (the back of a closed mesh arriving before its front): their slots are
+        // freed for what a blur reveals.
+        let front = slots[at];
+        if coincident && !front.blend && !front.dithered {
+            let n = self.counts[i] as usize;
+            let behind = |s: &HeldFragment| {
+                s.depth_m > front.depth_m
+                    && !s.dithered
+                    && (s.coc_px - front.coc_px).abs() <= COINCIDENT_COC_PX
+            };
+            if slots[..n].iter().any(behind) {
+                let left = drop_hidden(slots, n);
+                if left < n {
+                    self.counts[i] = left as u32;
+                    self.farthest[i] = self.limit[i];
+                }
+            }
         }
     }
 
@@ -420,10 +552,16 @@ impl TileSink for FragmentTile {
             let slots = &mut self.slots[i * self.cap..i * self.cap + count];
             // Near to far; stable, so equal depths keep their order.
             slots.sort_by(|a, b| a.depth_m.total_cmp(&b.depth_m));
-            for s in slots.iter() {
+            if self.coincident.is_some() {
+                hide_coincident(slots);
+            }
+            let mut kept = 0;
+            for s in slots.iter().filter(|s| s.color[3] > 0.0) {
                 self.out_depth.push(s.depth_m);
                 self.out_color.push(to_half(s.color));
+                kept += 1;
             }
+            self.counts[i] = kept;
         }
         self.slots = Vec::new();
         self.farthest = Vec::new();
@@ -451,6 +589,7 @@ impl Sink for FragmentLists {
             slots: vec![HeldFragment::EMPTY; n * self.cap],
             out_depth: Vec::new(),
             out_color: Vec::new(),
+            coincident: self.coincident,
         }
     }
 

@@ -161,6 +161,13 @@ impl LayersTile {
         } else if f.depth_m < held[1].depth_m {
             held[1] = *f;
         }
+        // The back of a thin closed mesh behind its front, hidden at every sample, is not a
+        // surface of the layer (see `fragments::hide_coincident`).
+        if held[1].mask & !super::fragments::samples_hiding(&held[..1], &held[1]) == 0
+            && !held[1].dithered
+        {
+            held[1] = HeldFragment::EMPTY;
+        }
     }
 }
 
@@ -174,12 +181,13 @@ impl TileSink for LayersTile {
 
     #[inline]
     fn fragment(&mut self, f: &Fragment) {
-        let held = HeldFragment::of(f);
+        let mut held = HeldFragment::of(f);
         if held.color[3] <= 0.0 {
             return;
         }
+        held.coc_px = self.spacing.lens.coc_px(f.depth_m);
         let i = (f.y as usize - self.rect.y0) * self.rect.width() + (f.x as usize - self.rect.x0);
-        let (l, other) = self.spacing.targets(self.spacing.lens.coc_px(f.depth_m));
+        let (l, other) = self.spacing.targets(held.coc_px);
         self.write(l, i, &held);
         if let Some(o) = other.filter(|_| held.covers_pixel()) {
             self.write(o, i, &held);
@@ -205,7 +213,9 @@ impl Sink for DepthLayers {
         for l in 0..self.spacing.layers {
             for (row, y) in (rect.y0..rect.y1).enumerate() {
                 for (col, x) in (rect.x0..rect.x1).enumerate() {
-                    let [a, b] = &tile.held[l * n + row * rect.width() + col];
+                    let mut pair = tile.held[l * n + row * rect.width() + col];
+                    super::fragments::hide_coincident(&mut pair);
+                    let [a, b] = &pair;
                     if a.depth_m.is_finite() {
                         let d = self.index(l, x, y);
                         self.coc_px[d] = lens.coc_px(a.depth_m);

@@ -38,7 +38,7 @@ use rayon::prelude::*;
 
 pub use fragments::{
     from_half, nearest_depths, to_half, FragmentLists, FragmentTile, HalfRgba, HeldFragment, Reach,
-    MAX_FRAGMENTS_PER_PIXEL, SAME_SURFACE,
+    COINCIDENT_COC_PX, MAX_FRAGMENTS_PER_PIXEL, SAME_SURFACE,
 };
 pub use gbuffer::{GBuffer, GBufferTile};
 pub use layers::{DepthLayers, LayerSpacing, LayersTile};
@@ -94,6 +94,10 @@ pub struct Fragment {
     /// each ([`FULL_COVERAGE`] for views rasterized at pixel centres, where a fragment is emitted
     /// only when the centre is covered).
     pub coverage: u16,
+    /// The mask keeps a share of the samples for the surface's opacity (alpha to coverage)
+    /// rather than the samples its geometry covers: which samples it holds says nothing about
+    /// where the surface lies in the pixel.
+    pub dithered: bool,
 }
 
 impl Fragment {
@@ -634,6 +638,9 @@ pub fn render_fragment_lists(
         BinnedView::new(prepared, view)
     };
     let mut lists = FragmentLists::new(view.lens.width_px, view.lens.height_px, cap);
+    if coverage {
+        lists = lists.with_coincident_surfaces(view.lens);
+    }
     if let Some(reach) = reach {
         lists = lists.with_reach(reach);
     }

@@ -759,6 +759,7 @@ impl SampleBatch {
                 color: sum[i].map(|v| v * inv),
                 blend,
                 coverage: kept[i],
+                dithered: alpha_to_coverage,
             });
         }
         self.pixels = 0;
@@ -885,6 +886,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
                     color,
                     blend: tri.blend,
                     coverage: p.mask[i],
+                    dithered: false,
                 });
             }
         }
