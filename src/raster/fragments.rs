@@ -46,8 +46,6 @@ pub struct HeldFragment {
     pub blend: bool,
     /// Its mask is a share of the samples, not where its geometry lies ([`Fragment::dithered`]).
     pub dithered: bool,
-    /// CoC radius in pixels at its depth, when the lists resolve coincident surfaces (else 0).
-    pub coc_px: f32,
 }
 
 impl HeldFragment {
@@ -58,7 +56,6 @@ impl HeldFragment {
         mask: 0,
         blend: false,
         dithered: false,
-        coc_px: 0.0,
     };
 
     /// A rasterized fragment, premultiplied by its opacity and coverage.
@@ -71,7 +68,6 @@ impl HeldFragment {
             mask: f.coverage,
             blend: f.blend,
             dithered: f.dithered,
-            coc_px: 0.0,
         }
     }
 
@@ -375,31 +371,31 @@ pub const COINCIDENT_COC_PX: f32 = 1.0;
 /// CoC keep their own coverage: a blur can show one beside the other, and which of their samples
 /// overlap then is not known from the pinhole view. Masks from alpha to coverage
 /// ([`Fragment::dithered`]) neither hide nor are hidden: their samples are a share, not a place.
-pub(crate) fn hide_coincident(slots: &mut [HeldFragment]) {
+pub(crate) fn hide_coincident(slots: &mut [HeldFragment], scale: CocScale) {
     for k in 1..slots.len() {
         let back = slots[k];
         if back.dithered || back.mask == 0 {
             continue;
         }
-        let hiding = samples_hiding(&slots[..k], &back);
+        let hiding = samples_hiding(&slots[..k], &back, scale);
         if hiding == 0 {
             continue;
         }
         let free = COVERAGE_SAMPLES - hiding.count_ones();
         let seen = (back.mask & !hiding).count_ones();
-        let scale = if free == 0 || seen == 0 {
+        let share = if free == 0 || seen == 0 {
             0.0
         } else {
             (seen * COVERAGE_SAMPLES) as f32 / (free * back.mask.count_ones()) as f32
         };
-        slots[k].color = back.color.map(|v| v * scale);
+        slots[k].color = back.color.map(|v| v * share);
     }
 }
 
 /// The samples of `back` covered by the opaque surfaces among `others` that lie in front of it
 /// within [`COINCIDENT_COC_PX`] of its CoC (none when `back`'s mask is dithered).
 #[inline]
-pub(crate) fn samples_hiding(others: &[HeldFragment], back: &HeldFragment) -> u16 {
+pub(crate) fn samples_hiding(others: &[HeldFragment], back: &HeldFragment, scale: CocScale) -> u16 {
     if back.dithered {
         return 0;
     }
@@ -409,20 +405,39 @@ pub(crate) fn samples_hiding(others: &[HeldFragment], back: &HeldFragment) -> u1
             s.depth_m < back.depth_m
                 && !s.blend
                 && !s.dithered
-                && (s.coc_px - back.coc_px).abs() <= COINCIDENT_COC_PX
+                && scale.coincident(s.depth_m, back.depth_m)
         })
         .fold(0u16, |m, s| m | s.mask)
+}
+
+/// `f_px E`, the lens's scale of CoC against inverse depth (`C = f_px E (1/z_f - 1/z)`, see
+/// [`crate::lens::coc_px`]), for telling coincident surfaces apart without a division.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct CocScale(pub f32);
+
+impl CocScale {
+    /// The scale of `lens`.
+    pub(crate) fn of(lens: &crate::lens::ThinLens) -> Self {
+        Self(lens.f_px * lens.lens_radius_m)
+    }
+
+    /// Whether depths `a` and `b` (positive) lie within [`COINCIDENT_COC_PX`] of CoC of each
+    /// other: `|C(a) - C(b)| = f_px E |a - b| / (a b)`.
+    #[inline(always)]
+    pub(crate) fn coincident(self, a: f32, b: f32) -> bool {
+        self.0 * (a - b).abs() <= COINCIDENT_COC_PX * a * b
+    }
 }
 
 /// Removes from the first `n` slots the fragments whose every sample is hidden by coincident
 /// surfaces in front of them ([`samples_hiding`]): the back of a closed mesh behind its front,
 /// which would otherwise take the slots of what a blur reveals. Returns the number left.
 #[inline]
-fn drop_hidden(slots: &mut [HeldFragment], mut n: usize) -> usize {
+fn drop_hidden(slots: &mut [HeldFragment], mut n: usize, scale: CocScale) -> usize {
     let mut k = 0;
     while k < n {
         let s = slots[k];
-        if s.mask & !samples_hiding(&slots[..n], &s) == 0 && !s.dithered {
+        if s.mask & !samples_hiding(&slots[..n], &s, scale) == 0 && !s.dithered {
             slots[k] = slots[n - 1];
             slots[n - 1] = HeldFragment::EMPTY;
             n -= 1;
@@ -455,7 +470,7 @@ pub struct FragmentTile {
     /// After `finish`: colours, pixel after pixel.
     out_color: Vec<HalfRgba>,
     /// See [`FragmentLists::with_coincident_surfaces`].
-    coincident: Option<crate::lens::ThinLens>,
+    coincident: Option<CocScale>,
 }
 
 impl TileSink for FragmentTile {
@@ -477,18 +492,19 @@ impl TileSink for FragmentTile {
         if f.depth_m >= self.farthest[i] {
             return;
         }
-        let mut held = HeldFragment::of(f);
+        let held = HeldFragment::of(f);
         let slots = &mut self.slots[i * self.cap..(i + 1) * self.cap];
         let n = self.counts[i] as usize;
         let raise = 1.0 + SAME_SURFACE;
         let far_of = |slots: &[HeldFragment]| {
             slots.iter().map(|s| s.depth_m).fold(f32::MIN, f32::max) * raise
         };
-        let coincident = self.coincident.is_some();
-        if let Some(lens) = &self.coincident {
-            held.coc_px = lens.coc_px(held.depth_m);
+        if let Some(scale) = self.coincident {
             // Hidden at every sample by coincident surfaces in front: it takes no slot.
-            if !held.dithered && held.mask & !samples_hiding(&slots[..n], &held) == 0 {
+            if n > 0
+                && !held.dithered
+                && held.mask & !samples_hiding(&slots[..n], &held, scale) == 0
+            {
                 return;
             }
         }
@@ -528,15 +544,18 @@ impl TileSink for FragmentTile {
         // ones behind it (the back of a closed mesh arriving before its front): their slots are
         // freed for what a blur reveals.
         let front = slots[at];
-        if coincident && !front.blend && !front.dithered {
+        let scale = self
+            .coincident
+            .filter(|_| n > 0 && !front.blend && !front.dithered);
+        if let Some(scale) = scale {
             let n = self.counts[i] as usize;
             let behind = |s: &HeldFragment| {
                 s.depth_m > front.depth_m
                     && !s.dithered
-                    && (s.coc_px - front.coc_px).abs() <= COINCIDENT_COC_PX
+                    && scale.coincident(front.depth_m, s.depth_m)
             };
             if slots[..n].iter().any(behind) {
-                let left = drop_hidden(slots, n);
+                let left = drop_hidden(slots, n, scale);
                 if left < n {
                     self.counts[i] = left as u32;
                     self.farthest[i] = self.limit[i];
@@ -552,8 +571,8 @@ impl TileSink for FragmentTile {
             let slots = &mut self.slots[i * self.cap..i * self.cap + count];
             // Near to far; stable, so equal depths keep their order.
             slots.sort_by(|a, b| a.depth_m.total_cmp(&b.depth_m));
-            if self.coincident.is_some() {
-                hide_coincident(slots);
+            if let Some(scale) = self.coincident {
+                hide_coincident(slots, scale);
             }
             let mut kept = 0;
             for s in slots.iter().filter(|s| s.color[3] > 0.0) {
@@ -589,7 +608,7 @@ impl Sink for FragmentLists {
             slots: vec![HeldFragment::EMPTY; n * self.cap],
             out_depth: Vec::new(),
             out_color: Vec::new(),
-            coincident: self.coincident,
+            coincident: self.coincident.as_ref().map(CocScale::of),
         }
     }
 

@@ -22,6 +22,7 @@
 
 use half::f16;
 
+use super::fragments::CocScale;
 use super::{to_half, Fragment, HalfRgba, HeldFragment, Sink, TileRect, TileSink};
 use crate::lens::ThinLens;
 
@@ -163,7 +164,8 @@ impl LayersTile {
         }
         // The back of a thin closed mesh behind its front, hidden at every sample, is not a
         // surface of the layer (see `fragments::hide_coincident`).
-        if held[1].mask & !super::fragments::samples_hiding(&held[..1], &held[1]) == 0
+        let scale = super::fragments::CocScale::of(&self.spacing.lens);
+        if held[1].mask & !super::fragments::samples_hiding(&held[..1], &held[1], scale) == 0
             && !held[1].dithered
         {
             held[1] = HeldFragment::EMPTY;
@@ -181,13 +183,12 @@ impl TileSink for LayersTile {
 
     #[inline]
     fn fragment(&mut self, f: &Fragment) {
-        let mut held = HeldFragment::of(f);
+        let held = HeldFragment::of(f);
         if held.color[3] <= 0.0 {
             return;
         }
-        held.coc_px = self.spacing.lens.coc_px(f.depth_m);
         let i = (f.y as usize - self.rect.y0) * self.rect.width() + (f.x as usize - self.rect.x0);
-        let (l, other) = self.spacing.targets(held.coc_px);
+        let (l, other) = self.spacing.targets(self.spacing.lens.coc_px(f.depth_m));
         self.write(l, i, &held);
         if let Some(o) = other.filter(|_| held.covers_pixel()) {
             self.write(o, i, &held);
@@ -214,7 +215,7 @@ impl Sink for DepthLayers {
             for (row, y) in (rect.y0..rect.y1).enumerate() {
                 for (col, x) in (rect.x0..rect.x1).enumerate() {
                     let mut pair = tile.held[l * n + row * rect.width() + col];
-                    super::fragments::hide_coincident(&mut pair);
+                    super::fragments::hide_coincident(&mut pair, CocScale::of(&lens));
                     let [a, b] = &pair;
                     if a.depth_m.is_finite() {
                         let d = self.index(l, x, y);
