@@ -15,11 +15,12 @@
 //!    fragment near `p` is read once. At least `pi rho^2` cells fall inside the smallest bokeh a
 //!    level serves.
 //! 2. A fragment read from the cell at offset `d = 2^S (i, j)` is weighted by the aperture's
-//!    coverage of `d / C` with an edge one cell wide (the signed distance to the disc's or the
+//!    coverage of `(d - s) / C`, `s` being where its energy lies in its cell
+//!    ([`Level::centroid`]), with an edge one cell wide (the signed distance to the disc's or the
 //!    polygon's edge, the same test as `splat`; curved blades and image apertures use their
 //!    density), divided by the summed coverage of the whole grid at that CoC, tabulated once
-//!    (`norm`): a point light keeps its energy exactly, and the weight changes continuously with
-//!    depth.
+//!    (`norm`): a point light keeps its energy to within 2%, sits where it is in the cell, and
+//!    the weight changes continuously with depth.
 //! 3. CoCs below `rho 2^1` pixels (at most a few pixels across, where shape and box differ by a
 //!    pixel or two) are taken from the levels as in the paper ([`super::accumulate`]): one cell
 //!    per level, the two levels around the CoC blended to the disc's variance.
@@ -27,9 +28,12 @@
 //!    per level, 8x8-pixel tiles hold the largest CoC radius of the fragments within reach,
 //!    which also bounds the radius of the walk.
 //!
-//! The fragments gathered at a pixel are then blended as in the box accumulation: those of one
-//! cell within the depth threshold of each other are combined with the over operator (one list
-//! occludes itself), all are sorted by depth, those within the depth threshold of each other
+//! The gather is worked out per cell of the level (every cell, or every [`gather_step`]-th on
+//! coarse levels) and each pixel reads the four gathered cells around its centre, weighted
+//! bilinearly, so that the bokeh's edge is placed to within a pixel rather than on the grid of
+//! cells. The fragments gathered at a pixel are then blended as in the box accumulation: those of
+//! one cell within the depth threshold of each other are combined with the over operator (one
+//! list occludes itself), all are sorted by depth, those within the depth threshold of each other
 //! are summed (side by side, from different cells or levels) and the sums are blended front to
 //! back with the over operator.
 
