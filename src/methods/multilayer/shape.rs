@@ -28,7 +28,7 @@
 //!    per level, 8x8-pixel tiles hold the largest CoC radius of the fragments within reach,
 //!    which also bounds the radius of the walk.
 //!
-//! The gather is worked out per cell of the level (every cell, or every [`gather_step`]-th on
+//! The gather is worked out per cell of the level (every cell, or every `gather_step`-th on
 //! coarse levels) and each pixel reads the four gathered cells around its centre, weighted
 //! bilinearly, so that the bokeh's edge is placed to within a pixel rather than on the grid of
 //! cells. The fragments gathered at a pixel are then blended as in the box accumulation: those of
