@@ -131,6 +131,8 @@ pub struct LayersTile {
     spacing: LayerSpacing,
     /// Per layer, per pixel: the two nearest surfaces, nearest first.
     held: Vec<[HeldFragment; 2]>,
+    /// The lens's CoC scale, for the surfaces of a layer no blur separates.
+    scale: CocScale,
 }
 
 impl LayersTile {
@@ -164,8 +166,7 @@ impl LayersTile {
         }
         // The back of a thin closed mesh behind its front, hidden at every sample, is not a
         // surface of the layer (see `fragments::hide_coincident`).
-        let scale = super::fragments::CocScale::of(&self.spacing.lens);
-        if held[1].mask & !super::fragments::samples_hiding(&held[..1], &held[1], scale) == 0
+        if held[1].mask & !super::fragments::samples_hiding(&held[..1], &held[1], self.scale) == 0
             && !held[1].dithered
         {
             held[1] = HeldFragment::EMPTY;
@@ -205,6 +206,7 @@ impl Sink for DepthLayers {
             rect,
             spacing: self.spacing,
             held: vec![[HeldFragment::EMPTY; 2]; n],
+            scale: CocScale::of(&self.spacing.lens),
         }
     }
 
@@ -215,7 +217,7 @@ impl Sink for DepthLayers {
             for (row, y) in (rect.y0..rect.y1).enumerate() {
                 for (col, x) in (rect.x0..rect.x1).enumerate() {
                     let mut pair = tile.held[l * n + row * rect.width() + col];
-                    super::fragments::hide_coincident(&mut pair, CocScale::of(&lens));
+                    super::fragments::hide_coincident(&mut pair, tile.scale);
                     let [a, b] = &pair;
                     if a.depth_m.is_finite() {
                         let d = self.index(l, x, y);

@@ -263,7 +263,7 @@ impl Borders {
     /// matches the CoC where this equals S; -inf on the focal plane.
     #[inline(always)]
     pub fn lambda(&self, z_m: f32) -> f32 {
-        (3f32.sqrt() * self.lens.coc_px(z_m).abs()).log2()
+        lambda_of_radius(self.lens.coc_px(z_m).abs())
     }
 
     /// `z_N,S`: the depth in front of the focal plane where the CoC matches level S
@@ -450,7 +450,7 @@ fn filter_with(
             if shaped && r >= threshold {
                 r >= band_lo
             } else {
-                borders.lambda(z) > s as f32 - 1.0
+                lambda_of_radius(r) > s as f32 - 1.0
             }
         };
         // Only the levels gathered in the aperture's shape read where a fragment's energy lies.
@@ -460,6 +460,12 @@ fn filter_with(
         total = total.max(levels.iter().map(Level::bytes).sum::<usize>());
     }
     (levels, total)
+}
+
+/// The level coordinate of a CoC radius `r` pixels ([`Borders::lambda`]).
+#[inline(always)]
+pub fn lambda_of_radius(r: f32) -> f32 {
+    (3f32.sqrt() * r).log2()
 }
 
 /// Renders `scene` through `camera` with multi-layer filtering.

@@ -587,7 +587,7 @@ where
     };
     // Box levels with a weight for some CoC below the threshold.
     let box_levels = if threshold_px.is_finite() {
-        let lambda = (3f32.sqrt() * threshold_px).log2();
+        let lambda = super::lambda_of_radius(threshold_px);
         (lambda.floor() as usize + 2).min(n)
     } else {
         n
@@ -678,7 +678,7 @@ where
                 .for_each(|(w, &z)| {
                     let r = borders.lens.coc_px(z).abs();
                     if r < threshold_px {
-                        *w = level_weight((3f32.sqrt() * r).log2(), s, n);
+                        *w = level_weight(super::lambda_of_radius(r), s, n);
                     }
                 });
             weights
@@ -905,6 +905,15 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
         ..
     } = *inputs;
     let mut entries: Vec<(f32, Rgba)> = Vec::new();
+    // The gathered rows each level's pixels read between: the same for the whole row.
+    let between_y: Vec<((usize, usize), f32)> = gathered
+        .iter()
+        .zip(&levels[FIRST_SHAPE_LEVEL..])
+        .map(|(g, level)| {
+            g.as_ref()
+                .map_or(((0, 0), 0.0), |g| level.between(y, level.height, g.step))
+        })
+        .collect();
     for (x, out) in (x0..).zip(row.iter_mut()) {
         entries.clear();
         // CoCs below the threshold: one cell per level, as the paper.
@@ -928,10 +937,13 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
         // level, weighted bilinearly (a cell's gather is exact at its centre; the pixel reads
         // between them rather than taking the nearest, which would draw the bokeh's corners on
         // the level's grid of cells).
-        for (g, level) in gathered.iter().zip(&levels[FIRST_SHAPE_LEVEL..]) {
+        for ((g, level), &((y0c, y1c), fy)) in gathered
+            .iter()
+            .zip(&levels[FIRST_SHAPE_LEVEL..])
+            .zip(&between_y)
+        {
             let Some(g) = g else { continue };
             let ((x0c, x1c), fx) = level.between(x, level.width, g.step);
-            let ((y0c, y1c), fy) = level.between(y, level.height, g.step);
             let start = entries.len();
             for (cy, wy) in [(y0c, 1.0 - fy), (y1c, fy)] {
                 for (cx, wx) in [(x0c, 1.0 - fx), (x1c, fx)] {
