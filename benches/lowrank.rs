@@ -102,6 +102,15 @@ fn filters(c: &mut Criterion) {
             group.bench_function(format!("dof_uniform/hex65/{w}x{h}"), |b| {
                 b.iter(|| lowrank::render_coc(&img, &coc, &settings).expect("lowrank"))
             });
+            // The same with an alpha that varies, so that all four channels are filtered (as
+            // OpenCV's `filter2D` filters an RGBA image).
+            let mut translucent = img.clone();
+            for (i, p) in translucent.pixels_mut().iter_mut().enumerate() {
+                p[3] = if (i / 16) % 2 == 0 { 1.0 } else { 0.5 };
+            }
+            group.bench_function(format!("dof_uniform/rgba/hex65/{w}x{h}"), |b| {
+                b.iter(|| lowrank::render_coc(&translucent, &coc, &settings).expect("lowrank"))
+            });
             let spec = KernelSpec::new(settings.aperture.clone(), 67);
             let lr = decompose(&kernel_image(&spec).expect("kernel")).expect("svd");
             let bank = lowrank::dof::KernelBank::new(&lr, 3, 32.5).expect("bank");

@@ -11,7 +11,9 @@
 //! 3. A target that exists and is not a regular file (a folder, a device, a FIFO, a socket, or a
 //!    link to one of those) is refused, naming it.
 //! 4. Every error names the target, never the staged file.
-//! 5. An interrupted process removes its staged files with [`interrupt`], which waits for a
+//! 5. Each staged file is synced to the disk before the rename, unless [`set_durable`] turned
+//!    that off.
+//! 6. An interrupted process removes its staged files with [`interrupt`], which waits for a
 //!    commit under way to finish its renames, so a set's targets are all replaced or none.
 
 use std::ffi::OsString;
@@ -19,7 +21,7 @@ use std::fs::{File, OpenOptions};
 use std::hash::{BuildHasher, Hasher};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Mutex, MutexGuard};
 
 use crate::error::shown;
@@ -45,6 +47,22 @@ pub fn interrupt() {
     }
     // Held until the process ends: a write or commit of another thread now waits forever.
     std::mem::forget(staged);
+}
+
+/// Whether a staged file is synced to the disk before its rename ([`set_durable`]).
+static DURABLE: AtomicBool = AtomicBool::new(true);
+
+/// Sets whether every output is synced to the disk (`fsync`) before it replaces its target, for
+/// the whole process; the default is `true`. With `false` an output is still staged and renamed
+/// (a reader never sees a partial file), but a crash or power loss soon after may leave a target
+/// empty or lose it: for scratch outputs and render farms whose frames are checked afterwards.
+pub fn set_durable(durable: bool) {
+    DURABLE.store(durable, Ordering::Relaxed);
+}
+
+/// See [`set_durable`].
+pub fn is_durable() -> bool {
+    DURABLE.load(Ordering::Relaxed)
 }
 
 /// A staged file being written: a plain file that, on Linux, asks the kernel to start writing
@@ -76,7 +94,7 @@ impl Write for StagedFile {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
         let n = self.file.write(buf)?;
         self.pos += n as u64;
-        if self.pos >= self.started + WRITEBACK_BYTES {
+        if self.pos >= self.started + WRITEBACK_BYTES && is_durable() {
             #[cfg(target_os = "linux")]
             {
                 use std::os::fd::AsRawFd;
@@ -140,7 +158,10 @@ impl OutputSet {
         let staged = out
             .into_inner()
             .map_err(|e| Error::io(target, e.into_error()))?;
-        staged.file.sync_all().map_err(|e| Error::io(target, e))
+        if is_durable() {
+            staged.file.sync_all().map_err(|e| Error::io(target, e))?;
+        }
+        Ok(())
     }
 
     /// Writes `bytes` as the content of `target` (see [`OutputSet::write`]).

@@ -64,24 +64,67 @@ pub fn check_max_coc(max_coc_px: f32) -> Result<()> {
 pub fn coc(depth: &GrayImage, lens: &ThinLens, max_coc_px: f32) -> Result<GrayImage> {
     check_max_coc(max_coc_px)?;
     let w = depth.width();
-    if let Some(i) = depth.pixels().iter().position(|&z| z.is_nan() || z <= 0.0) {
-        return Err(Error::invalid(
-            "depth",
-            format!(
-                "{} at pixel ({}, {}): expected a view-axis depth greater than 0 m (+inf for sky)",
-                depth.pixels()[i],
-                i % w.max(1),
-                i / w.max(1)
-            ),
-        ));
-    }
-    let mut out = depth.clone();
-    out.pixels_mut().par_chunks_mut(w.max(1)).for_each(|row| {
-        for c in row {
-            *c = lens.coc_px(*c).clamp(-max_coc_px, max_coc_px);
+    let coc = |z: f32| lens.coc_px(z).clamp(-max_coc_px, max_coc_px);
+    match map_checked(depth.pixels(), |z| z > 0.0, coc) {
+        Some(pixels) => GrayImage::from_vec(w, depth.height(), pixels),
+        None => {
+            let i = first_failing(depth.pixels(), |z| z > 0.0);
+            Err(Error::invalid(
+                "depth",
+                format!(
+                    "{} at pixel ({}, {}): expected a view-axis depth greater than 0 m (+inf \
+                     for sky)",
+                    depth.pixels()[i],
+                    i % w.max(1),
+                    i / w.max(1)
+                ),
+            ))
         }
-    });
-    Ok(out)
+    }
+}
+
+/// Values per parallel block of [`map_checked`]: 64 KB, big enough that the threads' hand-offs
+/// cost nothing next to the block.
+const MAP_BLOCK: usize = 1 << 14;
+
+/// `f` of every value of `src`, in one pass of parallel blocks whose loops the compiler
+/// vectorises, or `None` when `valid` is false for any value. (A check first and a map after
+/// would read the image twice; a parallel search for the first failure splits the image into
+/// pieces too small to pay for their threads.)
+fn map_checked(
+    src: &[f32],
+    valid: impl Fn(f32) -> bool + Sync,
+    f: impl Fn(f32) -> f32 + Sync,
+) -> Option<Vec<f32>> {
+    let mut out = vec![0.0f32; src.len()];
+    let ok = out
+        .par_chunks_mut(MAP_BLOCK)
+        .zip(src.par_chunks(MAP_BLOCK))
+        .map(|(o, s)| {
+            let mut ok = true;
+            for (o, &v) in o.iter_mut().zip(s) {
+                ok &= valid(v);
+                *o = f(v);
+            }
+            ok
+        })
+        .reduce(|| true, |a, b| a & b);
+    ok.then_some(out)
+}
+
+/// Index of the first value of `src` for which `valid` is false (0 if there is none): the
+/// pixel an error names, looked for only once [`map_checked`] has failed.
+fn first_failing(src: &[f32], valid: impl Fn(f32) -> bool) -> usize {
+    src.iter().position(|&v| !valid(v)).unwrap_or(0)
+}
+
+/// The largest |value| of `src` (0 for an empty or all-zero slice; the values are finite), in
+/// parallel blocks of comparisons the compiler vectorises.
+pub fn max_abs(src: &[f32]) -> f32 {
+    let biggest = |a: f32, b: f32| if a > b { a } else { b };
+    src.par_chunks(MAP_BLOCK)
+        .map(|s| s.iter().fold(0.0f32, |m, &v| biggest(m, v.abs())))
+        .reduce(|| 0.0, biggest)
 }
 
 /// Validates a given CoC map (finite values, in pixels) and clamps it to `±max_coc_px`: the
@@ -89,27 +132,22 @@ pub fn coc(depth: &GrayImage, lens: &ThinLens, max_coc_px: f32) -> Result<GrayIm
 pub fn clamp_coc(coc_px: &GrayImage, max_coc_px: f32) -> Result<GrayImage> {
     check_max_coc(max_coc_px)?;
     let w = coc_px.width().max(1);
-    if let Some(i) = coc_px
-        .pixels()
-        .par_iter()
-        .position_first(|c| !c.is_finite())
-    {
-        return Err(Error::invalid(
-            "CoC map",
-            format!(
-                "{} at pixel ({}, {}): expected finite radii in pixels",
-                coc_px.pixels()[i],
-                i % w,
-                i / w
-            ),
-        ));
+    let clamp = |c: f32| c.clamp(-max_coc_px, max_coc_px);
+    match map_checked(coc_px.pixels(), f32::is_finite, clamp) {
+        Some(pixels) => GrayImage::from_vec(coc_px.width(), coc_px.height(), pixels),
+        None => {
+            let i = first_failing(coc_px.pixels(), f32::is_finite);
+            Err(Error::invalid(
+                "CoC map",
+                format!(
+                    "{} at pixel ({}, {}): expected finite radii in pixels",
+                    coc_px.pixels()[i],
+                    i % w,
+                    i / w
+                ),
+            ))
+        }
     }
-    let clamped = coc_px
-        .pixels()
-        .par_iter()
-        .map(|c| c.clamp(-max_coc_px, max_coc_px))
-        .collect();
-    GrayImage::from_vec(coc_px.width(), coc_px.height(), clamped)
 }
 
 /// CoC radii are quantised to steps of 1 / `LEVELS_PER_PX` pixel.

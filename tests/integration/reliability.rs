@@ -620,3 +620,22 @@ fn splat_stays_within_its_frame_estimate_and_counted_lists() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `--no-fsync` only skips the wait for the disk: the output is the same file, written whole
+/// through a staged file and a rename (no staged file is left beside it).
+#[test]
+fn no_fsync_writes_the_same_output_whole() {
+    let dir = temp_dir("nofsync");
+    let (c, d) = frame(&dir);
+    let (a, b) = (dir.join("a.exr"), dir.join("b.exr"));
+    for (out, extra) in [(&a, None), (&b, Some("--no-fsync"))] {
+        let mut args = vec!["blur", "--color", s(&c), "--depth", s(&d), "--focus", "2"];
+        args.extend(["--method", "hammon", "--out", s(out)]);
+        args.extend(extra);
+        let o = defocus(&args);
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    }
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    assert_eq!(files_in(&dir), ["a.exr", "b.exr", "c.exr", "z.exr"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}

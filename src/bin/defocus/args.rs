@@ -26,6 +26,11 @@ pub struct Cli {
     /// more is refused before it allocates, naming the option to lower.
     #[arg(long, global = true, value_name = "GIB", allow_negative_numbers = true)]
     pub memory_budget: Option<f64>,
+    /// Do not wait for each output to reach the disk (fsync) before it replaces its target.
+    /// Outputs are still written whole or not at all, but a crash or power loss soon after may
+    /// lose the last ones. Saves about 10 ms a 1920x1080 EXR on a local disk.
+    #[arg(long, global = true)]
+    pub no_fsync: bool,
 }
 
 /// Subcommands.

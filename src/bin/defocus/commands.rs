@@ -24,6 +24,9 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         std::env::set_var("DEFOCUS_MEMORY_BUDGET_GIB", g.to_string());
     }
+    if cli.no_fsync {
+        defocus::output::set_durable(false);
+    }
     if let Some(n) = cli.threads {
         if !(1..=MAX_THREADS).contains(&n) {
             bail!("invalid --threads {n}: expected 1 to {MAX_THREADS}");

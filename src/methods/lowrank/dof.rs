@@ -190,20 +190,27 @@ impl KernelBank {
                 table[row + j] = (w / k) as f32;
             }
         };
-        for level in 0..levels {
-            let radius = level_radius_px(level);
+        // The taps of every level and rank, levels in parallel: (level, rank, horizontal,
+        // vertical).
+        let taps: Vec<(usize, usize, Vec<f64>, Vec<f64>)> = (0..levels)
+            .into_par_iter()
+            .flat_map_iter(|level| {
+                let radius = level_radius_px(level);
+                let (nh, nv) = (half_h[level], half_v[level]);
+                (0..rank).map_while(move |i| {
+                    let (hv, vv) = (lr.horizontal(i)?, lr.vertical(i)?);
+                    let h_taps = far_taps(hv, (radius * sx) as f64, nh);
+                    let v_taps = far_taps(vv, (radius * sy) as f64, nv);
+                    Some((level, i, h_taps, v_taps))
+                })
+            })
+            .collect();
+        for (level, i, h_taps, v_taps) in taps {
             let (nh, nv) = (half_h[level], half_v[level]);
-            for i in 0..rank {
-                let (Some(hv), Some(vv)) = (lr.horizontal(i), lr.vertical(i)) else {
-                    break;
-                };
-                let h_taps = far_taps(hv, (radius * sx) as f64, nh);
-                let v_taps = far_taps(vv, (radius * sy) as f64, nv);
-                for sign in 0..2 {
-                    let row = ((sign * levels + level) * rank + i) * stride;
-                    put(&mut horizontal, row, sign, nh, &h_taps, norm);
-                    put(&mut vertical, row, sign, nv, &v_taps, 1.0);
-                }
+            for sign in 0..2 {
+                let row = ((sign * levels + level) * rank + i) * stride;
+                put(&mut horizontal, row, sign, nh, &h_taps, norm);
+                put(&mut vertical, row, sign, nv, &v_taps, 1.0);
             }
         }
         // Indexed by table key: the far field's levels, then the near field's.
@@ -251,8 +258,10 @@ impl KernelBank {
         for (k, &c) in keys.iter_mut().zip(coc_px) {
             let v = c.abs() * LEVELS_PER_PX;
             let v = if v > top { top } else { v };
-            let t = v as u32;
-            let level = t + u32::from(v - t as f32 >= 0.5);
+            // `v` is at most `top` (or NaN, which converts to 0), so the conversion to `i32`,
+            // which vectorises where `u32`'s does not, is exact.
+            let t = v as i32;
+            let level = (t + i32::from(v - t as f32 >= 0.5)) as u32;
             *k = level + u32::from(c < 0.0) * near;
         }
     }
@@ -523,7 +532,7 @@ impl Window {
         pad_row::<CH>(color.row(y), nmax, nmax, &mut self.padded_c);
         let edge_row = edge_image
             .map(|e| e.row(y))
-            .filter(|e| e.iter().any(|&v| v != 0.0));
+            .filter(|e| e.iter().fold(false, |any, &v| any | (v != 0.0)));
         self.edge_rows[slot] = edge_row.is_some();
         if let Some(e) = edge_row {
             pad(e, nmax, &mut self.padded_e);

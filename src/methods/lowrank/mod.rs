@@ -199,6 +199,18 @@ impl LowRankSettings {
                 format!("{}: expected a fraction from 0 to 1", self.mask_threshold),
             ));
         }
+        // Checked here, not only where the fallback first runs: a frame without depth edges
+        // never builds its taps.
+        if !(1..=crate::lens::MAX_TAPS).contains(&self.fallback_taps) {
+            return Err(Error::invalid(
+                "fallback taps",
+                format!(
+                    "{}: expected 1 to {} taps",
+                    self.fallback_taps,
+                    crate::lens::MAX_TAPS
+                ),
+            ));
+        }
         Ok(())
     }
 
@@ -328,6 +340,9 @@ fn render_coc_with(
     run(color, coc_px, settings, timings, detailed)
 }
 
+/// Pixels per parallel block of the fallback's mask.
+const MASK_BLOCK: usize = 1 << 14;
+
 /// Passes 2 to 5 (see the module documentation); the mask image only when `detailed`.
 fn run(
     color: &ColorImage,
@@ -345,11 +360,7 @@ fn run(
         ));
     }
     let squeeze = settings.effects.squeeze(glam::Vec2::ONE);
-    let max_radius = coc_px
-        .pixels()
-        .par_iter()
-        .map(|c| c.abs())
-        .reduce(|| 0.0f32, f32::max);
+    let max_radius = coc_map::max_abs(coc_px.pixels());
     let spec = settings.kernel_spec(max_radius);
     let bank = timings.time("lowrank/kernel", || -> Result<dof::KernelBank> {
         let lr = decompose(&kernel_image(&spec)?)?;
@@ -371,9 +382,20 @@ fn run(
             dof::edges(&coc_px, settings.edge_threshold_px)
         })
     });
-    let (mut image, filtered_edges) =
-        dof::filter(color, edges.as_ref(), &coc_px, &bank, &mut timings);
-    let mut mask_image = None;
+    // A frame without depth edges (one plane, or a CoC that changes slowly everywhere) masks
+    // no pixel: the filter skips the edge channel, and the mask is empty.
+    let any_edge = edges
+        .as_ref()
+        .is_some_and(|e| coc_map::max_abs(e.pixels()) > 0.0);
+    let (mut image, filtered_edges) = dof::filter(
+        color,
+        edges.as_ref().filter(|_| any_edge),
+        &coc_px,
+        &bank,
+        &mut timings,
+    );
+    let mut mask_image = (detailed && edges.is_some() && !any_edge)
+        .then(|| GrayImage::new(color.width(), color.height(), 0.0));
     if let Some(filtered) = filtered_edges {
         let mut taps = Taps::poisson_disc(
             &settings.aperture,
@@ -387,13 +409,21 @@ fn run(
         let threshold = settings.mask_threshold;
         let mask: Vec<bool> = timings.time("lowrank/fallback", || {
             // A pixel has taps beyond its own (`half_taps > 0`) where its radius exceeds 1/2.
-            let mask: Vec<bool> = filtered
-                .pixels()
-                .par_iter()
-                .zip(coc_px.pixels())
-                .map(|(&e, &c)| e > threshold && c.abs() > 0.5)
-                .collect();
-            if mask.par_iter().any(|&m| m) {
+            let mut mask = vec![false; filtered.pixels().len()];
+            let any = mask
+                .par_chunks_mut(MASK_BLOCK)
+                .zip(filtered.pixels().par_chunks(MASK_BLOCK))
+                .zip(coc_px.pixels().par_chunks(MASK_BLOCK))
+                .map(|((m, e), c)| {
+                    let mut any = false;
+                    for ((m, &e), &c) in m.iter_mut().zip(e).zip(c) {
+                        *m = e > threshold && c.abs() > 0.5;
+                        any |= *m;
+                    }
+                    any
+                })
+                .reduce(|| false, |a, b| a | b);
+            if any {
                 poisson::gather_into(&mut image, color, &coc_px, &taps, Some(&mask));
             }
             mask
