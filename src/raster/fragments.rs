@@ -174,6 +174,9 @@ pub struct Reach {
     pub factor: f32,
     /// And in pixels besides.
     pub slack_px: f32,
+    /// Distances to the frame are the larger of their two axes (the test of a fragment's
+    /// square bounding box, as `splat`'s tile lists make it) instead of straight lines.
+    pub square: bool,
 }
 
 impl Reach {
@@ -190,7 +193,11 @@ impl Reach {
         let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
         let dx = (x0 as f32 - px).max(px - (x0 + w) as f32).max(0.0);
         let dy = (y0 as f32 - py).max(py - (y0 + h) as f32).max(0.0);
-        let d = (dx * dx + dy * dy).sqrt();
+        let d = if self.square {
+            dx.max(dy)
+        } else {
+            (dx * dx + dy * dy).sqrt()
+        };
         let r = (d - self.slack_px) / self.factor;
         if r <= 0.0 || self.lens.coc_at_infinity_px().abs() >= r {
             return f32::INFINITY;
@@ -637,6 +644,7 @@ mod tests {
             },
             factor: 2.0,
             slack_px: 1.0,
+            square: false,
         }
     }
 

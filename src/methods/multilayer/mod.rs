@@ -364,6 +364,7 @@ pub fn collect(
         lens: big,
         factor: REACH_RADII,
         slack_px: REACH_SLACK_PX * k as f32,
+        square: false,
     });
     render_fragment_lists(
         prepared,
