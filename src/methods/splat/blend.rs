@@ -491,7 +491,7 @@ pub fn blend_baseline(
     width: usize,
     height: usize,
 ) -> ColorImage {
-    blend_with(input, lists, width, height, blend_tile_inner)
+    blend_with(input, lists, width, height, blend_tile_baseline)
 }
 
 fn blend_with(
@@ -533,11 +533,51 @@ fn blend_tile(
     height: usize,
     t: usize,
 ) -> Vec<Rgba> {
-    blend_tile_inner(input, lists, width, height, t)
+    // Evaluated at compile time for each version: whether `floor` and `ceil` are one
+    // instruction (on x86-64 with SSE4.1, which comes with AVX2; elsewhere, as on aarch64,
+    // in the base instruction set).
+    const ROUND: bool = if cfg!(target_arch = "x86_64") {
+        multiversion::target::selected_target!().supports_feature_str("sse4.1")
+    } else {
+        true
+    };
+    blend_tile_inner::<ROUND>(input, lists, width, height, t)
+}
+
+/// [`blend_tile`] in the portable baseline build (no rounding instruction on x86-64).
+fn blend_tile_baseline(
+    input: &BlendInput,
+    lists: &TileLists,
+    width: usize,
+    height: usize,
+    t: usize,
+) -> Vec<Rgba> {
+    blend_tile_inner::<false>(input, lists, width, height, t)
+}
+
+/// `ceil(v)`, as one instruction where `ROUND`, else without a libm call ([`ceil_px`]); the
+/// same value either way for pixel coordinates.
+#[inline(always)]
+fn ceil_r<const ROUND: bool>(v: f32) -> f32 {
+    if ROUND {
+        v.ceil()
+    } else {
+        ceil_px(v)
+    }
+}
+
+/// `floor(v)` (see [`ceil_r`]).
+#[inline(always)]
+fn floor_r<const ROUND: bool>(v: f32) -> f32 {
+    if ROUND {
+        v.floor()
+    } else {
+        floor_px(v)
+    }
 }
 
 #[inline(always)]
-fn blend_tile_inner(
+fn blend_tile_inner<const ROUND: bool>(
     input: &BlendInput,
     lists: &TileLists,
     width: usize,
@@ -575,10 +615,10 @@ fn blend_tile_inner(
         let c = draw_radius(f.coc_px);
         let soft = f.soft_px(merge);
         let reach = reach_px(f.coc_px, soft, shape.stretch());
-        let py0 = (floor_px(centre.y - reach).max(y0 as f32) as usize).max(y0);
-        let py1 = (ceil_px(centre.y + reach).max(0.0) as usize + 1).min(y1);
-        let bx0 = (floor_px(centre.x - reach).max(x0 as f32) as usize).max(x0);
-        let bx1 = (ceil_px(centre.x + reach).max(0.0) as usize + 1).min(x1);
+        let py0 = (floor_r::<ROUND>(centre.y - reach).max(y0 as f32) as usize).max(y0);
+        let py1 = (ceil_r::<ROUND>(centre.y + reach).max(0.0) as usize + 1).min(y1);
+        let bx0 = (floor_r::<ROUND>(centre.x - reach).max(x0 as f32) as usize).max(x0);
+        let bx1 = (ceil_r::<ROUND>(centre.x + reach).max(0.0) as usize + 1).min(x1);
         if bx0 >= bx1 || py0 >= py1 {
             continue;
         }
@@ -587,8 +627,22 @@ fn blend_tile_inner(
         let wcol = col.map(|v| v * norm);
         // Pixel x is inside offsets [lo, hi] when lo <= x + 0.5 - cx <= hi.
         let (bx0i, bx1i) = (bx0 as i32, bx1 as i32);
-        let first = |lo: f32| ceil_i(centre.x + lo - 0.5).clamp(bx0i, bx1i) as usize;
-        let last = |hi: f32| (floor_i(centre.x + hi - 0.5) + 1).clamp(bx0i, bx1i) as usize;
+        let (bx0f, bx1f) = (bx0 as f32, bx1 as f32);
+        let cx = centre.x - 0.5;
+        let first = |lo: f32| {
+            if ROUND {
+                ceil_r::<ROUND>(cx + lo).clamp(bx0f, bx1f) as usize
+            } else {
+                ceil_i(centre.x + lo - 0.5).clamp(bx0i, bx1i) as usize
+            }
+        };
+        let last = |hi: f32| {
+            if ROUND {
+                (floor_r::<ROUND>(cx + hi) + 1.0).clamp(bx0f, bx1f) as usize
+            } else {
+                (floor_i(centre.x + hi - 0.5) + 1).clamp(bx0i, bx1i) as usize
+            }
+        };
         let fp = Footprint::new(shape, c, soft);
         for py in py0..py1 {
             let dy = py as f32 + 0.5 - centre.y;
