@@ -216,6 +216,11 @@ pub struct PostArgs {
     /// multiview: no approximate cone tracing (plain rays).
     #[arg(long, help_heading = "multiview")]
     pub no_cone: bool,
+    /// multiview: the paper's cone tracing, where only a ray whose centre hits a surface takes
+    /// the coverage of its cone (thin objects then block too little light); by default a ray
+    /// that passes a layer also takes the coverage its cone meets there.
+    #[arg(long, help_heading = "multiview", conflicts_with = "no_cone")]
+    pub paper_cone: bool,
     /// multiview: the same lens samples for every pixel (no jitter).
     #[arg(long, help_heading = "multiview")]
     pub no_jitter: bool,
@@ -565,6 +570,7 @@ impl PostArgs {
                         },
                     },
                     cone: !self.no_cone,
+                    graze: !self.paper_cone,
                     jitter: !self.no_jitter,
                     culling: !self.no_culling,
                     input: self.layered_input(),

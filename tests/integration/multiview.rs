@@ -332,3 +332,44 @@ fn trace_is_bit_identical_to_its_baseline_build() {
         assert_eq!(fast.image, base.image, "{:?}", settings.effects);
     }
 }
+
+/// Thin objects block their share of the light under cone tracing. In the paper's cone tracing
+/// only a ray whose centre hits a surface takes the surface's coverage of its cone, so `railing`'s
+/// bars, thinner than the cones that pass them, block too little and the chart behind them comes
+/// out too bright (measured: +1.2% of the frame's mean against `reference` at 256 samples). With
+/// the rays that pass a layer also taking the coverage their cones meet (the default), the mean
+/// is within 0.5% and the image closer (measured: -0.1%, +1.8 dB).
+#[test]
+fn thin_objects_block_their_share_of_the_light_under_cone_tracing() {
+    let gt = ground_truth("railing");
+    let scene = defocus::scene::builtin::load("railing").unwrap();
+    let mut camera = scene.defaults.clone().unwrap().camera;
+    camera.width_px = 640;
+    camera.height_px = 360;
+    let mean = |img: &ColorImage| {
+        let sum: f64 = img
+            .pixels()
+            .iter()
+            .map(|p| (p[0] + p[1] + p[2]) as f64)
+            .sum();
+        sum / img.pixels().len() as f64
+    };
+    let truth = mean(&gt.truth);
+    let run = |graze: bool| {
+        let s = MultiviewSettings {
+            graze,
+            ..MultiviewSettings::default()
+        };
+        let out = multiview::render(&scene, &camera, &s).unwrap();
+        let m = metrics::compare(&out.image, &gt.truth).unwrap();
+        (mean(&out.image) / truth - 1.0, m.psnr_db)
+    };
+    let ((bias, psnr), (paper_bias, paper_psnr)) = (run(true), run(false));
+    eprintln!(
+        "railing 640x360, 32 rays: mean {:+.4} / {:.2} dB, the paper's cone {:+.4} / {:.2} dB",
+        bias, psnr, paper_bias, paper_psnr
+    );
+    assert!(paper_bias > 0.008, "the paper's bias is gone: {paper_bias}");
+    assert!(bias.abs() < 0.005, "{bias}");
+    assert!(psnr > paper_psnr + 1.0, "{psnr} against {paper_psnr}");
+}

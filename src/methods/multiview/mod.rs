@@ -33,6 +33,12 @@
 //!   the largest CoC in view, so rays near the border reach what lies outside it (only the
 //!   frame is traced). On the Cycles railing scene at 640x360 with 64 rays: 22.7 dB against
 //!   Cycles' render with the paper's input, 33.9 dB with both.
+//! - Cone tracing (default; `--paper-cone` for the paper's): a ray that passes a layer in front
+//!   of the focal plane without hitting it also takes the coverage its cone meets there. In
+//!   the paper only a ray whose
+//!   centre hits takes the surface's coverage of its cone, so an object thinner than the cones
+//!   blocks the square of its share of the light: the chart behind `railing`'s bars came out
+//!   1.2% too bright, and `railing` gains 1.8 dB (32 rays), Cycles' railing 0.7 dB.
 
 pub mod nbuffer;
 pub mod trace;
@@ -100,6 +106,12 @@ pub struct MultiviewSettings {
     pub overlap: f32,
     /// Approximate cone tracing (section 4.4). Default on.
     pub cone: bool,
+    /// With cone tracing, a ray that passes a layer in front of the focal plane without hitting
+    /// it also takes the coverage its cone meets there (`trace::graze`); false: only rays whose
+    /// centre hits a surface
+    /// take its coverage, as the paper, which lets thin objects block too little light.
+    /// Default on (measured in the README).
+    pub graze: bool,
     /// Per-pixel jitter of the sample set (section 4.5). Default on.
     pub jitter: bool,
     /// Early layer culling with N-buffers (section 4.3). Default on.
@@ -125,6 +137,7 @@ impl Default for MultiviewSettings {
             layers: LayerCount::Spacing { spacing_px: 4.0 },
             overlap: 0.1,
             cone: true,
+            graze: true,
             jitter: true,
             culling: true,
             input: LayeredInput::default(),
@@ -362,6 +375,7 @@ fn render_with(
         nbuffers: nbuffers.as_deref(),
         filled: &filled,
         mips: mips.as_deref(),
+        graze: settings.graze,
         sets: &sets,
         noise: &noise,
         lambda,
