@@ -173,8 +173,9 @@ pub struct LayersTile {
     /// Slots, layer after layer; valid where `used` is set.
     held: Vec<[HeldFragment; 2]>,
     used: Vec<u64>,
-    /// After [`TileSink::finish`]: the used slots and what they hold, in slot order.
-    kept: Vec<(u32, [HeldFragment; 2])>,
+    /// After [`TileSink::finish`]: the slots that hold a surface, in slot order, with the
+    /// signed CoC of the nearer surface and the two composited.
+    kept: Vec<(u32, f32, HalfRgba)>,
     pool: Pool,
     /// The lens's CoC scale, for the surfaces of a layer no blur separates.
     scale: CocScale,
@@ -254,13 +255,24 @@ impl TileSink for LayersTile {
         }
     }
 
+    /// Resolves each used slot (still in parallel with other tiles): the surfaces no blur
+    /// separates by their masks, then the nearer surface over the farther, premultiplied.
     fn finish(&mut self) {
+        let lens = self.spacing.lens;
         for (w, &bits) in self.used.iter().enumerate() {
             let mut bits = bits;
             while bits != 0 {
                 let s = w * 64 + bits.trailing_zeros() as usize;
-                self.kept.push((s as u32, self.held[s]));
                 bits &= bits - 1;
+                let mut pair = self.held[s];
+                super::fragments::hide_coincident(&mut pair, self.scale);
+                let [a, b] = &pair;
+                if a.depth_m.is_finite() {
+                    let t = 1.0 - a.color[3].min(1.0);
+                    let c: [f32; 4] = std::array::from_fn(|k| a.color[k] + t * b.color[k]);
+                    self.kept
+                        .push((s as u32, lens.coc_px(a.depth_m), to_half(c)));
+                }
             }
         }
         self.pool.give(std::mem::take(&mut self.held));
@@ -290,20 +302,23 @@ impl Sink for DepthLayers {
 
     fn end_tile(&mut self, rect: TileRect, tile: LayersTile) {
         let (tw, n) = (rect.width(), rect.width() * rect.height());
-        let lens = self.spacing.lens;
-        for &(s, mut pair) in &tile.kept {
+        for &(s, coc, color) in &tile.kept {
             let (l, i) = (s as usize / n, s as usize % n);
-            let (x, y) = (rect.x0 + i % tw, rect.y0 + i / tw);
-            super::fragments::hide_coincident(&mut pair, tile.scale);
-            let [a, b] = &pair;
-            if a.depth_m.is_finite() {
-                let d = self.index(l, x, y);
-                self.coc_px[d] = lens.coc_px(a.depth_m);
-                // The nearer surface over the farther, premultiplied.
-                let t = 1.0 - a.color[3].min(1.0);
-                let c: [f32; 4] = std::array::from_fn(|k| a.color[k] + t * b.color[k]);
-                self.color[d] = to_half(c);
-            }
+            let d = self.index(l, rect.x0 + i % tw, rect.y0 + i / tw);
+            self.coc_px[d] = coc;
+            self.color[d] = color;
         }
+    }
+
+    fn end_tiles(&mut self, tiles: Vec<(TileRect, LayersTile)>) {
+        for (rect, tile) in tiles {
+            self.end_tile(rect, tile);
+        }
+        // The pass is over: its scratch buffers go.
+        self.pool
+            .0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
     }
 }
