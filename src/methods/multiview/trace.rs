@@ -464,11 +464,11 @@ fn trace_packet(
         } else {
             crossings(&segment, &lanes)
         };
-        if grazes(input, l) {
+        if let Some(at) = graze_level(input, l) {
             for j in 0..LANES {
                 if live[j] && !found[j] {
                     let v = Vec2::new(vx[j], vy[j]);
-                    live[j] = !graze(input, l, p, v, &mut state[j]);
+                    live[j] = !graze_at(input, l, at, p, v, &mut state[j]);
                 }
             }
         }
@@ -891,14 +891,37 @@ fn graze_reach(input: &TraceInput, l: usize) -> i64 {
 /// the object's share of the rays.
 #[inline(always)]
 fn graze(input: &TraceInput, l: usize, p: Vec2, v: Vec2, state: &mut RayState) -> bool {
-    let Some(mips) = input.mips.filter(|_| grazes(input, l)) else {
-        return false;
-    };
+    graze_level(input, l).is_some_and(|at| graze_at(input, l, at, p, v, state))
+}
+
+/// Where the rays that pass layer `l` read its mipmap, the same for all of them: the middle
+/// of its CoC interval and the cone's level there; `None` where they do not graze it, or their
+/// cones are within a pixel.
+#[inline(always)]
+fn graze_level(input: &TraceInput, l: usize) -> Option<(f32, ConeLevel)> {
+    if !grazes(input, l) {
+        return None;
+    }
     let (ca, cb) = input.layers.spacing.bounds(l);
     let c = 0.5 * (ca + cb);
-    // Level 0 is the pixel the ray passed, which it missed: only what its window adds (and
-    // nothing for a cone within a pixel).
-    let c1 = cone(&mips[l], input.lambda * c.abs(), p - c * v, || [0.0; 4]);
+    Some((c, ConeLevel::of(input.lambda * c.abs())?))
+}
+
+/// [`graze`] of the ray through `v`, with its layer's [`graze_level`].
+#[inline(always)]
+fn graze_at(
+    input: &TraceInput,
+    l: usize,
+    (c, level): (f32, ConeLevel),
+    p: Vec2,
+    v: Vec2,
+    state: &mut RayState,
+) -> bool {
+    let Some(mips) = input.mips else {
+        return false;
+    };
+    // Level 0 is the pixel the ray passed, which it missed: only what its window adds.
+    let c1 = cone(&mips[l], Some(level), p - c * v, || [0.0; 4]);
     c1[3] > 0.0 && state.take(&c1)
 }
 
@@ -919,23 +942,47 @@ fn shade(input: &TraceInput, p: Vec2, v: Vec2, hit: Hit, state: &mut RayState, s
     let color = || half4(&input.layers.color[i], simd);
     let c1 = match input.mips {
         // Level 0 is the hit pixel itself.
-        Some(mips) => cone(&mips[l], input.lambda * c_hit.abs(), p - c_hit * v, color),
+        Some(mips) => {
+            let level = ConeLevel::of(input.lambda * c_hit.abs());
+            cone(&mips[l], level, p - c_hit * v, color)
+        }
         None => color(),
     };
     state.take(&c1)
 }
 
-/// The premultiplied colour, coverage in alpha, of a cone of diameter `d` pixels at `q` in a
-/// layer's mipmap `mip`: trilinear between the two mip levels around `log2 d`, `level0()`
-/// standing for level 0 (and for the whole cone where `d` is at most a pixel).
-#[inline(always)]
-fn cone(mip: &LayerMip, d: f32, q: Vec2, level0: impl FnOnce() -> Rgba) -> Rgba {
-    if d <= 1.0 {
-        return level0();
+/// Where a cone of diameter `d` pixels reads a layer's mipmap: the level below `log2 d` and the
+/// fraction of the way to the next.
+#[derive(Clone, Copy, Debug)]
+struct ConeLevel {
+    k0: usize,
+    t: f32,
+}
+
+impl ConeLevel {
+    /// `None` for a cone within a pixel (level 0 alone).
+    #[inline(always)]
+    fn of(d: f32) -> Option<Self> {
+        if d <= 1.0 {
+            return None;
+        }
+        let f = d.log2();
+        let k0 = f.floor() as usize;
+        Some(Self {
+            k0,
+            t: f - k0 as f32,
+        })
     }
-    let f = d.log2();
-    let k0 = f.floor() as usize;
-    let t = f - k0 as f32;
+}
+
+/// The premultiplied colour, coverage in alpha, of a cone at `q` in a layer's mipmap `mip`:
+/// trilinear between the two mip levels of `level`, `level0()` standing for level 0 (and for
+/// the whole cone where `level` is `None`).
+#[inline(always)]
+fn cone(mip: &LayerMip, level: Option<ConeLevel>, q: Vec2, level0: impl FnOnce() -> Rgba) -> Rgba {
+    let Some(ConeLevel { k0, t }) = level else {
+        return level0();
+    };
     let a = if k0 == 0 { level0() } else { mip.fetch(k0, q) };
     let b = mip.fetch(k0 + 1, q);
     std::array::from_fn(|k| a[k] + t * (b[k] - a[k]))
