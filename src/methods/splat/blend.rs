@@ -326,6 +326,17 @@ impl<'a> Footprint<'a> {
         }
     }
 
+    /// Whether the footprint is convex (the disc, straight-bladed polygons), so that full
+    /// coverage at a rectangle's corners means full coverage inside it.
+    #[inline]
+    fn convex(&self) -> bool {
+        match self.shape.kind {
+            ShapeKind::Disc => true,
+            ShapeKind::Polygon { .. } => self.blades > 0,
+            ShapeKind::Density(_) => false,
+        }
+    }
+
     /// Coverage of the pixel at offset `(dx, dy)`.
     #[inline]
     fn coverage(&self, dx: f32, dy: f32) -> f32 {
@@ -368,6 +379,9 @@ struct TileState {
     touched: (usize, usize, usize, usize),
     /// Pixels not yet opaque.
     open: usize,
+    /// What the batch adds to every pixel of the tile: the fragments whose footprint covers
+    /// the whole tile at full coverage.
+    full: Rgba,
 }
 
 impl TileState {
@@ -380,7 +394,18 @@ impl TileState {
             edge: vec![[0.0; 4]; w * h],
             touched: (usize::MAX, 0, usize::MAX, 0),
             open: w * h,
+            full: [0.0; 4],
         }
+    }
+
+    /// Adds `wcol` to every pixel of the tile's batch.
+    #[inline]
+    fn cover(&mut self, wcol: &Rgba) {
+        for (f, v) in self.full.iter_mut().zip(wcol) {
+            *f += v;
+        }
+        let h = self.transmit.len() / self.w;
+        self.touched = (0, self.w, 0, h);
     }
 
     #[inline]
@@ -410,7 +435,8 @@ impl TileState {
                 *d = [0.0; 4];
                 let i = y * w + x;
                 let e = std::mem::take(&mut self.edge[i]);
-                let g = [run[0] + e[0], run[1] + e[1], run[2] + e[2], run[3] + e[3]];
+                let f = &self.full;
+                let g: Rgba = std::array::from_fn(|k| run[k] + e[k] + f[k]);
                 if g[3] <= 0.0 && g[0] == 0.0 && g[1] == 0.0 && g[2] == 0.0 {
                     continue;
                 }
@@ -434,6 +460,7 @@ impl TileState {
             self.diff[y * (w + 1) + x1] = [0.0; 4];
         }
         self.touched = (usize::MAX, 0, usize::MAX, 0);
+        self.full = [0.0; 4];
     }
 }
 
@@ -644,6 +671,19 @@ fn blend_tile_inner<const ROUND: bool>(
             }
         };
         let fp = Footprint::new(shape, c, soft);
+        // A footprint that covers the tile's four corner pixels at full coverage covers all its
+        // pixels so (the disc and the polygons are convex): added once, not row by row.
+        if bx0 == x0 && bx1 == x1 && py0 == y0 && py1 == y1 && fp.convex() {
+            let corners = [(x0, y0), (x1 - 1, y0), (x0, y1 - 1), (x1 - 1, y1 - 1)];
+            let inside = corners.iter().all(|&(x, y)| {
+                let d = Vec2::new(x as f32 + 0.5, y as f32 + 0.5) - centre;
+                fp.coverage(d.x, d.y) >= 1.0
+            });
+            if inside {
+                st.cover(&wcol);
+                continue;
+            }
+        }
         for py in py0..py1 {
             let dy = py as f32 + 0.5 - centre.y;
             let row = py - y0;
