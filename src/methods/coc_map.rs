@@ -83,9 +83,9 @@ pub fn coc(depth: &GrayImage, lens: &ThinLens, max_coc_px: f32) -> Result<GrayIm
     }
 }
 
-/// Values per parallel block of [`map_checked`]: 64 KB, big enough that the threads' hand-offs
-/// cost nothing next to the block.
-const MAP_BLOCK: usize = 1 << 14;
+/// Values per parallel block of [`map_checked`], [`max_abs`] and the per-pixel passes like them:
+/// 64 KB, big enough that the threads' hand-offs cost nothing next to the block.
+pub(crate) const MAP_BLOCK: usize = 1 << 14;
 
 /// `f` of every value of `src`, in one pass of parallel blocks whose loops the compiler
 /// vectorises, or `None` when `valid` is false for any value. (A check first and a map after

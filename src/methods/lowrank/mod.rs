@@ -340,9 +340,6 @@ fn render_coc_with(
     run(color, coc_px, settings, timings, detailed)
 }
 
-/// Pixels per parallel block of the fallback's mask.
-const MASK_BLOCK: usize = 1 << 14;
-
 /// Passes 2 to 5 (see the module documentation); the mask image only when `detailed`.
 fn run(
     color: &ColorImage,
@@ -411,9 +408,9 @@ fn run(
             // A pixel has taps beyond its own (`half_taps > 0`) where its radius exceeds 1/2.
             let mut mask = vec![false; filtered.pixels().len()];
             let any = mask
-                .par_chunks_mut(MASK_BLOCK)
-                .zip(filtered.pixels().par_chunks(MASK_BLOCK))
-                .zip(coc_px.pixels().par_chunks(MASK_BLOCK))
+                .par_chunks_mut(coc_map::MAP_BLOCK)
+                .zip(filtered.pixels().par_chunks(coc_map::MAP_BLOCK))
+                .zip(coc_px.pixels().par_chunks(coc_map::MAP_BLOCK))
                 .map(|((m, e), c)| {
                     let mut any = false;
                     for ((m, &e), &c) in m.iter_mut().zip(e).zip(c) {
