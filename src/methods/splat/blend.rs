@@ -487,21 +487,6 @@ fn ceil_px(v: f32) -> f32 {
     }
 }
 
-/// `floor` as an integer without a libm call (the x86-64 baseline has no rounding
-/// instruction); saturates far outside the image.
-#[inline]
-fn floor_i(v: f32) -> i32 {
-    let t = v as i32;
-    t - i32::from((t as f32) > v)
-}
-
-/// `ceil` as an integer (see [`floor_i`]).
-#[inline]
-fn ceil_i(v: f32) -> i32 {
-    let t = v as i32;
-    t + i32::from((t as f32) < v)
-}
-
 /// Transmittance below which a pixel counts as opaque.
 const OPAQUE: f32 = 1e-5;
 
@@ -653,23 +638,11 @@ fn blend_tile_inner<const ROUND: bool>(
         let norm = norms[idx as usize];
         let wcol = col.map(|v| v * norm);
         // Pixel x is inside offsets [lo, hi] when lo <= x + 0.5 - cx <= hi.
-        let (bx0i, bx1i) = (bx0 as i32, bx1 as i32);
+        // One expression for every build (the order of the additions decides the rounding).
         let (bx0f, bx1f) = (bx0 as f32, bx1 as f32);
-        let cx = centre.x - 0.5;
-        let first = |lo: f32| {
-            if ROUND {
-                ceil_r::<ROUND>(cx + lo).clamp(bx0f, bx1f) as usize
-            } else {
-                ceil_i(centre.x + lo - 0.5).clamp(bx0i, bx1i) as usize
-            }
-        };
-        let last = |hi: f32| {
-            if ROUND {
-                (floor_r::<ROUND>(cx + hi) + 1.0).clamp(bx0f, bx1f) as usize
-            } else {
-                (floor_i(centre.x + hi - 0.5) + 1).clamp(bx0i, bx1i) as usize
-            }
-        };
+        let first = |lo: f32| ceil_r::<ROUND>(centre.x + lo - 0.5).clamp(bx0f, bx1f) as usize;
+        let last =
+            |hi: f32| (floor_r::<ROUND>(centre.x + hi - 0.5) + 1.0).clamp(bx0f, bx1f) as usize;
         let fp = Footprint::new(shape, c, soft);
         // A footprint that covers the tile's four corner pixels at full coverage covers all its
         // pixels so (the disc and the polygons are convex): added once, not row by row.
