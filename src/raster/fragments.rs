@@ -100,7 +100,32 @@ impl HeldFragment {
         self.mask |= other.mask;
         true
     }
+
+    /// Takes `back`, a fragment behind this one, into it with the over operator (this one in
+    /// front, its depth kept): how a full list keeps what it has no slot for (see
+    /// [`FragmentLists::merging_overflow`]).
+    #[inline]
+    pub fn absorb(&mut self, back: &Self) {
+        let t = 1.0 - self.color[3].clamp(0.0, 1.0);
+        for (a, b) in self.color.iter_mut().zip(back.color) {
+            *a += t * b;
+        }
+        self.mask |= back.mask;
+        self.blend |= back.blend;
+        self.dithered |= back.dithered;
+    }
+
+    /// True when nothing behind it shows in the pinhole view, to within [`OPAQUE_ALPHA`]: what
+    /// a full list that merges its overflow may reject unshaded behind it.
+    #[inline]
+    fn hides_behind(&self) -> bool {
+        self.mask == FULL_COVERAGE && !self.blend && self.color[3] >= OPAQUE_ALPHA
+    }
 }
+
+/// Opacity from which a fragment hides what lies behind it in a full list that merges its
+/// overflow: sums of coverages in f32 (`0.25 + 0.75 * 1`) may fall short of 1 by a rounding.
+const OPAQUE_ALPHA: f32 = 0.999;
 
 /// Largest number of fragments kept per pixel.
 pub const MAX_FRAGMENTS_PER_PIXEL: usize = 16;
@@ -156,6 +181,8 @@ pub struct FragmentLists {
     /// With coverage masks: the lens whose CoCs tell which surfaces of a pixel no blur can
     /// separate ([`hide_coincident`]).
     coincident: Option<crate::lens::ThinLens>,
+    /// See [`FragmentLists::merging_overflow`].
+    merge_overflow: bool,
 }
 
 /// Which fragments of a guard band around a frame can reach the frame once blurred: one at
@@ -222,6 +249,7 @@ impl FragmentLists {
             tiles: Vec::new(),
             reach: None,
             coincident: None,
+            merge_overflow: false,
         }
     }
 
@@ -229,6 +257,19 @@ impl FragmentLists {
     /// the fragments of each pixel are finished ([`hide_coincident`]).
     pub fn with_coincident_surfaces(mut self, lens: crate::lens::ThinLens) -> Self {
         self.coincident = Some(lens);
+        self
+    }
+
+    /// A full pixel keeps the fragments it has no slot for instead of dropping them: the two
+    /// farthest of its N + 1 become one, the nearer over the farther at the nearer's depth
+    /// (the overflow rule of multi-layer alpha blending, Salvi and Vaidyanathan 2014). The
+    /// papers keep the N nearest, which is enough when each fragment covers its pixel; with
+    /// coverage, an anti-aliased edge in the last slot then has nothing behind it where a blur
+    /// reveals it: the label's edge on `traps`' chart, behind the two sides of a near bar and
+    /// the pane, showed as a dark line. Only a farthest fragment that hides everything behind
+    /// it (opaque over every sample) lets the pixel reject fragments unshaded.
+    pub fn merging_overflow(mut self) -> Self {
+        self.merge_overflow = true;
         self
     }
 
@@ -455,6 +496,19 @@ fn drop_hidden(slots: &mut [HeldFragment], mut n: usize, scale: CocScale) -> usi
     n
 }
 
+/// The slot holding the farthest fragment (the last of equals, so that the earlier fragment
+/// wins ties).
+#[inline]
+fn farthest_slot(slots: &[HeldFragment]) -> usize {
+    let mut far = 0;
+    for (k, s) in slots.iter().enumerate() {
+        if s.depth_m >= slots[far].depth_m {
+            far = k;
+        }
+    }
+    far
+}
+
 /// Per-tile state of [`FragmentLists`]: N slots per pixel holding the N nearest fragments so
 /// far, so that an opaque fragment behind all N of a full pixel is rejected before it is shaded
 /// (the rasterizer's early test), and a nearer one replaces the farthest.
@@ -478,6 +532,8 @@ pub struct FragmentTile {
     out_color: Vec<HalfRgba>,
     /// See [`FragmentLists::with_coincident_surfaces`].
     coincident: Option<CocScale>,
+    /// See [`FragmentLists::merging_overflow`].
+    merge_overflow: bool,
 }
 
 impl TileSink for FragmentTile {
@@ -503,8 +559,17 @@ impl TileSink for FragmentTile {
         let slots = &mut self.slots[i * self.cap..(i + 1) * self.cap];
         let n = self.counts[i] as usize;
         let raise = 1.0 + SAME_SURFACE;
-        let far_of = |slots: &[HeldFragment]| {
-            slots.iter().map(|s| s.depth_m).fold(f32::MIN, f32::max) * raise
+        let merge_overflow = self.merge_overflow;
+        // The depth from which a full pixel rejects fragments unshaded: its farthest (raised,
+        // so that a fragment that may still merge with it is kept), when it hides what lies
+        // behind or the overflow is dropped anyway.
+        let reject_from = |slots: &[HeldFragment], limit: f32| {
+            let far = farthest_slot(slots);
+            if merge_overflow && !slots[far].hides_behind() {
+                limit
+            } else {
+                (slots[far].depth_m * raise).min(limit)
+            }
         };
         if let Some(scale) = self.coincident {
             // Hidden at every sample by coincident surfaces in front: it takes no slot.
@@ -518,7 +583,7 @@ impl TileSink for FragmentTile {
         let at = match slots[..n].iter_mut().position(|s| s.merge(&held)) {
             Some(k) => {
                 if n == self.cap {
-                    self.farthest[i] = far_of(slots).min(self.limit[i]);
+                    self.farthest[i] = reject_from(slots, self.limit[i]);
                 }
                 k
             }
@@ -526,24 +591,49 @@ impl TileSink for FragmentTile {
                 slots[n] = held;
                 self.counts[i] += 1;
                 if n + 1 == self.cap {
-                    self.farthest[i] = far_of(slots).min(self.limit[i]);
+                    self.farthest[i] = reject_from(slots, self.limit[i]);
                 }
                 n
+            }
+            None if merge_overflow => {
+                // The two farthest of the N + 1 become one, the nearer over the farther.
+                let far = farthest_slot(slots);
+                let at = if held.depth_m >= slots[far].depth_m {
+                    slots[far].absorb(&held);
+                    far
+                } else {
+                    let mut next = None::<usize>;
+                    for (k, s) in slots.iter().enumerate() {
+                        if k != far && next.map_or(true, |m| s.depth_m >= slots[m].depth_m) {
+                            next = Some(k);
+                        }
+                    }
+                    match next {
+                        Some(g) if slots[g].depth_m > held.depth_m => {
+                            let back = slots[far];
+                            slots[g].absorb(&back);
+                            slots[far] = held;
+                        }
+                        _ => {
+                            let back = slots[far];
+                            slots[far] = held;
+                            slots[far].absorb(&back);
+                        }
+                    }
+                    far
+                };
+                self.farthest[i] = reject_from(slots, self.limit[i]);
+                at
             }
             None => {
                 // Replace the farthest (the last of equals, so the earlier fragment wins
                 // ties), when this one is nearer.
-                let mut far = 0;
-                for (k, s) in slots.iter().enumerate() {
-                    if s.depth_m >= slots[far].depth_m {
-                        far = k;
-                    }
-                }
+                let far = farthest_slot(slots);
                 if f.depth_m >= slots[far].depth_m {
                     return;
                 }
                 slots[far] = held;
-                self.farthest[i] = far_of(slots).min(self.limit[i]);
+                self.farthest[i] = reject_from(slots, self.limit[i]);
                 far
             }
         };
@@ -616,6 +706,7 @@ impl Sink for FragmentLists {
             out_depth: Vec::new(),
             out_color: Vec::new(),
             coincident: self.coincident.as_ref().map(CocScale::of),
+            merge_overflow: self.merge_overflow,
         }
     }
 
@@ -685,5 +776,88 @@ mod tests {
         assert!(tile.occluded(8, 70, z));
         assert!(tile.occluded(8, 70, 50.0));
         assert!(!tile.occluded(8, 70, z * 0.99));
+    }
+
+    /// The fragments of pixel (0, 0) of a one-pixel list of `cap` slots fed `frags` in
+    /// order (with or without merging the overflow), as `(depth, premultiplied colour)`.
+    fn one_pixel(cap: usize, merge: bool, frags: &[Fragment]) -> Vec<(f32, Rgba)> {
+        let mut lists = FragmentLists::new(1, 1, cap);
+        if merge {
+            lists = lists.merging_overflow();
+        }
+        let rect = TileRect {
+            x0: 0,
+            y0: 0,
+            x1: 1,
+            y1: 1,
+        };
+        let mut tile = lists.begin_tile(rect);
+        for f in frags {
+            if !tile.occluded(0, 0, f.depth_m) {
+                tile.fragment(f);
+            }
+        }
+        tile.finish();
+        lists.end_tile(rect, tile);
+        lists.compact();
+        let (d, c) = lists.pixel(0, 0);
+        d.iter().zip(c).map(|(&z, c)| (z, from_half(c))).collect()
+    }
+
+    /// Front-to-back over of premultiplied colours.
+    fn over_all(list: &[(f32, Rgba)]) -> Rgba {
+        let mut out = [0.0f32; 4];
+        for (_, c) in list {
+            let t = 1.0 - out[3];
+            for k in 0..4 {
+                out[k] += t * c[k];
+            }
+        }
+        out
+    }
+
+    /// A full list keeps, merged, what it has no slot for: behind an opaque near surface and an
+    /// anti-aliased edge (half the samples), the surface behind the edge still fills the other
+    /// half, in whichever order the fragments arrive. The papers' nearest-N list drops it.
+    #[test]
+    fn a_full_list_merges_its_overflow_into_its_farthest_fragments() {
+        let frag = |depth_m: f32, rgb: [f32; 3], coverage: u16| Fragment {
+            x: 0,
+            y: 0,
+            depth_m,
+            color: [rgb[0], rgb[1], rgb[2], 1.0],
+            blend: false,
+            coverage,
+            dithered: false,
+        };
+        let near = frag(1.0, [0.1, 0.1, 0.1], FULL_COVERAGE);
+        let edge = frag(2.0, [1.0, 0.0, 0.0], 0x00ff);
+        let behind = frag(3.0, [0.0, 0.0, 1.0], FULL_COVERAGE);
+        let all = [
+            (1.0, [0.1, 0.1, 0.1, 1.0]),
+            (2.0, [0.5, 0.0, 0.0, 0.5]),
+            (3.0, [0.0, 0.0, 1.0, 1.0]),
+        ];
+        let truth = over_all(&all[1..]);
+        for order in [
+            [near, edge, behind],
+            [near, behind, edge],
+            [behind, edge, near],
+        ] {
+            let kept = one_pixel(2, true, &order);
+            assert_eq!(kept.len(), 2);
+            assert!((kept[0].0 - 1.0).abs() < 1e-6 && (kept[1].0 - 2.0).abs() < 1e-6);
+            // What a blur that moves the near surface aside reveals: the edge over what lies
+            // behind it.
+            for k in 0..4 {
+                assert!(
+                    (kept[1].1[k] - truth[k]).abs() < 2e-3,
+                    "{kept:?} vs {truth:?}"
+                );
+            }
+        }
+        // Nearest N: the red edge is left over nothing.
+        let kept = one_pixel(2, false, &[near, edge, behind]);
+        assert!((kept[1].1[3] - 0.5).abs() < 2e-3 && kept[1].1[2].abs() < 2e-3);
     }
 }

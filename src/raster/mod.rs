@@ -639,7 +639,7 @@ pub fn render_fragment_lists(
     };
     let mut lists = FragmentLists::new(view.lens.width_px, view.lens.height_px, cap);
     if coverage {
-        lists = lists.with_coincident_surfaces(view.lens);
+        lists = lists.with_coincident_surfaces(view.lens).merging_overflow();
     }
     if let Some(reach) = reach {
         lists = lists.with_reach(reach);
