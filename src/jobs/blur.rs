@@ -303,7 +303,7 @@ impl BlurJob {
         }
         if let Some(ts) = tilt_shift {
             let mut post = a.post.clone();
-            post.max_coc = post.max_coc.max(ts.max_coc_px);
+            post.max_coc = Some(post.max_coc_px().max(ts.max_coc_px));
             let settings = post.settings(method, &aperture, a.seed, color.height(), None)?;
             let coc_px = tilt_shift_coc_in_frame(w, h, frame.offset(), frame.display_size, &ts)?;
             if a.verbose {
