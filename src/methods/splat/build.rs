@@ -233,9 +233,6 @@ impl TileLists {
     }
 }
 
-/// One chunk's entries laid out by tile: per-tile offsets and (key, fragment) pairs.
-type ChunkLists = (Vec<usize>, Vec<(u32, u32)>);
-
 /// The tiles `[tx0, tx1] x [ty0, ty1]` a fragment's shape overlaps.
 #[inline]
 fn tile_range(
@@ -326,63 +323,52 @@ pub fn distribute(
             count
         })
         .collect();
-    // The entries are counted: refuse before allocating them if they exceed the budget
-    // (twice: the chunks' runs and the tile lists).
+    // The entries are counted: refuse before allocating them if they exceed the budget.
     let total: u64 = counts.iter().flatten().map(|&c| c as u64).sum();
     crate::budget::check(
-        total * 16,
+        total * 8,
         &format!("splat's tile lists ({total} entries)"),
         "--max-coc, raise --merge, or lower the resolution",
     )?;
-    // Each chunk lays its entries out by tile (its own prefix sum), in fragment order.
-    let local: Vec<ChunkLists> = chunks
+    // Prefix sum over tiles; each tile's list is its chunks' runs in chunk order, so every
+    // list is in fragment order whatever the thread count. Each chunk fills its runs in place:
+    // the tile lists are cut into one run per tile and chunk.
+    let mut offsets = vec![0usize; tiles + 1];
+    for t in 0..tiles {
+        offsets[t + 1] = offsets[t] + counts.iter().map(|c| c[t] as usize).sum::<usize>();
+    }
+    let mut entries = vec![(0u32, 0u32); offsets[tiles]];
+    let mut runs: Vec<Vec<&mut [(u32, u32)]>> = (0..chunks.len())
+        .map(|_| Vec::with_capacity(tiles))
+        .collect();
+    let mut rest: &mut [(u32, u32)] = &mut entries;
+    for t in 0..tiles {
+        for (c, count) in counts.iter().enumerate() {
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(count[t] as usize);
+            runs[c].push(head);
+            rest = tail;
+        }
+    }
+    chunks
         .par_iter()
-        .zip(counts.par_iter())
+        .zip(runs.par_iter_mut())
         .enumerate()
-        .map(|(c, (ch, count))| {
-            let mut off = vec![0usize; tiles + 1];
-            for t in 0..tiles {
-                off[t + 1] = off[t] + count[t] as usize;
-            }
-            let mut cursor = off.clone();
-            let mut buf = vec![(0u32, 0u32); off[tiles]];
+        .for_each(|(c, (ch, runs))| {
+            let mut cursor = vec![0usize; tiles];
             let first = c * chunk;
             for (i, f) in ch.iter().enumerate() {
                 let (x0, x1, y0, y1) = tile_range(f, merge, stretch, window);
                 let k = super::sort::key(f.coc_px);
                 for ty in y0..=y1 {
                     for tx in x0..=x1 {
-                        let slot = &mut cursor[ty * tiles_x + tx];
-                        buf[*slot] = (k, (first + i) as u32);
-                        *slot += 1;
+                        let t = ty * tiles_x + tx;
+                        runs[t][cursor[t]] = (k, (first + i) as u32);
+                        cursor[t] += 1;
                     }
                 }
             }
-            (off, buf)
-        })
-        .collect();
-    // Prefix sum over tiles; each tile's list is its chunks' runs in chunk order, so every
-    // list is in fragment order whatever the thread count.
-    let mut offsets = vec![0usize; tiles + 1];
-    for t in 0..tiles {
-        offsets[t + 1] = offsets[t] + counts.iter().map(|c| c[t] as usize).sum::<usize>();
-    }
-    let mut entries = vec![(0u32, 0u32); offsets[tiles]];
-    let mut slices: Vec<&mut [(u32, u32)]> = Vec::with_capacity(tiles);
-    let mut rest: &mut [(u32, u32)] = &mut entries;
-    for t in 0..tiles {
-        let (head, tail) = rest.split_at_mut(offsets[t + 1] - offsets[t]);
-        slices.push(head);
-        rest = tail;
-    }
-    slices.into_par_iter().enumerate().for_each(|(t, dst)| {
-        let mut at = 0;
-        for (off, buf) in &local {
-            let run = &buf[off[t]..off[t + 1]];
-            dst[at..at + run.len()].copy_from_slice(run);
-            at += run.len();
-        }
-    });
+        });
+    drop(runs);
     Ok(TileLists {
         tiles_x,
         tiles_y,
