@@ -118,7 +118,7 @@ impl HeldFragment {
     /// True when nothing behind it shows in the pinhole view, to within [`OPAQUE_ALPHA`]: what
     /// a full list that merges its overflow may reject unshaded behind it.
     #[inline]
-    fn hides_behind(&self) -> bool {
+    pub(crate) fn hides_behind(&self) -> bool {
         self.mask == FULL_COVERAGE && !self.blend && self.color[3] >= OPAQUE_ALPHA
     }
 }
@@ -260,14 +260,16 @@ impl FragmentLists {
         self
     }
 
-    /// A full pixel keeps the fragments it has no slot for instead of dropping them: the two
-    /// farthest of its N + 1 become one, the nearer over the farther at the nearer's depth
-    /// (the overflow rule of multi-layer alpha blending, Salvi and Vaidyanathan 2014). The
-    /// papers keep the N nearest, which is enough when each fragment covers its pixel; with
-    /// coverage, an anti-aliased edge in the last slot then has nothing behind it where a blur
-    /// reveals it: the label's edge on `traps`' chart, behind the two sides of a near bar and
-    /// the pane, showed as a dark line. Only a farthest fragment that hides everything behind
-    /// it (opaque over every sample) lets the pixel reject fragments unshaded.
+    /// A full pixel keeps the fragments it has no slot for instead of dropping them: it holds
+    /// one more than it keeps while fragments arrive, the two farthest of any more become one
+    /// (the nearer over the farther at the nearer's depth: the overflow rule of multi-layer
+    /// alpha blending, Salvi and Vaidyanathan 2014), and when it finishes, those beyond N are
+    /// merged into the N-th the same way. The papers keep the N nearest, which is enough when
+    /// each fragment covers its pixel; with coverage, an anti-aliased edge in the last slot then
+    /// has nothing behind it where a blur reveals it: the label's edge on `traps`' chart, behind
+    /// the two sides of a near bar and the pane, showed as a dark line. Only a farthest fragment
+    /// that hides everything behind it (opaque over every sample) lets the pixel reject
+    /// fragments unshaded.
     pub fn merging_overflow(mut self) -> Self {
         self.merge_overflow = true;
         self
@@ -516,6 +518,8 @@ fn farthest_slot(slots: &[HeldFragment]) -> usize {
 pub struct FragmentTile {
     rect: TileRect,
     cap: usize,
+    /// Slots per pixel: N, or N + 1 where the overflow is merged (see [`FragmentTile::finish`]).
+    work: usize,
     /// Fragments held per pixel of the tile.
     counts: Vec<u32>,
     /// Farthest depth held by each full pixel, raised by [`SAME_SURFACE`] so that a fragment
@@ -556,7 +560,7 @@ impl TileSink for FragmentTile {
             return;
         }
         let held = HeldFragment::of(f);
-        let slots = &mut self.slots[i * self.cap..(i + 1) * self.cap];
+        let slots = &mut self.slots[i * self.work..(i + 1) * self.work];
         let n = self.counts[i] as usize;
         let raise = 1.0 + SAME_SURFACE;
         let merge_overflow = self.merge_overflow;
@@ -582,15 +586,15 @@ impl TileSink for FragmentTile {
         }
         let at = match slots[..n].iter_mut().position(|s| s.merge(&held)) {
             Some(k) => {
-                if n == self.cap {
+                if n == self.work {
                     self.farthest[i] = reject_from(slots, self.limit[i]);
                 }
                 k
             }
-            None if n < self.cap => {
+            None if n < self.work => {
                 slots[n] = held;
                 self.counts[i] += 1;
-                if n + 1 == self.cap {
+                if n + 1 == self.work {
                     self.farthest[i] = reject_from(slots, self.limit[i]);
                 }
                 n
@@ -661,23 +665,39 @@ impl TileSink for FragmentTile {
         }
     }
 
+    /// Sorts each pixel's fragments near to far, resolves the coincident ones, and keeps the N
+    /// nearest that show; where the overflow is merged, those beyond N are merged into the
+    /// N-th, nearer over farther. (The tile holds one slot more than it keeps, so that the
+    /// halves of a surface cut by a triangle edge through the pixel, arriving apart, still
+    /// meet in one slot before they are merged behind another.)
     fn finish(&mut self) {
         let n = self.rect.width() * self.rect.height();
         for i in 0..n {
             let count = self.counts[i] as usize;
-            let slots = &mut self.slots[i * self.cap..i * self.cap + count];
+            let slots = &mut self.slots[i * self.work..i * self.work + count];
             // Near to far; stable, so equal depths keep their order.
             slots.sort_by(|a, b| a.depth_m.total_cmp(&b.depth_m));
             if let Some(scale) = self.coincident {
                 hide_coincident(slots, scale);
             }
             let mut kept = 0;
-            for s in slots.iter().filter(|s| s.color[3] > 0.0) {
+            for k in 0..slots.len() {
+                if slots[k].color[3] <= 0.0 {
+                    continue;
+                }
+                if kept < self.cap {
+                    slots[kept] = slots[k];
+                    kept += 1;
+                } else {
+                    let back = slots[k];
+                    slots[kept - 1].absorb(&back);
+                }
+            }
+            for s in &slots[..kept] {
                 self.out_depth.push(s.depth_m);
                 self.out_color.push(to_half(s.color));
-                kept += 1;
             }
-            self.counts[i] = kept;
+            self.counts[i] = kept as u32;
         }
         self.slots = Vec::new();
         self.farthest = Vec::new();
@@ -699,10 +719,11 @@ impl Sink for FragmentLists {
         FragmentTile {
             rect,
             cap: self.cap,
+            work: self.cap + usize::from(self.merge_overflow),
             counts: vec![0; n],
             farthest: limit.clone(),
             limit,
-            slots: vec![HeldFragment::EMPTY; n * self.cap],
+            slots: vec![HeldFragment::EMPTY; n * (self.cap + usize::from(self.merge_overflow))],
             out_depth: Vec::new(),
             out_color: Vec::new(),
             coincident: self.coincident.as_ref().map(CocScale::of),
@@ -859,5 +880,24 @@ mod tests {
         // Nearest N: the red edge is left over nothing.
         let kept = one_pixel(2, false, &[near, edge, behind]);
         assert!((kept[1].1[3] - 0.5).abs() < 2e-3 && kept[1].1[2].abs() < 2e-3);
+        // Each surface cut in two by a triangle edge through the pixel, the halves arriving
+        // apart: they still meet in one slot before the farthest is merged behind.
+        let half = |f: Fragment, m: u16| Fragment { coverage: m, ..f };
+        let cut = [
+            half(near, 0x0f0f),
+            half(edge, 0x000f),
+            half(behind, 0x0f0f),
+            half(near, 0xf0f0),
+            half(edge, 0x00f0),
+            half(behind, 0xf0f0),
+        ];
+        let kept = one_pixel(2, true, &cut);
+        assert_eq!(kept.len(), 2);
+        for k in 0..4 {
+            assert!(
+                (kept[1].1[k] - truth[k]).abs() < 2e-3,
+                "{kept:?} vs {truth:?}"
+            );
+        }
     }
 }

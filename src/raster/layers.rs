@@ -12,9 +12,11 @@
 //! paper): a fragment that close to a boundary is also written to the layer on the other side.
 //!
 //! Layers see through (not in the paper, which has no transparency): each layer keeps, per
-//! pixel, its two nearest surfaces (fragments of one surface merged as in
-//! [`super::FragmentLists`]) and stores the nearer composited over the farther as premultiplied
-//! colour, its alpha the coverage a ray meets there; the height field is the nearer one's CoC.
+//! pixel, its three nearest surfaces (fragments of one surface merged as in
+//! [`super::FragmentLists`]; more merged into the farthest, nearer over farther, as a full
+//! fragment list merges its overflow) and stores them composited front to back as
+//! premultiplied colour, its alpha the coverage a ray meets there; the height field is the
+//! nearest one's CoC.
 //! A blended pane, or an edge covering part of a pixel, then shows what lies behind it within
 //! the layer, and the trace goes on behind it into the next layers with the rest of its weight.
 //! Only surfaces that cover their pixel opaquely are also written to the overlapping
@@ -95,7 +97,7 @@ pub struct DepthLayers {
 /// Scratch buffers of [`LayersTile`]s, shared by the tiles of a pass. Scratch, not content:
 /// any two pools compare equal.
 #[derive(Clone, Debug, Default)]
-struct Pool(std::sync::Arc<std::sync::Mutex<Vec<Vec<[HeldFragment; 2]>>>>);
+struct Pool(std::sync::Arc<std::sync::Mutex<Vec<Vec<[HeldFragment; SURFACES]>>>>);
 
 impl PartialEq for Pool {
     fn eq(&self, _: &Self) -> bool {
@@ -105,7 +107,7 @@ impl PartialEq for Pool {
 
 impl Pool {
     /// A buffer handed back earlier, or an empty one.
-    fn take(&self) -> Vec<[HeldFragment; 2]> {
+    fn take(&self) -> Vec<[HeldFragment; SURFACES]> {
         self.0
             .lock()
             .unwrap_or_else(|e| e.into_inner())
@@ -114,7 +116,7 @@ impl Pool {
     }
 
     /// Hands a buffer back.
-    fn give(&self, buffer: Vec<[HeldFragment; 2]>) {
+    fn give(&self, buffer: Vec<[HeldFragment; SURFACES]>) {
         self.0
             .lock()
             .unwrap_or_else(|e| e.into_inner())
@@ -157,13 +159,18 @@ impl DepthLayers {
     }
 }
 
+/// Surfaces a layer's pixel keeps apart while fragments arrive (more are merged into the
+/// farthest): two panes over a board, each cut by a triangle edge through the pixel, resolve
+/// exactly whatever order their halves arrive in.
+const SURFACES: usize = 3;
+
 /// Per-tile state of [`DepthLayers`].
 ///
-/// Per layer and pixel (a slot) the two nearest surfaces. Most slots stay empty (a pixel meets
+/// Per layer and pixel (a slot) the [`SURFACES`] nearest surfaces. Most slots stay empty (a pixel meets
 /// a few surfaces among tens of layers), so the slots live in a scratch buffer that is neither
 /// cleared nor allocated per tile: a bit per slot says which hold something (the others are
 /// [`HeldFragment::EMPTY`]), and when the tile finishes, its used slots are kept in a short list
-/// and the buffer goes back to the pass's pool for the next tile. (A fresh buffer per tile, 48
+/// and the buffer goes back to the pass's pool for the next tile. (A fresh buffer per tile, then 48
 /// bytes a slot, cleared by the kernel and then filled, took 40% of `decompose`, and all tiles'
 /// buffers were held until the pass ended.)
 #[derive(Debug)]
@@ -171,7 +178,7 @@ pub struct LayersTile {
     rect: TileRect,
     spacing: LayerSpacing,
     /// Slots, layer after layer; valid where `used` is set.
-    held: Vec<[HeldFragment; 2]>,
+    held: Vec<[HeldFragment; SURFACES]>,
     used: Vec<u64>,
     /// After [`TileSink::finish`]: the slots that hold a surface, in slot order, with the
     /// signed CoC of the nearer surface and the two composited.
@@ -196,39 +203,68 @@ impl LayersTile {
     #[inline]
     fn hidden(&self, l: usize, i: usize, z: f32) -> bool {
         let s = self.slot(l, i);
-        if !self.is_used(s) {
-            return false;
-        }
-        let [a, b] = &self.held[s];
-        (a.covers_pixel() && z >= a.depth_m) || z >= b.depth_m * (1.0 + super::SAME_SURFACE)
+        self.is_used(s)
+            && self.held[s]
+                .iter()
+                .any(|h| h.hides_behind() && z >= h.depth_m)
     }
 
+    /// Slot `s` of layer `l` takes `f`: merged into its surface, or in depth order among the
+    /// [`SURFACES`] nearest, the overflow merged into the farthest, nearer over farther (the
+    /// slot is resolved to its surfaces composited front to back anyway, so all that is lost is
+    /// their order; dropping the farthest left two panes, or two partly covering edges, over
+    /// nothing). Held sorted near to far.
     #[inline]
     fn write(&mut self, l: usize, i: usize, f: &HeldFragment) {
         let s = self.slot(l, i);
         if !self.is_used(s) {
             self.used[s / 64] |= 1 << (s % 64);
-            self.held[s] = [HeldFragment::EMPTY; 2];
+            self.held[s] = [HeldFragment::EMPTY; SURFACES];
         }
         let held = &mut self.held[s];
-        if held.iter_mut().any(|h| h.merge(f)) {
-            if held[1].depth_m < held[0].depth_m {
-                held.swap(0, 1);
+        if let Some(mut k) = held.iter_mut().position(|h| h.merge(f)) {
+            // A merged depth is a coverage-weighted mean: keep the order.
+            while k > 0 && held[k].depth_m < held[k - 1].depth_m {
+                held.swap(k, k - 1);
+                k -= 1;
+            }
+            while k + 1 < SURFACES && held[k + 1].depth_m < held[k].depth_m {
+                held.swap(k, k + 1);
+                k += 1;
             }
             return;
         }
-        if f.depth_m < held[0].depth_m {
-            held[1] = held[0];
-            held[0] = *f;
-        } else if f.depth_m < held[1].depth_m {
-            held[1] = *f;
+        match held.iter().position(|h| f.depth_m < h.depth_m) {
+            Some(p) => {
+                let last = held[SURFACES - 1];
+                held.copy_within(p..SURFACES - 1, p + 1);
+                held[p] = *f;
+                if last.depth_m.is_finite() {
+                    held[SURFACES - 1].absorb(&last);
+                }
+            }
+            None => held[SURFACES - 1].absorb(f),
         }
         // The back of a thin closed mesh behind its front, hidden at every sample, is not a
-        // surface of the layer (see `fragments::hide_coincident`).
-        if held[1].mask & !super::fragments::samples_hiding(&held[..1], &held[1], self.scale) == 0
-            && !held[1].dithered
+        // surface of the layer (see `fragments::hide_coincident`). Only surfaces behind an
+        // opaque one can be.
+        if !held[0].depth_m.is_finite()
+            || !held[..SURFACES - 1].iter().any(|h| !h.blend && !h.dithered)
         {
-            held[1] = HeldFragment::EMPTY;
+            return;
+        }
+        let mut k = 1;
+        while k < SURFACES {
+            let h = held[k];
+            let hidden = h.depth_m.is_finite()
+                && !h.dithered
+                && h.mask & !super::fragments::samples_hiding(&held[..k], &h, self.scale) == 0;
+            if hidden {
+                held.copy_within(k + 1.., k);
+                held[SURFACES - 1] = HeldFragment::EMPTY;
+            } else {
+                k += 1;
+            }
         }
     }
 }
@@ -264,14 +300,19 @@ impl TileSink for LayersTile {
             while bits != 0 {
                 let s = w * 64 + bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                let mut pair = self.held[s];
-                super::fragments::hide_coincident(&mut pair, self.scale);
-                let [a, b] = &pair;
-                if a.depth_m.is_finite() {
-                    let t = 1.0 - a.color[3].min(1.0);
-                    let c: [f32; 4] = std::array::from_fn(|k| a.color[k] + t * b.color[k]);
+                let mut surfaces = self.held[s];
+                super::fragments::hide_coincident(&mut surfaces, self.scale);
+                if surfaces[0].depth_m.is_finite() {
+                    // Front to back, premultiplied.
+                    let mut c = [0.0f32; 4];
+                    for h in surfaces.iter().filter(|h| h.depth_m.is_finite()) {
+                        let t = 1.0 - c[3].min(1.0);
+                        for (ck, hk) in c.iter_mut().zip(h.color) {
+                            *ck += t * hk;
+                        }
+                    }
                     self.kept
-                        .push((s as u32, lens.coc_px(a.depth_m), to_half(c)));
+                        .push((s as u32, lens.coc_px(surfaces[0].depth_m), to_half(c)));
                 }
             }
         }
@@ -287,7 +328,7 @@ impl Sink for DepthLayers {
         let mut held = self.pool.take();
         // Only grown, never cleared: a slot is written before it is read (`used`).
         if held.len() < n {
-            held.resize(n, [HeldFragment::EMPTY; 2]);
+            held.resize(n, [HeldFragment::EMPTY; SURFACES]);
         }
         LayersTile {
             rect,

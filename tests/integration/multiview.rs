@@ -373,3 +373,40 @@ fn thin_objects_block_their_share_of_the_light_under_cone_tracing() {
     assert!(bias.abs() < 0.005, "{bias}");
     assert!(psnr > paper_psnr + 1.0, "{psnr} against {paper_psnr}");
 }
+
+/// Two 50% panes over an opaque board, all three within one layer: the layer keeps the panes
+/// over the board, so the frame's middle is the three composited front to back. The middle
+/// pixel lies on the diagonal of all three quads, so each surface arrives in two halves, in
+/// the rasterizer's order. With two surfaces per layer and the farthest dropped, the panes
+/// showed over nothing ([0.5, 0, 0.25]); with the third merged into the second as it came,
+/// a half arriving after that merge was not behind the other (green 0.41, blue 0.09).
+#[test]
+fn a_layer_keeps_what_lies_behind_two_panes() {
+    let camera = test_camera(48, 32, 2.0, 1.4);
+    let mut scene = Scene::default();
+    let (w, h) = (camera.width_px as f32, camera.height_px as f32);
+    let whole = (-w, -h, 2.0 * w, 2.0 * h);
+    let pane = |name: &str, rgb: [f32; 3]| Material {
+        base_color: [rgb[0], rgb[1], rgb[2], 0.5],
+        alpha_mode: defocus::scene::AlphaMode::Blend,
+        ..Material::color(name, rgb)
+    };
+    let front = scene.add_material(pane("front pane", [1.0, 0.0, 0.0]));
+    let back = scene.add_material(pane("back pane", [0.0, 0.0, 1.0]));
+    let board = scene.add_material(Material::color("board", [0.0, 1.0, 0.0]));
+    // Far from focus, in one layer (10 cm apart: three surfaces, not one).
+    add_screen_rect(&mut scene, &camera, whole, 3.0, front);
+    add_screen_rect(&mut scene, &camera, whole, 3.1, back);
+    add_screen_rect(&mut scene, &camera, whole, 3.2, board);
+    let settings = MultiviewSettings {
+        layers: LayerCount::Count(1),
+        ..plain(16)
+    };
+    let out = multiview::render(&scene, &camera, &settings).unwrap();
+    // Front to back: 0.5 red, then 0.5 of the rest blue, then the rest green.
+    let expected = [0.5f32, 0.25, 0.25];
+    let c = out.image.get(24, 16);
+    for k in 0..3 {
+        assert!((c[k] - expected[k]).abs() < 2e-3, "{c:?} vs {expected:?}");
+    }
+}

@@ -23,8 +23,8 @@
 //!   so a thin surface between the segment's ends is not jumped over.
 //! - Jitter picks one of 16 complete sample sets per pixel (the paper's first option) rather
 //!   than rotating samples, which would turn polygonal and image apertures.
-//! - Layers see through (the paper has no transparency): each keeps its two nearest surfaces
-//!   per pixel composited, with their coverage in alpha, and a ray takes a hit's share and
+//! - Layers see through (the paper has no transparency): each keeps its three nearest surfaces
+//!   per pixel (more merged into the farthest) composited, with their coverage in alpha, and a ray takes a hit's share and
 //!   goes on behind it ([`crate::raster::DepthLayers`]), so a pane or an edge covering part of
 //!   a pixel shows what is behind it.
 //! - The input ([`crate::raster::LayeredInput`], default on, `--no-coverage` and
