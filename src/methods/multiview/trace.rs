@@ -243,24 +243,28 @@ fn trace_row_inner(
     let (_, c_last) = layers.spacing.bounds(m.saturating_sub(1));
     let reach = c_first.abs().max(c_last.abs()) * rmax + 1.0;
     let (lw, lh) = (layers.width as f32, layers.height as f32);
+    // Per layer, the same for every pixel: its N-buffer, the window the rays can reach (and
+    // what their cones read around them), and the CoC beyond which its surfaces are missed.
+    let culls: Vec<Option<(&NBuffer, i64, f32)>> = (0..m)
+        .map(|l| {
+            let nb = input.nbuffers.and_then(|n| n[l].as_ref())?;
+            let (a, b) = layers.spacing.bounds(l);
+            let r = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1 + graze_reach(input, l);
+            let overlap = layers.spacing.overlap * layers.spacing.delta_px;
+            Some((nb, r, b + overlap))
+        })
+        .collect();
     for (fx, out) in row.iter_mut().enumerate() {
         let x = fx + x0;
         let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
         let safe = p.x - reach >= 0.0 && p.y - reach >= 0.0 && p.x + reach < lw && p.y + reach < lh;
         // Early layer culling for all rays of the pixel.
-        for (l, o) in open.iter_mut().enumerate() {
-            *o = input.filled[l];
-            if !*o {
-                continue;
-            }
-            if let Some(nb) = input.nbuffers.and_then(|n| n[l].as_ref()) {
-                let (a, b) = layers.spacing.bounds(l);
-                // The window the rays can reach, and what their cones read around them.
-                let r = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1 + graze_reach(input, l);
+        for ((o, &filled), cull) in open.iter_mut().zip(input.filled).zip(&culls) {
+            *o = filled;
+            if let (true, Some((nb, r, limit))) = (filled, cull) {
                 let (xi, yi) = (x as i64, y as i64);
                 if let Some(min) = nb.min(xi - r, yi - r, xi + r, yi + r) {
-                    let overlap = layers.spacing.overlap * layers.spacing.delta_px;
-                    *o = min <= b + overlap;
+                    *o = min <= *limit;
                 }
             }
         }
