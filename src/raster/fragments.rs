@@ -46,6 +46,8 @@ pub struct HeldFragment {
     pub blend: bool,
     /// Its mask is a share of the samples, not where its geometry lies ([`Fragment::dithered`]).
     pub dithered: bool,
+    /// Seen from its back ([`Fragment::back_facing`]).
+    pub back: bool,
 }
 
 impl HeldFragment {
@@ -56,6 +58,7 @@ impl HeldFragment {
         mask: 0,
         blend: false,
         dithered: false,
+        back: false,
     };
 
     /// A rasterized fragment, premultiplied by its opacity and coverage.
@@ -68,6 +71,7 @@ impl HeldFragment {
             mask: f.coverage,
             blend: f.blend,
             dithered: f.dithered,
+            back: f.back_facing,
         }
     }
 
@@ -98,6 +102,7 @@ impl HeldFragment {
             *a += b;
         }
         self.mask |= other.mask;
+        self.back &= other.back;
         true
     }
 
@@ -408,6 +413,16 @@ impl FragmentLists {
 /// images to 0.01 dB, 4 px costs `railing` 0.9 dB (surfaces a blur does show beside each other).
 pub const COINCIDENT_COC_PX: f32 = 1.0;
 
+/// How far behind an opaque surface seen from its front, relative to its depth, a surface seen
+/// from its back is taken for the far side of the same closed mesh (a double-sided bar's inside
+/// behind its outside), which no lens point sees: the same 5% within which `multilayer`'s
+/// levels take fragments for one surface. [`COINCIDENT_COC_PX`] alone is a distance in pixels,
+/// so it let the back of `traps`' bars (1.7% of their depth behind their fronts: 1.1 px of CoC
+/// at 640x360, 2.2 at 1280x720) count as a second surface at the higher resolution, where
+/// `splat --layers 4` then blended the bars over themselves (28.2 dB, against 29.97 with them
+/// hidden), and at any resolution it took two of four slots when the cap was two.
+pub const BACK_SIDE_DEPTH: f32 = 0.05;
+
 /// Makes the fragments of one pixel (sorted near to far) composite, with the over operator, as
 /// their coverage masks do wherever a nearer opaque surface lies within [`COINCIDENT_COC_PX`] of
 /// their CoC. Such a pair is one place seen at one time: the two sides of a thin closed mesh at
@@ -451,13 +466,22 @@ pub(crate) fn samples_hiding(others: &[HeldFragment], back: &HeldFragment, scale
     }
     others
         .iter()
-        .filter(|s| {
-            s.depth_m < back.depth_m
-                && !s.blend
-                && !s.dithered
-                && scale.coincident(s.depth_m, back.depth_m)
-        })
+        .filter(|s| may_hide(s, back, scale))
         .fold(0u16, |m, s| m | s.mask)
+}
+
+/// Whether `front` can hide `back`'s samples: an opaque surface in front of it that no blur
+/// separates from it, within [`COINCIDENT_COC_PX`] of CoC, or seen from its front with `back`
+/// seen from its back within [`BACK_SIDE_DEPTH`] behind it (the inside of a closed mesh).
+#[inline]
+fn may_hide(front: &HeldFragment, back: &HeldFragment, scale: CocScale) -> bool {
+    front.depth_m < back.depth_m
+        && !front.blend
+        && !front.dithered
+        && (scale.coincident(front.depth_m, back.depth_m)
+            || (back.back
+                && !front.back
+                && back.depth_m <= front.depth_m * (1.0 + BACK_SIDE_DEPTH)))
 }
 
 /// `f_px E`, the lens's scale of CoC against inverse depth (`C = f_px E (1/z_f - 1/z)`, see
@@ -650,11 +674,7 @@ impl TileSink for FragmentTile {
             .filter(|_| n > 0 && !front.blend && !front.dithered);
         if let Some(scale) = scale {
             let n = self.counts[i] as usize;
-            let behind = |s: &HeldFragment| {
-                s.depth_m > front.depth_m
-                    && !s.dithered
-                    && scale.coincident(front.depth_m, s.depth_m)
-            };
+            let behind = |s: &HeldFragment| !s.dithered && may_hide(&front, s, scale);
             if slots[..n].iter().any(behind) {
                 let left = drop_hidden(slots, n, scale);
                 if left < n {
@@ -850,6 +870,7 @@ mod tests {
             blend: false,
             coverage,
             dithered: false,
+            back_facing: false,
         };
         let near = frag(1.0, [0.1, 0.1, 0.1], FULL_COVERAGE);
         let edge = frag(2.0, [1.0, 0.0, 0.0], 0x00ff);

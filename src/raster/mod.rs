@@ -98,6 +98,9 @@ pub struct Fragment {
     /// rather than the samples its geometry covers: which samples it holds says nothing about
     /// where the surface lies in the pixel.
     pub dithered: bool,
+    /// The surface is seen from its back (a double-sided material's far side: the inside of a
+    /// closed mesh, or the other side of a leaf).
+    pub back_facing: bool,
 }
 
 impl Fragment {

@@ -63,6 +63,8 @@ pub struct SetupTriangle {
     pub material: u32,
     /// Alpha-blended material.
     pub blend: bool,
+    /// Seen from its back (a double-sided material's far side).
+    pub back_facing: bool,
     /// View depth of the nearest vertex, in metres.
     pub nearest_m: f32,
     /// View depth of the farthest vertex, in metres.
@@ -239,7 +241,8 @@ fn setup_clipped(
     }
     // Counter-clockwise front faces (camera looking down -Z, y up) have negative area in
     // raster coordinates (y down).
-    if area > 0 {
+    let back_facing = area > 0;
+    if back_facing {
         if !double_sided {
             return;
         }
@@ -317,6 +320,7 @@ fn setup_clipped(
         planes,
         material,
         blend,
+        back_facing,
         nearest_m: 1.0 / inv_w[0].max(inv_w[1]).max(inv_w[2]),
         farthest_m: 1.0 / inv_w[0].min(inv_w[1]).min(inv_w[2]),
     });
@@ -722,7 +726,7 @@ impl SampleBatch {
         alpha_to_coverage: bool,
         uv: &shade::UvBatch,
         colors: &mut [Option<crate::image::Rgba>; BATCH],
-        blend: bool,
+        (blend, back_facing): (bool, bool),
         tile: &mut T,
     ) {
         if self.pixels == 0 {
@@ -760,6 +764,7 @@ impl SampleBatch {
                 blend,
                 coverage: kept[i],
                 dithered: alpha_to_coverage,
+                back_facing,
             });
         }
         self.pixels = 0;
@@ -887,6 +892,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
                     blend: tri.blend,
                     coverage: p.mask[i],
                     dithered: false,
+                    back_facing: tri.back_facing,
                 });
             }
         }
@@ -954,7 +960,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
                         alpha_to_coverage,
                         sample_uv,
                         sample_colors,
-                        tri.blend,
+                        (tri.blend, tri.back_facing),
                         tile,
                     );
                 }
@@ -988,7 +994,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 alpha_to_coverage,
                 sample_uv,
                 sample_colors,
-                tri.blend,
+                (tri.blend, tri.back_facing),
                 tile,
             );
         }

@@ -374,3 +374,50 @@ fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_b
     let (depths, _) = plain.pixel(32, 32);
     assert!((depths[1] - 1.51).abs() < 1e-3, "{depths:?}");
 }
+
+/// The inside of a closed double-sided mesh: behind an opaque card seen from its front, a card
+/// seen from its back 4% of the depth further (2 px of CoC, more than
+/// [`defocus::raster::COINCIDENT_COC_PX`]: a thicker bar, or a thin one at a higher resolution)
+/// takes no slot, so with two slots the board behind stays in the list. A second card seen from
+/// its front at the same distance is a surface a blur can show, and keeps its slot.
+#[test]
+fn the_inside_of_a_closed_mesh_takes_no_slot() {
+    use defocus::raster::{render_fragment_lists, PreparedScene, View, COINCIDENT_COC_PX};
+    let camera = Camera {
+        focal_length_mm: 200.0,
+        ..test_camera(64, 64, 3.0, 1.4)
+    };
+    let lens = camera.thin_lens().unwrap();
+    assert!((lens.coc_px(0.50) - lens.coc_px(0.52)).abs() > COINCIDENT_COC_PX);
+    let lists_with = |back_facing: bool| {
+        let mut scene = Scene::default();
+        let dark = scene.add_material(Material::color("dark", [0.0; 3]));
+        let white = scene.add_material(Material::color("white", [1.0; 3]));
+        add_screen_rect(&mut scene, &camera, (0.0, 0.0, 64.0, 64.0), 3.0, white);
+        add_screen_rect(&mut scene, &camera, (16.0, 8.0, 48.0, 56.0), 0.50, dark);
+        add_screen_rect(&mut scene, &camera, (16.0, 8.0, 48.0, 56.0), 0.52, dark);
+        // `add_screen_rect`'s quads face away from the view (seen from their back, as the
+        // material is double-sided): turn the near card, and the far one unless it is to be
+        // seen from its back.
+        let turned = if back_facing { 1 } else { 2 };
+        for mesh in scene.meshes.iter_mut().skip(1).take(turned) {
+            for t in &mut mesh.indices {
+                t.swap(1, 2);
+            }
+        }
+        let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+        render_fragment_lists(&prepared, &View::pinhole(lens), 2, true, None)
+    };
+    let inside = lists_with(true);
+    let (depths, _) = inside.pixel(32, 32);
+    assert!(
+        depths.len() == 2 && (depths[0] - 0.50).abs() < 1e-3 && (depths[1] - 3.0).abs() < 1e-3,
+        "{depths:?}"
+    );
+    let two_cards = lists_with(false);
+    let (depths, _) = two_cards.pixel(32, 32);
+    assert!(
+        depths.len() == 2 && (depths[1] - 0.52).abs() < 1e-3,
+        "{depths:?}"
+    );
+}
