@@ -536,8 +536,9 @@ fn farthest_slot(slots: &[HeldFragment]) -> usize {
 }
 
 /// Per-tile state of [`FragmentLists`]: N slots per pixel holding the N nearest fragments so
-/// far, so that an opaque fragment behind all N of a full pixel is rejected before it is shaded
-/// (the rasterizer's early test), and a nearer one replaces the farthest.
+/// far (N + 1 where the overflow is merged), so that an opaque fragment behind all of a full
+/// pixel is rejected before it is shaded (the rasterizer's early test), and a nearer one
+/// replaces the farthest (or, merging the overflow, the two farthest become one).
 #[derive(Clone, Debug, PartialEq)]
 pub struct FragmentTile {
     rect: TileRect,
@@ -624,7 +625,7 @@ impl TileSink for FragmentTile {
                 n
             }
             None if merge_overflow => {
-                // The two farthest of the N + 1 become one, the nearer over the farther.
+                // Full: the two farthest of the N + 2 become one, the nearer over the farther.
                 let far = farthest_slot(slots);
                 let at = if held.depth_m >= slots[far].depth_m {
                     slots[far].absorb(&held);
@@ -785,9 +786,10 @@ mod tests {
         let r = reach();
         // Inside the frame, and near it where even infinity's 5 px reach: everything is kept.
         assert_eq!(r.depth_limit(90, 70), f32::INFINITY);
-        assert_eq!(r.depth_limit(35, 70), f32::INFINITY); // 4.5 px out: 2 x 5 + 1 reach it
-                                                          // 31.5 px left of the frame: only CoCs of (31.5 - 1) / 2 = 15.25 px or more reach it,
-                                                          // which lie in front of 1 / (1/2 + 1.525) m.
+        // 4.5 px out: 2 x 5 + 1 reach it.
+        assert_eq!(r.depth_limit(35, 70), f32::INFINITY);
+        // 31.5 px left of the frame: only CoCs of (31.5 - 1) / 2 = 15.25 px or more reach it,
+        // which lie in front of 1 / (1/2 + 1.525) m.
         let z = r.depth_limit(8, 70);
         assert!((z - 1.0 / 2.025).abs() < 1e-5, "{z}");
         assert!((r.lens.coc_px(z) + 15.25).abs() < 1e-3);

@@ -166,13 +166,13 @@ const SURFACES: usize = 3;
 
 /// Per-tile state of [`DepthLayers`].
 ///
-/// Per layer and pixel (a slot) the [`SURFACES`] nearest surfaces. Most slots stay empty (a pixel meets
-/// a few surfaces among tens of layers), so the slots live in a scratch buffer that is neither
-/// cleared nor allocated per tile: a bit per slot says which hold something (the others are
-/// [`HeldFragment::EMPTY`]), and when the tile finishes, its used slots are kept in a short list
-/// and the buffer goes back to the pass's pool for the next tile. (A fresh buffer per tile, then 48
-/// bytes a slot, cleared by the kernel and then filled, took 40% of `decompose`, and all tiles'
-/// buffers were held until the pass ended.)
+/// Per layer and pixel (a slot) the [`SURFACES`] nearest surfaces. Most slots stay empty (a
+/// pixel meets a few surfaces among tens of layers), so the slots live in a scratch buffer that
+/// is neither cleared nor allocated per tile: a bit per slot says which hold something (the
+/// others are [`HeldFragment::EMPTY`]), and when the tile finishes, its used slots are kept in a
+/// short list and the buffer goes back to the pass's pool for the next tile. (A fresh buffer per
+/// tile, then 48 bytes a slot, cleared by the kernel and then filled, took 40% of `decompose`,
+/// and all tiles' buffers were held until the pass ended.)
 #[derive(Debug)]
 pub struct LayersTile {
     rect: TileRect,
@@ -249,7 +249,9 @@ impl LayersTile {
         // surface of the layer (see `fragments::hide_coincident`). Only surfaces behind an
         // opaque one can be.
         if !held[0].depth_m.is_finite()
-            || !held[..SURFACES - 1].iter().any(|h| !h.blend && !h.dithered)
+            || !held[..SURFACES - 1]
+                .iter()
+                .any(|h| h.depth_m.is_finite() && !h.blend && !h.dithered)
         {
             return;
         }
