@@ -24,9 +24,9 @@
 //! - Jitter picks one of 16 complete sample sets per pixel (the paper's first option) rather
 //!   than rotating samples, which would turn polygonal and image apertures.
 //! - Layers see through (the paper has no transparency): each keeps its three nearest surfaces
-//!   per pixel (more merged into the farthest) composited, with their coverage in alpha, and a ray takes a hit's share and
-//!   goes on behind it ([`crate::raster::DepthLayers`]), so a pane or an edge covering part of
-//!   a pixel shows what is behind it.
+//!   per pixel (more merged into the farthest) composited, with their coverage in alpha, and a
+//!   ray takes a hit's share and goes on behind it ([`crate::raster::DepthLayers`]), so a pane
+//!   or an edge covering part of a pixel shows what is behind it.
 //! - The input ([`crate::raster::LayeredInput`], default on, `--no-coverage` and
 //!   `--no-guard-band` for the paper's): fragments with 16-sample coverage masks, textures
 //!   shaded per sample, so in-focus edges are anti-aliased; and layers over the frame grown by
