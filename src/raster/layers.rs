@@ -304,17 +304,14 @@ impl TileSink for LayersTile {
                 bits &= bits - 1;
                 let mut surfaces = self.held[s];
                 super::fragments::hide_coincident(&mut surfaces, self.scale);
-                if surfaces[0].depth_m.is_finite() {
+                let [front, behind @ ..] = &mut surfaces;
+                if front.depth_m.is_finite() {
                     // Front to back, premultiplied.
-                    let mut c = [0.0f32; 4];
-                    for h in surfaces.iter().filter(|h| h.depth_m.is_finite()) {
-                        let t = 1.0 - c[3].min(1.0);
-                        for (ck, hk) in c.iter_mut().zip(h.color) {
-                            *ck += t * hk;
-                        }
+                    for h in behind.iter().filter(|h| h.depth_m.is_finite()) {
+                        front.absorb(h);
                     }
                     self.kept
-                        .push((s as u32, lens.coc_px(surfaces[0].depth_m), to_half(c)));
+                        .push((s as u32, lens.coc_px(front.depth_m), to_half(front.color)));
                 }
             }
         }

@@ -27,6 +27,17 @@ pub(crate) fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// Runs `defocus render` with `args` and `--out out`, checks that it succeeded, and reads the
+/// image it wrote.
+pub(crate) fn render_image(args: &[&str], out: &Path) -> defocus::image::ColorImage {
+    let mut all = vec!["render"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--out", s(out)]);
+    let o = defocus(&all);
+    assert!(o.status.success(), "{}", stderr(&o));
+    io::read_color(out).unwrap()
+}
+
 /// What the command printed on stderr.
 pub(crate) fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()

@@ -418,16 +418,11 @@ fn a_layer_keeps_what_lies_behind_two_panes() {
 #[test]
 fn almost_a_pinhole_multiview_gives_the_pinhole_frame() {
     let dir = crate::cli::temp_dir("multiview-pinhole");
+    let frame = [
+        "--scene", "traps", "--width", "320", "--height", "180", "--fstop", "500",
+    ];
     let run = |name: &str, method: &[&str]| {
-        let out = dir.join(name);
-        let mut args = vec![
-            "render", "--scene", "traps", "--width", "320", "--height", "180",
-        ];
-        args.extend_from_slice(&["--fstop", "500", "--out", crate::cli::s(&out)]);
-        args.extend_from_slice(method);
-        let o = crate::cli::defocus(&args);
-        assert!(o.status.success(), "{}", crate::cli::stderr(&o));
-        defocus::image::io::read_color(&out).unwrap()
+        crate::cli::render_image(&[&frame[..], method].concat(), &dir.join(name))
     };
     let pinhole = run("pinhole.exr", &["--method", "pinhole", "--samples", "64"]);
     let mv = run("multiview.exr", &["--method", "multiview"]);

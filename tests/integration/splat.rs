@@ -360,14 +360,7 @@ fn layered_splat_blurs_a_scene_past_the_one_frame_clamp() {
     let dir = crate::cli::temp_dir("layered-max-coc");
     let frame = ["--scene", "traps", "--width", "1024", "--height", "96"];
     let run = |name: &str, extra: &[&str]| {
-        let out = dir.join(name);
-        let mut args = vec!["render"];
-        args.extend_from_slice(&frame);
-        args.extend_from_slice(extra);
-        args.extend_from_slice(&["--out", crate::cli::s(&out)]);
-        let o = crate::cli::defocus(&args);
-        assert!(o.status.success(), "{}", crate::cli::stderr(&o));
-        defocus::image::io::read_color(&out).unwrap()
+        crate::cli::render_image(&[&frame[..], extra].concat(), &dir.join(name))
     };
     let truth = run("ref.exr", &["--method", "reference", "--samples", "64"]);
     let layered = ["--method", "splat", "--layers", "4"];
