@@ -11,7 +11,8 @@
 //! into padded scratch rows, the horizontal filter then sums shifted copies of each. Both are
 //! `out[j] = sum_i w[i] in_i[j]` over contiguous `f32`s with blocks of outputs kept in
 //! registers across all taps, 8 registers wide for the instruction set chosen at run time. The
-//! horizontal filter is `lowrank`'s row filter ([`filter_span`]). The vertical one runs two
+//! horizontal filter is `lowrank`'s row filter, unfused ([`filter_span_unfused`]: the same bits
+//! on every machine). The vertical one runs two
 //! adjacent rows at once (`vertical_pair`): they share all but one of their source rows, so
 //! each is loaded once for both. On the benchmark frame: 0.55 ms with one row at a time and
 //! blocks of two AVX-512 registers (each tap's add waited on the previous one), 0.45 ms with
@@ -25,7 +26,7 @@ use rayon::prelude::*;
 
 use super::QuarterImage;
 use crate::image::{ColorImage, GrayImage};
-use crate::methods::lowrank::filter::{filter_span, filter_span_baseline};
+use crate::methods::lowrank::filter::{filter_span_unfused, filter_span_unfused_baseline};
 use crate::{Error, Result};
 
 /// Weights of a Gaussian of standard deviation `sigma` (in texels) at offsets `-r..=r`,
@@ -65,14 +66,14 @@ pub fn blur_baseline(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterIma
         shrunk,
         kernel,
         Filters {
-            span: filter_span_baseline,
+            span: filter_span_unfused_baseline,
             pair: vertical_pair_baseline,
         },
     )
 }
 
 /// A row filter `out[p] = sum_k w_k src[base_k + p]` over a list of `(w_k, base_k)`:
-/// [`filter_span`] or its portable twin.
+/// [`filter_span_unfused`] or its portable twin.
 type Span = fn(&mut [f32], &[(f32, usize)], &[f32]);
 
 /// The vertical filter of two adjacent rows at once ([`vertical_pair`] or its portable twin).
@@ -92,7 +93,7 @@ pub fn blur(shrunk: &QuarterImage, kernel: &[f32]) -> Result<QuarterImage> {
         shrunk,
         kernel,
         Filters {
-            span: filter_span,
+            span: filter_span_unfused,
             pair: vertical_pair,
         },
     )
@@ -196,7 +197,7 @@ fn horizontal(
 /// The vertical filter of two adjacent output rows: with `n = kernel.len()` and `base` the
 /// offsets of `n + 1` source rows, `a[p] = sum_{i < n} kernel[i] src[base[i] + p]` and
 /// `b[p] = sum_{i < n} kernel[i] src[base[i + 1] + p]`, each summed in the order of `i` (as
-/// [`filter_span`] does, so the same bits). Each source row is loaded once for both. Compiled
+/// [`filter_span_unfused`] does, so the same bits). Each source row is loaded once for both. Compiled
 /// for several instruction sets and chosen at run time ([`multiversion`]): blocks of 8
 /// registers for the two rows together.
 #[multiversion::multiversion(targets(
@@ -348,7 +349,7 @@ mod tests {
                         .map(|(&k, &o)| (k, o))
                         .collect();
                     let mut single = vec![0.0f32; len];
-                    filter_span_baseline(&mut single, &list, &src);
+                    filter_span_unfused_baseline(&mut single, &list, &src);
                     assert_eq!(
                         out.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
                         single.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),

@@ -48,8 +48,8 @@
 use rayon::prelude::*;
 
 use super::filter::{
-    filter_rows, filter_span, filter_span_add, is_opaque, pad_row, Channels, Schedule, BAND_ROWS,
-    MAX_ROWS, ROW_BLOCK, STRIP_PX,
+    filter_rows, filter_span, filter_span_add, filter_span_ranks, is_opaque, pad_row, Channels,
+    Schedule, BAND_ROWS, MAX_RANKS, MAX_ROWS, ROW_BLOCK, STRIP_PX,
 };
 use super::svd::LowRank;
 use crate::image::{ColorImage, GrayImage, Rgba};
@@ -461,6 +461,7 @@ struct Window {
     padded_c: Vec<f32>,
     padded_e: Vec<f32>,
     list: Vec<(f32, usize)>,
+    ranks_list: Vec<(usize, [f32; MAX_RANKS])>,
     base: Vec<usize>,
     /// The band's sums over the ranks (`BAND_ROWS` rows of `w` pixels of `CH` floats) and its
     /// column runs per group of rows: `(start, end, key)`, `u32::MAX` for columns whose rows
@@ -488,6 +489,7 @@ impl Window {
             padded_c: Vec::new(),
             padded_e: Vec::new(),
             list: Vec::new(),
+            ranks_list: Vec::new(),
             base: Vec::new(),
             sum: vec![0.0; BAND_ROWS * w * ch],
             runs: Vec::new(),
@@ -514,7 +516,7 @@ impl Window {
     }
 
     /// The horizontal pass of source row `y` for every rank, into its slot: each run of pixels
-    /// `[a, b)` sharing a kernel is one [`filter_span`] per rank, tap `j` reading
+    /// `[a, b)` sharing a kernel is one [`filter_span_ranks`] per three ranks, tap `j` reading
     /// `padded[a + j..]`, as [`horizontal_row`] does.
     fn filter_row<const CH: usize>(
         &mut self,
@@ -540,28 +542,41 @@ impl Window {
         let keys = &self.keys[slot * w..(slot + 1) * w];
         for (a, b, key) in runs(keys) {
             let n = bank.half_h_of(key);
-            for i in 0..r {
-                let table = (key as usize * r + i) * stride;
-                self.list.clear();
+            for g in (0..r).step_by(MAX_RANKS) {
+                let ranks = g..r.min(g + MAX_RANKS);
+                // The group's taps: one offset, one weight per rank; an offset all of whose
+                // weights are 0 is left out.
+                self.ranks_list.clear();
                 for j in nmax - n..=nmax + n {
-                    let wt = bank.horizontal[table + j];
-                    if wt != 0.0 {
-                        self.list.push((wt, a + j));
+                    let mut wt = [0.0; MAX_RANKS];
+                    for (k, i) in ranks.clone().enumerate() {
+                        wt[k] = bank.horizontal[(key as usize * r + i) * stride + j];
+                    }
+                    if wt.iter().any(|&v| v != 0.0) {
+                        self.ranks_list.push((a + j, wt));
                     }
                 }
-                if let Some(edges) = self.edges.get_mut(i).filter(|e| !e.is_empty()) {
-                    let out = &mut edges[slot * w + a..slot * w + b];
+                // Every rank has an edge row, or none does.
+                if self.edges.first().is_some_and(|e| !e.is_empty()) {
+                    let mut outs: [&mut [f32]; MAX_RANKS] = Default::default();
+                    for (o, e) in outs.iter_mut().zip(&mut self.edges[ranks.clone()]) {
+                        *o = &mut e[slot * w + a..slot * w + b];
+                    }
+                    let outs = &mut outs[..ranks.len()];
                     if edge_row.is_some() {
-                        filter_span(out, &self.list, &self.padded_e);
+                        filter_span_ranks(outs, &self.ranks_list, &self.padded_e);
                     } else {
-                        out.fill(0.0);
+                        outs.iter_mut().for_each(|o| o.fill(0.0));
                     }
                 }
-                for t in self.list.iter_mut() {
-                    t.1 *= CH;
+                for t in self.ranks_list.iter_mut() {
+                    t.0 *= CH;
                 }
-                let out = &mut self.colour[i][(slot * w + a) * CH..(slot * w + b) * CH];
-                filter_span(out, &self.list, &self.padded_c);
+                let mut outs: [&mut [f32]; MAX_RANKS] = Default::default();
+                for (o, c) in outs.iter_mut().zip(&mut self.colour[ranks.clone()]) {
+                    *o = &mut c[(slot * w + a) * CH..(slot * w + b) * CH];
+                }
+                filter_span_ranks(&mut outs[..ranks.len()], &self.ranks_list, &self.padded_c);
             }
         }
     }
