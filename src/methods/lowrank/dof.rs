@@ -48,8 +48,9 @@
 use rayon::prelude::*;
 
 use super::filter::{
-    filter_rows, filter_span, filter_span_add, filter_span_ranks, is_opaque, pad_row, Channels,
-    Schedule, BAND_ROWS, MAX_RANKS, MAX_ROWS, ROW_BLOCK, STRIP_PX,
+    filter_rows, filter_span, filter_span_add, filter_span_ranks, filter_span_ranks_folded,
+    is_opaque, pad_row, Channels, Schedule, TapPair, BAND_ROWS, MAX_RANKS, MAX_ROWS, ROW_BLOCK,
+    STRIP_PX,
 };
 use super::svd::LowRank;
 use crate::image::{ColorImage, GrayImage, Rgba};
@@ -74,6 +75,9 @@ pub struct KernelBank {
     /// and vertical (they differ when the aperture is squeezed, [`KernelBank::with_squeeze`]).
     half_h: Vec<usize>,
     half_v: Vec<usize>,
+    /// Per rank, whether its horizontal taps are even (1) or odd (-1) about the centre, exactly,
+    /// or neither (0): see [`parity`].
+    h_parity: Vec<i8>,
     /// `[(sign * levels + level) * rank + i] * stride + j`, the weight of offset `nmax - j`
     /// (far field, sign 0) or `j - nmax` (near field, sign 1), 0 beyond the level's taps.
     horizontal: Vec<f32>,
@@ -109,6 +113,50 @@ fn far_taps(base: &[f64], radius_px: f64, n: usize) -> Vec<f64> {
             integral_to(base, &cum, t1) - integral_to(base, &cum, t0)
         })
         .collect()
+}
+
+/// Largest difference between a singular vector and its mirror image (or its negated mirror
+/// image), relative to its largest entry, that counts as an even (or odd) vector: a kernel
+/// symmetric about an axis has singular vectors that are exactly even or odd, up to the
+/// decomposition's rounding (about 1e-12) and the rasterized aperture's (its samples lie
+/// symmetrically, so none); an aperture that is not symmetric differs by tenths.
+const PARITY_TOLERANCE: f64 = 1e-6;
+
+/// Whether `v` is even (1) or odd (-1) about its middle entry within [`PARITY_TOLERANCE`], and
+/// then `v` made exactly so (the mean of `v` and its mirror image, or of `v` and its negated
+/// mirror image); 0 and `v` unchanged otherwise.
+fn parity(v: &[f64]) -> (i8, Vec<f64>) {
+    let scale = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let mirrored = |s: f64| {
+        v.iter()
+            .zip(v.iter().rev())
+            .all(|(a, b)| (a - s * b).abs() <= PARITY_TOLERANCE * scale)
+    };
+    for s in [1i8, -1] {
+        if scale > 0.0 && mirrored(f64::from(s)) {
+            let sf = f64::from(s);
+            let made = v
+                .iter()
+                .zip(v.iter().rev())
+                .map(|(a, b)| 0.5 * (a + sf * b))
+                .collect();
+            return (s, made);
+        }
+    }
+    (0, v.to_vec())
+}
+
+/// Makes `taps` (offsets `-n..=n`) exactly even (`s` = 1) or odd (`s` = -1) by copying the
+/// positive offsets' weights to the negative ones, as the integrals of an even or odd vector
+/// are up to rounding.
+fn mirror_taps(taps: &mut [f64], s: i8) {
+    let n = taps.len() / 2;
+    for d in 1..=n {
+        taps[n - d] = f64::from(s) * taps[n + d];
+    }
+    if s < 0 {
+        taps[n] = 0.0;
+    }
 }
 
 /// The sum of the rank-`rank` kernel, checked to be usable as a divisor.
@@ -190,6 +238,12 @@ impl KernelBank {
                 table[row + j] = (w / k) as f32;
             }
         };
+        // The horizontal vectors, each made exactly even or odd where it is so within rounding,
+        // so that the horizontal pass can fold its taps in pairs
+        // ([`super::filter::filter_span_ranks_folded`]).
+        let (h_parity, h_vectors): (Vec<i8>, Vec<Vec<f64>>) = (0..rank)
+            .map_while(|i| lr.horizontal(i).map(parity))
+            .unzip();
         // The taps of every level and rank, levels in parallel: (level, rank, horizontal,
         // vertical).
         let taps: Vec<(usize, usize, Vec<f64>, Vec<f64>)> = (0..levels)
@@ -197,9 +251,13 @@ impl KernelBank {
             .flat_map_iter(|level| {
                 let radius = level_radius_px(level);
                 let (nh, nv) = (half_h[level], half_v[level]);
+                let (h_parity, h_vectors) = (&h_parity, &h_vectors);
                 (0..rank).map_while(move |i| {
-                    let (hv, vv) = (lr.horizontal(i)?, lr.vertical(i)?);
-                    let h_taps = far_taps(hv, (radius * sx) as f64, nh);
+                    let (hv, vv) = (h_vectors.get(i)?, lr.vertical(i)?);
+                    let mut h_taps = far_taps(hv, (radius * sx) as f64, nh);
+                    if h_parity[i] != 0 {
+                        mirror_taps(&mut h_taps, h_parity[i]);
+                    }
                     let v_taps = far_taps(vv, (radius * sy) as f64, nv);
                     Some((level, i, h_taps, v_taps))
                 })
@@ -222,6 +280,7 @@ impl KernelBank {
             stride,
             half_h,
             half_v,
+            h_parity,
             horizontal,
             vertical,
         })
@@ -461,7 +520,7 @@ struct Window {
     padded_c: Vec<f32>,
     padded_e: Vec<f32>,
     list: Vec<(f32, usize)>,
-    ranks_list: Vec<(usize, [f32; MAX_RANKS])>,
+    taps: RunTaps,
     base: Vec<usize>,
     /// The band's sums over the ranks (`BAND_ROWS` rows of `w` pixels of `CH` floats) and its
     /// column runs per group of rows: `(start, end, key)`, `u32::MAX` for columns whose rows
@@ -489,7 +548,7 @@ impl Window {
             padded_c: Vec::new(),
             padded_e: Vec::new(),
             list: Vec::new(),
-            ranks_list: Vec::new(),
+            taps: RunTaps::default(),
             base: Vec::new(),
             sum: vec![0.0; BAND_ROWS * w * ch],
             runs: Vec::new(),
@@ -527,7 +586,7 @@ impl Window {
         bank: &KernelBank,
     ) {
         let w = color.width();
-        let (nmax, stride, r) = (bank.nmax, bank.stride, bank.rank);
+        let (nmax, r) = (bank.nmax, bank.rank);
         let slot = y % self.cap;
         let keys = &mut self.keys[slot * w..(slot + 1) * w];
         bank.keys_into(coc_px.row(y), keys);
@@ -541,21 +600,9 @@ impl Window {
         }
         let keys = &self.keys[slot * w..(slot + 1) * w];
         for (a, b, key) in runs(keys) {
-            let n = bank.half_h_of(key);
             for g in (0..r).step_by(MAX_RANKS) {
                 let ranks = g..r.min(g + MAX_RANKS);
-                // The group's taps: one offset, one weight per rank; an offset all of whose
-                // weights are 0 is left out.
-                self.ranks_list.clear();
-                for j in nmax - n..=nmax + n {
-                    let mut wt = [0.0; MAX_RANKS];
-                    for (k, i) in ranks.clone().enumerate() {
-                        wt[k] = bank.horizontal[(key as usize * r + i) * stride + j];
-                    }
-                    if wt.iter().any(|&v| v != 0.0) {
-                        self.ranks_list.push((a + j, wt));
-                    }
-                }
+                self.taps.build(bank, key, ranks.clone(), a);
                 // Every rank has an edge row, or none does.
                 if self.edges.first().is_some_and(|e| !e.is_empty()) {
                     let mut outs: [&mut [f32]; MAX_RANKS] = Default::default();
@@ -564,19 +611,17 @@ impl Window {
                     }
                     let outs = &mut outs[..ranks.len()];
                     if edge_row.is_some() {
-                        filter_span_ranks(outs, &self.ranks_list, &self.padded_e);
+                        self.taps.apply(outs, &self.padded_e);
                     } else {
                         outs.iter_mut().for_each(|o| o.fill(0.0));
                     }
                 }
-                for t in self.ranks_list.iter_mut() {
-                    t.0 *= CH;
-                }
+                self.taps.scale(CH);
                 let mut outs: [&mut [f32]; MAX_RANKS] = Default::default();
                 for (o, c) in outs.iter_mut().zip(&mut self.colour[ranks.clone()]) {
                     *o = &mut c[(slot * w + a) * CH..(slot * w + b) * CH];
                 }
-                filter_span_ranks(&mut outs[..ranks.len()], &self.ranks_list, &self.padded_c);
+                self.taps.apply(&mut outs[..ranks.len()], &self.padded_c);
             }
         }
     }
@@ -834,7 +879,7 @@ pub fn horizontal(
             .zip(inter.edges.par_chunks_mut(w))
             .enumerate()
             .for_each_init(
-                || (Vec::new(), Vec::new(), Vec::new()),
+                || (Vec::new(), Vec::new(), RunTaps::default()),
                 |bufs, (y, (c, e))| row(y, c, Some(e), bufs),
             );
     } else {
@@ -843,7 +888,7 @@ pub fn horizontal(
             .par_chunks_mut(w * ch)
             .enumerate()
             .for_each_init(
-                || (Vec::new(), Vec::new(), Vec::new()),
+                || (Vec::new(), Vec::new(), RunTaps::default()),
                 |bufs, (y, c)| row(y, c, None, bufs),
             );
     }
@@ -869,9 +914,96 @@ fn runs(keys: &[u32]) -> impl Iterator<Item = (usize, usize, u32)> + '_ {
     })
 }
 
+/// The horizontal taps of up to [`MAX_RANKS`] ranks of one kernel over a run of pixels, as
+/// [`filter_span_ranks_folded`] takes them where every rank's taps are even or odd
+/// ([`KernelBank`]'s parity), as [`filter_span_ranks`] takes them otherwise.
+#[derive(Default)]
+struct RunTaps {
+    /// Whether the taps are folded into `center` and `pairs`, or listed in `plain`.
+    folded: bool,
+    /// The ranks in the order their weights are stored: the even ones first when folded.
+    ranks: Vec<usize>,
+    /// Folded: how many of `ranks` are even.
+    even: usize,
+    center: (usize, [f32; MAX_RANKS]),
+    pairs: Vec<TapPair>,
+    plain: Vec<(usize, [f32; MAX_RANKS])>,
+}
+
+impl RunTaps {
+    /// The taps of `ranks` for table key `key` on the run starting at pixel `a` of a row padded
+    /// with `nmax` pixels each side: tap `j` reads pixel `a + j` of the padded row.
+    fn build(&mut self, bank: &KernelBank, key: u32, ranks: std::ops::Range<usize>, a: usize) {
+        let (nmax, stride, r) = (bank.nmax, bank.stride, bank.rank);
+        let n = bank.half_h_of(key);
+        let weight = |i: usize, j: usize| bank.horizontal[(key as usize * r + i) * stride + j];
+        self.folded = ranks.clone().all(|i| bank.h_parity[i] != 0);
+        self.ranks.clear();
+        if self.folded {
+            self.ranks
+                .extend(ranks.clone().filter(|&i| bank.h_parity[i] > 0));
+            self.even = self.ranks.len();
+            self.ranks.extend(ranks.filter(|&i| bank.h_parity[i] < 0));
+            let mut cw = [0.0; MAX_RANKS];
+            for (k, &i) in self.ranks.iter().enumerate() {
+                cw[k] = weight(i, nmax);
+            }
+            self.center = (a + nmax, cw);
+            self.pairs.clear();
+            for d in 1..=n {
+                let mut wt = [0.0; MAX_RANKS];
+                for (k, &i) in self.ranks.iter().enumerate() {
+                    wt[k] = weight(i, nmax + d);
+                }
+                if wt.iter().any(|&v| v != 0.0) {
+                    self.pairs.push((a + nmax - d, a + nmax + d, wt));
+                }
+            }
+        } else {
+            self.ranks.extend(ranks);
+            self.plain.clear();
+            for j in nmax - n..=nmax + n {
+                let mut wt = [0.0; MAX_RANKS];
+                for (k, &i) in self.ranks.iter().enumerate() {
+                    wt[k] = weight(i, j);
+                }
+                if wt.iter().any(|&v| v != 0.0) {
+                    self.plain.push((a + j, wt));
+                }
+            }
+        }
+    }
+
+    /// Multiplies every source offset by `ch` (pixels of `ch` floats).
+    fn scale(&mut self, ch: usize) {
+        self.center.0 *= ch;
+        for t in self.pairs.iter_mut() {
+            (t.0, t.1) = (t.0 * ch, t.1 * ch);
+        }
+        for t in self.plain.iter_mut() {
+            t.0 *= ch;
+        }
+    }
+
+    /// Filters `src` into `outs`, one output per rank of `build`'s range, in its order.
+    fn apply(&self, outs: &mut [&mut [f32]], src: &[f32]) {
+        let first = self.ranks.iter().copied().min().unwrap_or(0);
+        let mut ordered: [&mut [f32]; MAX_RANKS] = Default::default();
+        for (k, &i) in self.ranks.iter().enumerate() {
+            ordered[k] = std::mem::take(&mut outs[i - first]);
+        }
+        let ordered = &mut ordered[..self.ranks.len()];
+        if self.folded {
+            filter_span_ranks_folded(ordered, self.even, self.center, &self.pairs, src);
+        } else {
+            filter_span_ranks(ordered, &self.plain, src);
+        }
+    }
+}
+
 /// Scratch buffers of one thread of the horizontal pass: padded colour (flattened) and edge
 /// rows, and a tap list.
-type HorizontalScratch = (Vec<f32>, Vec<f32>, Vec<(f32, usize)>);
+type HorizontalScratch = (Vec<f32>, Vec<f32>, RunTaps);
 
 /// One row of the horizontal pass for rank `i`, with the edge row when there is an edge
 /// image; `out_c` holds `out_c.len() / keys.len()` channels per pixel (3 or 4). Each run of
@@ -888,9 +1020,9 @@ fn horizontal_row(
     edge_row: Option<&[f32]>,
     out_c: &mut [f32],
     out_e: Option<&mut [f32]>,
-    (padded_c, padded_e, list): &mut HorizontalScratch,
+    (padded_c, padded_e, taps): &mut HorizontalScratch,
 ) {
-    let (nmax, stride, r) = (bank.nmax, bank.stride, bank.rank);
+    let nmax = bank.nmax;
     let ch = out_c.len() / keys.len().max(1);
     if ch == 3 {
         pad_row::<3>(colour_row, nmax, nmax, padded_c);
@@ -902,22 +1034,12 @@ fn horizontal_row(
     }
     let mut out_e = out_e;
     for (a, b, key) in runs(keys) {
-        let n = bank.half_h_of(key);
-        let table = (key as usize * r + i) * stride;
-        list.clear();
-        for j in nmax - n..=nmax + n {
-            let wt = bank.horizontal[table + j];
-            if wt != 0.0 {
-                list.push((wt, a + j));
-            }
-        }
+        taps.build(bank, key, i..i + 1, a);
         if let Some(e) = out_e.as_deref_mut() {
-            filter_span(&mut e[a..b], list, padded_e);
+            taps.apply(&mut [&mut e[a..b]], padded_e);
         }
-        for t in list.iter_mut() {
-            t.1 *= ch;
-        }
-        filter_span(&mut out_c[a * ch..b * ch], list, padded_c);
+        taps.scale(ch);
+        taps.apply(&mut [&mut out_c[a * ch..b * ch]], padded_c);
     }
 }
 
@@ -1129,4 +1251,49 @@ pub fn naive(
         }
     }
     Ok((out, edge_image.map(|_| edge_out)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lens::Aperture;
+    use crate::methods::lowrank::decompose;
+    use crate::methods::lowrank::kernel::{kernel_image, KernelSpec};
+
+    fn bank(aperture: &str, rank: usize) -> KernelBank {
+        let spec = KernelSpec::new(Aperture::parse(aperture).expect("aperture"), 67);
+        let lr = decompose(&kernel_image(&spec).expect("kernel")).expect("svd");
+        KernelBank::new(&lr, rank, 20.0).expect("bank")
+    }
+
+    /// An aperture symmetric about the vertical axis (a disc, an upright hexagon) has even or
+    /// odd horizontal singular vectors, and its taps are then exactly so at every level, near
+    /// field and far; a rotated pentagon's are not all even or odd, and its taps are left as
+    /// they are.
+    #[test]
+    fn a_symmetric_aperture_gets_even_or_odd_horizontal_taps() {
+        for aperture in ["disc", "poly:6", "poly:8"] {
+            let b = bank(aperture, 3);
+            assert!(
+                b.h_parity.iter().all(|&p| p != 0),
+                "{aperture}: parities {:?}",
+                b.h_parity
+            );
+            for key in 0..2 * b.levels as u32 {
+                let n = b.half_h_of(key);
+                for (i, &p) in b.h_parity.iter().enumerate() {
+                    let t = &b.horizontal[(key as usize * b.rank + i) * b.stride..][..b.stride];
+                    for d in 1..=n {
+                        assert_eq!(
+                            t[b.nmax - d],
+                            f32::from(p) * t[b.nmax + d],
+                            "{aperture}, key {key}, rank {i}, offset {d}"
+                        );
+                    }
+                }
+            }
+        }
+        let b = bank("poly:5,rot=10", 3);
+        assert!(b.h_parity.contains(&0), "pentagon: {:?}", b.h_parity);
+    }
 }

@@ -298,6 +298,150 @@ fn ranks_span<const R: usize, const L: usize, const FUSED: bool>(
     }
 }
 
+/// A pair of horizontal taps at the same distance either side of the centre, `(lo, hi, w)`:
+/// sources `src[lo + p]` and `src[hi + p]`, and each output's weight of the `hi` one.
+pub type TapPair = (usize, usize, [f32; MAX_RANKS]);
+
+/// [`filter_span_ranks`] for filters that are even or odd about their centre tap, each pair of
+/// taps either side folded into one product: `w (x_hi + x_lo)` for the first `even` outputs
+/// (even filters: both taps weigh `w`) and `w (x_hi - x_lo)` for the others (odd filters: the
+/// `lo` tap weighs `-w`). Output `i` is `center.1[i] src[center.0 + p]` plus those products over
+/// `pairs`, summed in the order of `pairs`. Each pair costs one sum and one difference (which
+/// run beside the multiply-adds: most cores add on other ports than they multiply, or at least
+/// as fast) and one multiply-add per output instead of two: the singular vectors of an aperture
+/// symmetric about its axes (a disc, an upright hexagon) are all even or odd. Within a rounding
+/// per tap of the unfolded sum. Chosen at run time, as [`filter_span`].
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "aarch64+neon"
+))]
+pub fn filter_span_ranks_folded(
+    out: &mut [&mut [f32]],
+    even: usize,
+    center: (usize, [f32; MAX_RANKS]),
+    pairs: &[TapPair],
+    src: &[f32],
+) {
+    const AVX512: bool = multiversion::target::selected_target!().supports_feature_str("avx512f");
+    const AVX2: bool = multiversion::target::selected_target!().supports_feature_str("avx2");
+    const FUSED: bool = fused(multiversion::target::selected_target!().supports_feature_str("fma"));
+    // Registers: `R` blocks of sums, a block of sums and one of differences of the sources.
+    macro_rules! by_shape {
+        ($l1:expr, $l2:expr, $l3:expr) => {
+            match (out.len(), even) {
+                (1, 0) => folded_span::<1, 0, { $l1 }, FUSED>(out, center, pairs, src),
+                (1, 1) => folded_span::<1, 1, { $l1 }, FUSED>(out, center, pairs, src),
+                (2, 0) => folded_span::<2, 0, { $l2 }, FUSED>(out, center, pairs, src),
+                (2, 1) => folded_span::<2, 1, { $l2 }, FUSED>(out, center, pairs, src),
+                (2, 2) => folded_span::<2, 2, { $l2 }, FUSED>(out, center, pairs, src),
+                (3, 0) => folded_span::<3, 0, { $l3 }, FUSED>(out, center, pairs, src),
+                (3, 1) => folded_span::<3, 1, { $l3 }, FUSED>(out, center, pairs, src),
+                (3, 2) => folded_span::<3, 2, { $l3 }, FUSED>(out, center, pairs, src),
+                (3, 3) => folded_span::<3, 3, { $l3 }, FUSED>(out, center, pairs, src),
+                _ => {}
+            }
+        };
+    }
+    if AVX512 {
+        by_shape!(WIDE_LANES, WIDE_LANES, WIDE_LANES);
+    } else if AVX2 {
+        by_shape!(LANES, 16, 16);
+    } else {
+        by_shape!(16, 8, 8);
+    }
+}
+
+/// [`filter_span_ranks_folded`] as the portable baseline build only: its twin.
+pub fn filter_span_ranks_folded_baseline(
+    out: &mut [&mut [f32]],
+    even: usize,
+    center: (usize, [f32; MAX_RANKS]),
+    pairs: &[TapPair],
+    src: &[f32],
+) {
+    match (out.len(), even) {
+        (1, 0) => folded_span::<1, 0, 16, BASELINE_FUSED>(out, center, pairs, src),
+        (1, 1) => folded_span::<1, 1, 16, BASELINE_FUSED>(out, center, pairs, src),
+        (2, 0) => folded_span::<2, 0, 8, BASELINE_FUSED>(out, center, pairs, src),
+        (2, 1) => folded_span::<2, 1, 8, BASELINE_FUSED>(out, center, pairs, src),
+        (2, 2) => folded_span::<2, 2, 8, BASELINE_FUSED>(out, center, pairs, src),
+        (3, 0) => folded_span::<3, 0, 8, BASELINE_FUSED>(out, center, pairs, src),
+        (3, 1) => folded_span::<3, 1, 8, BASELINE_FUSED>(out, center, pairs, src),
+        (3, 2) => folded_span::<3, 2, 8, BASELINE_FUSED>(out, center, pairs, src),
+        (3, 3) => folded_span::<3, 3, 8, BASELINE_FUSED>(out, center, pairs, src),
+        _ => {}
+    }
+}
+
+#[inline(always)]
+fn folded_span<const R: usize, const E: usize, const L: usize, const FUSED: bool>(
+    out: &mut [&mut [f32]],
+    center: (usize, [f32; MAX_RANKS]),
+    pairs: &[TapPair],
+    src: &[f32],
+) {
+    let len = out.first().map_or(0, |o| o.len());
+    assert!(
+        out.len() == R && out.iter().all(|o| o.len() == len),
+        "{R} outputs of one length"
+    );
+    let mut p = 0;
+    while p + L <= len {
+        folded_block::<R, E, L, FUSED>(out, p, center, pairs, src);
+        p += L;
+    }
+    while p + 4 <= len {
+        folded_block::<R, E, 4, FUSED>(out, p, center, pairs, src);
+        p += 4;
+    }
+    while p < len {
+        folded_block::<R, E, 1, FUSED>(out, p, center, pairs, src);
+        p += 1;
+    }
+}
+
+/// One block of `L` floats at `p` of each of the `R` outputs of [`filter_span_ranks_folded`],
+/// the first `E` even.
+#[inline(always)]
+fn folded_block<const R: usize, const E: usize, const L: usize, const FUSED: bool>(
+    out: &mut [&mut [f32]],
+    p: usize,
+    (cb, cw): (usize, [f32; MAX_RANKS]),
+    pairs: &[TapPair],
+    src: &[f32],
+) {
+    let mut acc = [[0.0f32; L]; R];
+    if let Some(x) = src.get(cb + p..).and_then(|s| s.first_chunk::<L>()) {
+        for (a, &w) in acc.iter_mut().zip(&cw) {
+            for t in 0..L {
+                a[t] = madd::<FUSED>(a[t], w, x[t]);
+            }
+        }
+    }
+    for &(lo, hi, w) in pairs {
+        let (Some(xl), Some(xh)) = (
+            src.get(lo + p..).and_then(|s| s.first_chunk::<L>()),
+            src.get(hi + p..).and_then(|s| s.first_chunk::<L>()),
+        ) else {
+            continue;
+        };
+        let sum: [f32; L] = std::array::from_fn(|t| xh[t] + xl[t]);
+        let diff: [f32; L] = std::array::from_fn(|t| xh[t] - xl[t]);
+        for (k, (a, &w)) in acc.iter_mut().zip(&w).enumerate() {
+            let x = if k < E { &sum } else { &diff };
+            for t in 0..L {
+                a[t] = madd::<FUSED>(a[t], w, x[t]);
+            }
+        }
+    }
+    for (o, a) in out.iter_mut().zip(&acc) {
+        if let Some(o) = o.get_mut(p..).and_then(|o| o.first_chunk_mut::<L>()) {
+            *o = *a;
+        }
+    }
+}
+
 /// One block of `L` floats at `p` of each of the `R` outputs of [`filter_span_ranks`], all `R`
 /// sums kept in registers over every tap.
 #[inline(always)]
@@ -1170,6 +1314,62 @@ mod dispatch_tests {
                                 want.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
                                 "{name}: {len} floats, {ntaps} taps, output {i} of {r}"
                             );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// [`filter_span_ranks_folded`] (dispatched and baseline, 1 to 3 outputs, any number of
+    /// them even) against the unfolded taps it stands for, summed in f64: within a rounding per
+    /// tap; and the dispatched version against the baseline within the same bound.
+    #[test]
+    fn folded_ranks_span_is_the_unfolded_filter() {
+        let mut rng = crate::random::SplitMix64::new(31);
+        for len in [1usize, 3, 4, 9, 16, 17, 63, 64, 65, 200, 1283] {
+            for n in [0usize, 1, 5, 32] {
+                let src: Vec<f32> = (0..len + 2 * n + 1).map(|_| rng.range(-4.0, 4.0)).collect();
+                let cw: [f32; MAX_RANKS] = std::array::from_fn(|_| rng.range(-1.0, 1.0));
+                let pairs: Vec<TapPair> = (1..=n)
+                    .map(|d| (n - d, n + d, std::array::from_fn(|_| rng.range(-1.0, 1.0))))
+                    .collect();
+                for r in 1..=MAX_RANKS {
+                    for even in 0..=r {
+                        // Odd filters have no centre tap.
+                        let mut cw = cw;
+                        cw[even..].iter_mut().for_each(|w| *w = 0.0);
+                        let mut got = vec![vec![vec![f32::NAN; len]; r]; 2];
+                        for (g, f) in got.iter_mut().zip([
+                            filter_span_ranks_folded
+                                as fn(&mut [&mut [f32]], usize, _, &[TapPair], &[f32]),
+                            filter_span_ranks_folded_baseline,
+                        ]) {
+                            let mut refs: Vec<&mut [f32]> =
+                                g.iter_mut().map(|o| o.as_mut_slice()).collect();
+                            f(&mut refs, even, (n, cw), &pairs, &src);
+                        }
+                        for k in 0..r {
+                            let sign = if k < even { 1.0 } else { -1.0 };
+                            for p in 0..len {
+                                let mut want = f64::from(cw[k]) * f64::from(src[n + p]);
+                                let mut size = want.abs();
+                                for &(lo, hi, w) in &pairs {
+                                    let term = f64::from(w[k])
+                                        * (f64::from(src[hi + p]) + sign * f64::from(src[lo + p]));
+                                    want += term;
+                                    size += term.abs();
+                                }
+                                let bound = 4.0 * (n + 1) as f64 * f64::from(f32::EPSILON) * size;
+                                for (name, g) in ["dispatched", "baseline"].iter().zip(&got) {
+                                    let v = f64::from(g[k][p]);
+                                    assert!(
+                                        (v - want).abs() <= bound + 1e-30,
+                                        "{name}: {len} floats, {n} pairs, output {k} of {r} \
+                                         ({even} even), float {p}: {v} against {want}"
+                                    );
+                                }
+                            }
                         }
                     }
                 }
