@@ -301,11 +301,13 @@ pub struct PostArgs {
     )]
     pub ml_supersample: usize,
     /// multilayer: bokeh in the paper's `box` (each fragment from the box-filtered level that
-    /// matches its CoC) or in the aperture's `shape` (--aperture; not in the paper).
+    /// matches its CoC) or in the aperture's `shape` (--aperture; not in the paper) for CoC radii
+    /// from 4.5 px; `full`: in the shape from 2.5 px (closer to `reference` where much of the
+    /// frame has a blur of a few pixels, such as small frames; 10-30% more time).
     #[arg(
         long,
         default_value = Bokeh::default().name(),
-        value_name = "box|shape",
+        value_name = "box|shape|full",
         help_heading = "multilayer"
     )]
     pub ml_bokeh: String,

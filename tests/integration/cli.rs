@@ -225,3 +225,29 @@ fn the_diff_map_never_overwrites_an_input() {
     assert_eq!(std::fs::read(&a).unwrap(), before);
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `--ml-bokeh full` is taken by `render --method multilayer` (its images are tested in
+/// `multilayer.rs`), and an unknown bokeh is refused, naming the flag and the choices.
+#[test]
+fn multilayer_takes_full_bokeh_and_refuses_an_unknown_one() {
+    let dir = temp_dir("ml-bokeh");
+    let out = dir.join("full.exr");
+    let size = ["--width", "96", "--height", "54", "--method", "multilayer"];
+    let full = render_image(&[&size[..], &["--ml-bokeh", "full"]].concat(), &out);
+    assert_eq!((full.width(), full.height()), (96, 54));
+    let o = defocus(
+        &[
+            &["render"][..],
+            &size[..],
+            &["--ml-bokeh", "round", "--out", s(&dir.join("x.exr"))],
+        ]
+        .concat(),
+    );
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(
+        err.contains("--ml-bokeh") && err.contains("box, shape, full"),
+        "{err}"
+    );
+    assert!(!dir.join("x.exr").exists());
+}

@@ -16,7 +16,7 @@
 use rayon::prelude::*;
 
 use super::filter::Level;
-use super::{shape, Bokeh, Borders, MultilayerSettings};
+use super::{shape, Borders, MultilayerSettings};
 use crate::image::{ColorImage, Rgba};
 use crate::raster::from_half;
 
@@ -76,14 +76,15 @@ pub fn accumulate_for(
     settings: &MultilayerSettings,
     region: Region,
 ) -> ColorImage {
-    match settings.bokeh {
-        Bokeh::Box => accumulate_with(levels, borders, settings.epsilon, region, accumulate_row),
-        Bokeh::Shape => shape::accumulate_shape(
+    match settings.bokeh.first_shape_level() {
+        None => accumulate_with(levels, borders, settings.epsilon, region, accumulate_row),
+        Some(first) => shape::accumulate_shape(
             levels,
             borders,
             &settings.aperture,
             settings.epsilon,
             region,
+            first,
         ),
     }
 }
@@ -96,20 +97,21 @@ pub fn accumulate_for_baseline(
     settings: &MultilayerSettings,
     region: Region,
 ) -> ColorImage {
-    match settings.bokeh {
-        Bokeh::Box => accumulate_with(
+    match settings.bokeh.first_shape_level() {
+        None => accumulate_with(
             levels,
             borders,
             settings.epsilon,
             region,
             accumulate_row_inner,
         ),
-        Bokeh::Shape => shape::accumulate_shape_baseline(
+        Some(first) => shape::accumulate_shape_baseline(
             levels,
             borders,
             &settings.aperture,
             settings.epsilon,
             region,
+            first,
         ),
     }
 }

@@ -54,8 +54,9 @@ use crate::raster::from_half;
 /// 2.5 and 3 give the same images there, and 3 reads up to 1.6 times as many cells.
 pub const MIN_RADIUS_CELLS: f32 = 2.5;
 
-/// The first level gathered in the shape (level 0's box is one pixel: CoCs it would serve are
-/// at most a few pixels across).
+/// The first level gathered in the shape by default, [`super::Bokeh::Shape`] (level 0's box is
+/// one pixel: CoCs it would serve are at most a few pixels across). [`super::Bokeh::Full`]
+/// gathers from level 0.
 pub const FIRST_SHAPE_LEVEL: usize = 1;
 
 /// Side in pixels of the tiles that record which levels can reach a pixel.
@@ -73,11 +74,11 @@ const MAX_SHIFT_CELLS: f32 = std::f32::consts::FRAC_1_SQRT_2;
 /// Steps per cell of the tabulated grid sums.
 const NORM_STEPS_PER_CELL: f32 = 64.0;
 
-/// The CoC radius in pixels from which fragments are gathered in the shape; smaller ones are
-/// taken from the box levels.
+/// The CoC radius in pixels from which fragments are gathered in the shape when the gather
+/// starts at level `first`; smaller ones are taken from the box levels.
 #[inline]
-pub fn shape_threshold_px() -> f32 {
-    band_px(FIRST_SHAPE_LEVEL, usize::MAX).0
+pub fn shape_threshold_px(first: usize) -> f32 {
+    band_px(first, usize::MAX, first).0
 }
 
 /// The smallest CoC radius in pixels gathered in the shape (a bokeh 9 pixels across; level 1
@@ -86,16 +87,17 @@ pub fn shape_threshold_px() -> f32 {
 /// CoC of 3.2 px).
 pub const SHAPE_FROM_PX: f32 = 4.5;
 
-/// The range of CoC radii `[lo, hi)` in pixels that level `s` of `levels` serves.
+/// The range of CoC radii `[lo, hi)` in pixels that level `s` of `levels` serves, the gather
+/// starting at level `first`.
 #[inline]
-pub fn band_px(s: usize, levels: usize) -> (f32, f32) {
+pub fn band_px(s: usize, levels: usize, first: usize) -> (f32, f32) {
     let lo = MIN_RADIUS_CELLS * (1u64 << s) as f32;
     let hi = if s + 1 >= levels {
         f32::INFINITY
     } else {
         2.0 * lo
     };
-    let lo = if s == FIRST_SHAPE_LEVEL {
+    let lo = if s == first {
         SHAPE_FROM_PX.min(lo)
     } else {
         lo
@@ -104,11 +106,11 @@ pub fn band_px(s: usize, levels: usize) -> (f32, f32) {
 }
 
 /// The number of levels the shape accumulation needs for a largest CoC radius of `max_coc_px`:
-/// the first shape level, and enough levels that the top one's box is at least `1/(2 rho)` of
-/// it (larger CoCs are served by the top level with more cells).
-pub fn levels_needed(max_coc_px: f32) -> usize {
-    let mut s = FIRST_SHAPE_LEVEL;
-    while band_px(s, usize::MAX).1 <= max_coc_px && s < super::MAX_FILTER_STEPS {
+/// the first shape level (`first`, at least 1), and enough levels that the top one's box is at
+/// least `1/(2 rho)` of it (larger CoCs are served by the top level with more cells).
+pub fn levels_needed(max_coc_px: f32, first: usize) -> usize {
+    let mut s = first.max(FIRST_SHAPE_LEVEL);
+    while band_px(s, usize::MAX, first).1 <= max_coc_px && s < super::MAX_FILTER_STEPS {
         s += 1;
     }
     s + 1
@@ -475,8 +477,14 @@ struct Gathered {
 /// box gave the same), and `railing`'s gather takes 15% less.
 const GATHER_SAMPLES_PER_BOX: f32 = 2.0;
 
-/// Every how many cells of `level` its gather is computed.
+/// Every how many cells of `level` its gather is computed. Level 0 (a box of one pixel, read
+/// by [`super::Bokeh::Full`]) at every other pixel along each axis: its CoCs are at least 2.5 px
+/// in radius, and the pixels between read the gathered ones bilinearly, as on the coarse levels
+/// (a quarter of the cost of every pixel, for two thirds of its gain on `railing` at 640x360).
 fn gather_step(level: &Level) -> usize {
+    if level.footprint_px <= 1.0 {
+        return 2;
+    }
     ((level.footprint_px / (GATHER_SAMPLES_PER_BOX * level.stride_px)).floor() as usize).max(1)
 }
 
@@ -500,9 +508,11 @@ type GatherRow = (Vec<u32>, Vec<f32>, Vec<Rgba>);
 /// What every pixel row of the shape accumulation reads.
 struct RowInputs<'a> {
     levels: &'a [Level],
-    /// Per level from [`FIRST_SHAPE_LEVEL`] (index `s - FIRST_SHAPE_LEVEL`): its gather, if
-    /// any fragment it serves is in view.
+    /// Per level from `first` (index `s - first`): its gather, if any fragment it serves is in
+    /// view.
     gathered: &'a [Option<Gathered>],
+    /// The first level gathered in the shape.
+    first: usize,
     /// The box levels that serve CoCs below the shape threshold.
     box_levels: usize,
     /// Per box level, each fragment's weight there: 0 at or above the shape threshold, else
@@ -525,12 +535,13 @@ pub fn accumulate_shape(
     aperture: &Aperture,
     epsilon: f32,
     region: Region,
+    first: usize,
 ) -> ColorImage {
     accumulate_shape_with(
         levels,
         borders,
         aperture,
-        epsilon,
+        (epsilon, first),
         region,
         RowFns {
             gather: gather_row,
@@ -547,12 +558,13 @@ pub fn accumulate_shape_baseline(
     aperture: &Aperture,
     epsilon: f32,
     region: Region,
+    first: usize,
 ) -> ColorImage {
     accumulate_shape_with(
         levels,
         borders,
         aperture,
-        epsilon,
+        (epsilon, first),
         region,
         RowFns {
             gather: gather_row_inner,
@@ -565,7 +577,7 @@ fn accumulate_shape_with<G, P>(
     levels: &[Level],
     borders: &Borders,
     aperture: &Aperture,
-    epsilon: f32,
+    (epsilon, first): (f32, usize),
     region: Region,
     fns: RowFns<G, P>,
 ) -> ColorImage
@@ -580,8 +592,8 @@ where
         height,
     } = region;
     let n = levels.len();
-    let threshold_px = if n > FIRST_SHAPE_LEVEL {
-        shape_threshold_px()
+    let threshold_px = if n > first {
+        shape_threshold_px(first)
     } else {
         f32::INFINITY
     };
@@ -611,10 +623,10 @@ where
         .map_or(1.0, |l| max_coc / l.footprint_px)
         .max(2.0 * MIN_RADIUS_CELLS);
     let shape = GatherShape::new(aperture, top_cells);
-    let gathered: Vec<Option<Gathered>> = (FIRST_SHAPE_LEVEL..n)
+    let gathered: Vec<Option<Gathered>> = (first..n)
         .map(|s| {
             let level = &levels[s];
-            let band = BandLevel::new(level, borders, &shape, band_px(s, n));
+            let band = BandLevel::new(level, borders, &shape, band_px(s, n, first));
             let reach = reach_of(level, &band, &shape, tiles)?;
             // Only the cells the region's pixels read are gathered (with the cells around
             // them, which they read between).
@@ -687,6 +699,7 @@ where
     let inputs = RowInputs {
         levels,
         gathered: &gathered,
+        first,
         box_levels,
         box_weights: &box_weights,
         epsilon,
@@ -899,16 +912,16 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
     let RowInputs {
         levels,
         gathered,
+        first,
         box_levels,
         box_weights,
         epsilon,
-        ..
     } = *inputs;
     let mut entries: Vec<(f32, Rgba)> = Vec::new();
     // The gathered rows each level's pixels read between: the same for the whole row.
     let between_y: Vec<((usize, usize), f32)> = gathered
         .iter()
-        .zip(&levels[FIRST_SHAPE_LEVEL..])
+        .zip(&levels[first..])
         .map(|(g, level)| {
             g.as_ref()
                 .map_or(((0, 0), 0.0), |g| level.between(y, level.height, g.step))
@@ -937,10 +950,7 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
         // level, weighted bilinearly (a cell's gather is exact at its centre; the pixel reads
         // between them rather than taking the nearest, which would draw the bokeh's corners on
         // the level's grid of cells).
-        for ((g, level), &((y0c, y1c), fy)) in gathered
-            .iter()
-            .zip(&levels[FIRST_SHAPE_LEVEL..])
-            .zip(&between_y)
+        for ((g, level), &((y0c, y1c), fy)) in gathered.iter().zip(&levels[first..]).zip(&between_y)
         {
             let Some(g) = g else { continue };
             let ((x0c, x1c), fx) = level.between(x, level.width, g.step);
@@ -1050,14 +1060,19 @@ mod tests {
     #[test]
     fn bands_partition_the_radii_above_the_threshold() {
         let levels = 6;
-        let mut prev = shape_threshold_px();
-        for s in FIRST_SHAPE_LEVEL..levels {
-            let (lo, hi) = band_px(s, levels);
-            assert_eq!(lo, prev);
-            prev = hi;
+        for first in [0, FIRST_SHAPE_LEVEL] {
+            let mut prev = shape_threshold_px(first);
+            for s in first..levels {
+                let (lo, hi) = band_px(s, levels, first);
+                assert_eq!(lo, prev);
+                prev = hi;
+            }
+            assert!(prev.is_infinite());
         }
-        assert!(prev.is_infinite());
+        assert_eq!(shape_threshold_px(0), 2.5);
+        assert_eq!(shape_threshold_px(FIRST_SHAPE_LEVEL), SHAPE_FROM_PX);
         // Radius 12 px: levels 1 (4.5-10 px) and 2 (10-20 px) over level 0.
-        assert_eq!(levels_needed(12.0), 3);
+        assert_eq!(levels_needed(12.0, FIRST_SHAPE_LEVEL), 3);
+        assert_eq!(levels_needed(12.0, 0), 3);
     }
 }
