@@ -383,6 +383,49 @@ fn lit(img: &ColorImage, energy: f64, area_px: f64) -> Vec<bool> {
     img.pixels().iter().map(|p| p[0] as f64 > half).collect()
 }
 
+/// `reference`'s image of a point light (4096 lens samples) and its lit region ([`lit`]).
+struct LitTruth {
+    energy: f64,
+    area: f64,
+    lit: Vec<bool>,
+}
+
+impl LitTruth {
+    fn new(scene: &Scene, camera: &Camera, aperture: &Aperture, coc: f32) -> Self {
+        let truth = reference::render(
+            scene,
+            camera,
+            &ReferenceSettings {
+                samples: 4096,
+                aperture: aperture.clone(),
+                ..ReferenceSettings::default()
+            },
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let energy: f64 = truth.image.pixels().iter().map(|p| p[0] as f64).sum();
+        let area = aperture.area() as f64 * (coc as f64).powi(2);
+        let lit = lit(&truth.image, energy, area);
+        Self { energy, area, lit }
+    }
+
+    /// Intersection over union of `img`'s lit region and `reference`'s.
+    fn iou(&self, img: &ColorImage) -> f64 {
+        let got = lit(img, self.energy, self.area);
+        let both = got
+            .iter()
+            .zip(&self.lit)
+            .filter(|(a, b)| **a && **b)
+            .count();
+        let either = got
+            .iter()
+            .zip(&self.lit)
+            .filter(|(a, b)| **a || **b)
+            .count();
+        both as f64 / either as f64
+    }
+}
+
 /// Farthest lit pixel centre from `c` within 10 degrees of direction `angle_rad`, in pixels.
 fn extent_along(mask: &[bool], size: usize, c: f32, angle_rad: f32) -> f32 {
     let mut best = 0.0f32;
@@ -452,26 +495,9 @@ fn point_light_becomes_the_aperture_shape_of_diameter_two_coc() {
     let c = size as f32 / 2.0;
     for spec in ["disc", "poly:6", "poly:5,rot=20"] {
         let aperture = Aperture::parse(spec).unwrap();
-        let truth = reference::render(
-            &scene,
-            &camera,
-            &ReferenceSettings {
-                samples: 4096,
-                aperture: aperture.clone(),
-                ..ReferenceSettings::default()
-            },
-            &mut |_, _| {},
-        )
-        .unwrap();
-        let energy: f64 = truth.image.pixels().iter().map(|p| p[0] as f64).sum();
-        let area = aperture.area() as f64 * (coc as f64).powi(2);
-        let want = lit(&truth.image, energy, area);
-        let iou = |img: &ColorImage| {
-            let got = lit(img, energy, area);
-            let both = got.iter().zip(&want).filter(|(a, b)| **a && **b).count();
-            let either = got.iter().zip(&want).filter(|(a, b)| **a || **b).count();
-            both as f64 / either as f64
-        };
+        let truth = LitTruth::new(&scene, &camera, &aperture, coc);
+        let (energy, area, want) = (truth.energy, truth.area, &truth.lit);
+        let iou = |img: &ColorImage| truth.iou(img);
         let mut settings = MultilayerSettings {
             aperture: aperture.clone(),
             ..MultilayerSettings::default()
@@ -535,26 +561,8 @@ fn full_bokeh_draws_a_small_bokeh_in_the_aperture_shape() {
     let (scene, camera, coc) = crate::point_light(size, z);
     for spec in ["disc", "poly:6", "poly:5,rot=20"] {
         let aperture = Aperture::parse(spec).unwrap();
-        let truth = reference::render(
-            &scene,
-            &camera,
-            &ReferenceSettings {
-                samples: 4096,
-                aperture: aperture.clone(),
-                ..ReferenceSettings::default()
-            },
-            &mut |_, _| {},
-        )
-        .unwrap();
-        let energy: f64 = truth.image.pixels().iter().map(|p| p[0] as f64).sum();
-        let area = aperture.area() as f64 * (coc as f64).powi(2);
-        let want = lit(&truth.image, energy, area);
-        let iou = |img: &ColorImage| {
-            let got = lit(img, energy, area);
-            let both = got.iter().zip(&want).filter(|(a, b)| **a && **b).count();
-            let either = got.iter().zip(&want).filter(|(a, b)| **a || **b).count();
-            both as f64 / either as f64
-        };
+        let truth = LitTruth::new(&scene, &camera, &aperture, coc);
+        let (energy, iou) = (truth.energy, |img: &ColorImage| truth.iou(img));
         let mut settings = MultilayerSettings {
             aperture: aperture.clone(),
             bokeh: Bokeh::Full,
