@@ -526,7 +526,7 @@ fn point_light_becomes_the_aperture_shape_of_diameter_two_coc() {
             let a = (k as f32 * 30.0 + 5.0).to_radians();
             let (e_got, e_want) = (
                 extent_along(&got, size, c, a),
-                extent_along(&want, size, c, a),
+                extent_along(want, size, c, a),
             );
             let exact = extent_along(&exact_mask, size, c, a);
             assert!(
