@@ -74,13 +74,7 @@ pub fn filter_span(out: &mut [f32], taps: &[(f32, usize)], src: &[f32]) {
     const AVX512: bool = multiversion::target::selected_target!().supports_feature_str("avx512f");
     const AVX2: bool = multiversion::target::selected_target!().supports_feature_str("avx2");
     const FUSED: bool = fused(multiversion::target::selected_target!().supports_feature_str("fma"));
-    if AVX512 {
-        span::<false, WIDEST_LANES, FUSED>(out, taps, src);
-    } else if AVX2 {
-        span::<false, WIDE_LANES, FUSED>(out, taps, src);
-    } else {
-        span::<false, LANES, FUSED>(out, taps, src);
-    }
+    span_for::<false, FUSED>((AVX512, AVX2), out, taps, src);
 }
 
 /// [`filter_span`] adding to `out` instead of overwriting it.
@@ -94,13 +88,7 @@ pub fn filter_span_add(out: &mut [f32], taps: &[(f32, usize)], src: &[f32]) {
     const AVX512: bool = multiversion::target::selected_target!().supports_feature_str("avx512f");
     const AVX2: bool = multiversion::target::selected_target!().supports_feature_str("avx2");
     const FUSED: bool = fused(multiversion::target::selected_target!().supports_feature_str("fma"));
-    if AVX512 {
-        span::<true, WIDEST_LANES, FUSED>(out, taps, src);
-    } else if AVX2 {
-        span::<true, WIDE_LANES, FUSED>(out, taps, src);
-    } else {
-        span::<true, LANES, FUSED>(out, taps, src);
-    }
+    span_for::<true, FUSED>((AVX512, AVX2), out, taps, src);
 }
 
 /// [`filter_span`] with a product then a sum per tap (never fused) in every version: the same
@@ -114,13 +102,7 @@ pub fn filter_span_add(out: &mut [f32], taps: &[(f32, usize)], src: &[f32]) {
 pub fn filter_span_unfused(out: &mut [f32], taps: &[(f32, usize)], src: &[f32]) {
     const AVX512: bool = multiversion::target::selected_target!().supports_feature_str("avx512f");
     const AVX2: bool = multiversion::target::selected_target!().supports_feature_str("avx2");
-    if AVX512 {
-        span::<false, WIDEST_LANES, false>(out, taps, src);
-    } else if AVX2 {
-        span::<false, WIDE_LANES, false>(out, taps, src);
-    } else {
-        span::<false, LANES, false>(out, taps, src);
-    }
+    span_for::<false, false>((AVX512, AVX2), out, taps, src);
 }
 
 /// [`filter_span_unfused`] as the portable baseline build only: its twin.
@@ -163,6 +145,24 @@ fn madd<const FUSED: bool>(acc: f32, w: f32, x: f32) -> f32 {
         w.mul_add(x, acc)
     } else {
         acc + w * x
+    }
+}
+
+/// [`span`] in blocks as wide as the instruction set of the version calling it allows
+/// (`(avx512, avx2)`, constants of that version, so only one branch is compiled into it).
+#[inline(always)]
+fn span_for<const ADD: bool, const FUSED: bool>(
+    (avx512, avx2): (bool, bool),
+    out: &mut [f32],
+    taps: &[(f32, usize)],
+    src: &[f32],
+) {
+    if avx512 {
+        span::<ADD, WIDEST_LANES, FUSED>(out, taps, src);
+    } else if avx2 {
+        span::<ADD, WIDE_LANES, FUSED>(out, taps, src);
+    } else {
+        span::<ADD, LANES, FUSED>(out, taps, src);
     }
 }
 
