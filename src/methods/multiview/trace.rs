@@ -54,6 +54,8 @@ pub const NOISE_TILE: usize = 16;
 pub struct LayerMip {
     /// Levels 1, 2, ...: (width, height, premultiplied RGBA).
     levels: Vec<(usize, usize, Vec<Rgba>)>,
+    /// Per level kept, its width and height, for the eight-lane reads ([`cones`]).
+    dims: Vec<[i32; 2]>,
 }
 
 impl LayerMip {
@@ -95,7 +97,8 @@ impl LayerMip {
             levels.push((nw, nh, next.clone()));
             prev = (nw, nh, next);
         }
-        Self { levels }
+        let dims = levels.iter().map(|l| [l.0 as i32, l.1 as i32]).collect();
+        Self { levels, dims }
     }
 
     /// The premultiplied colour and coverage at level `level` (>= 1) at image position `q`
@@ -468,11 +471,22 @@ fn trace_packet(
         } else {
             crossings(&segment, &lanes)
         };
-        if let Some(at) = graze_level(input, l) {
+        if let (Some((c, level)), Some(mips)) = (graze_level(input, l), input.mips) {
+            // `graze_at` for the lanes that passed the layer, their cones read together.
+            let mut reads = ConeReads::new();
             for j in 0..LANES {
                 if live[j] && !found[j] {
                     let v = Vec2::new(vx[j], vy[j]);
-                    live[j] = !graze_at(input, l, at, p, v, &mut state[j]);
+                    reads.push(j, p - c * v, level, [0.0; 4]);
+                }
+            }
+            if reads.any() {
+                let colors = cones(&mips[l], &reads, simd);
+                for j in 0..LANES {
+                    if reads.mask[j] {
+                        let c1 = &colors[j];
+                        live[j] = !(c1[3] > 0.0 && state[j].take(c1));
+                    }
                 }
             }
         }
@@ -482,25 +496,39 @@ fn trace_packet(
             }
             continue;
         }
+        // The hits' cone reads, made together (`shade` lane by lane).
+        let mut reads = ConeReads::new();
         for j in 0..LANES {
             if !found[j] {
                 continue;
             }
             let v = Vec2::new(vx[j], vy[j]);
             let h_hit = layers.coc_px[i_hi[j]];
-            let done = if hi[j] - h_hit <= THICKNESS_PX || (h_lo[j] - h_hit).abs() <= CONTINUITY_PX
-            {
-                let hit = Hit {
-                    l,
-                    c: hi[j],
-                    i: i_hi[j],
-                };
-                shade(input, p, v, hit, &mut state[j], simd)
+            if hi[j] - h_hit <= THICKNESS_PX || (h_lo[j] - h_hit).abs() <= CONTINUITY_PX {
+                let color = || half4(&layers.color[i_hi[j]], simd);
+                let level = input
+                    .mips
+                    .and_then(|_| ConeLevel::of(input.lambda * hi[j].abs()));
+                match level {
+                    Some(level) => {
+                        let level0 = if level.k0 == 0 { color() } else { [0.0; 4] };
+                        reads.push(j, p - hi[j] * v, level, level0);
+                    }
+                    // Level 0 alone, or no mipmaps: the hit pixel's colour.
+                    None => live[j] = !state[j].take(&color()),
+                }
             } else {
                 // Behind a thin object: the rest of the layer, as `layer` walks it.
-                layer(input, l, p, v, speed[j], &mut state[j])
-            };
-            live[j] = !done;
+                live[j] = !layer(input, l, p, v, speed[j], &mut state[j]);
+            }
+        }
+        if let (true, Some(mips)) = (reads.any(), input.mips) {
+            let colors = cones(&mips[l], &reads, simd);
+            for j in 0..LANES {
+                if reads.mask[j] {
+                    live[j] = !state[j].take(&colors[j]);
+                }
+            }
         }
         if !live.iter().any(|&a| a) {
             break;
@@ -634,7 +662,8 @@ fn simd_fits(len: usize) -> bool {
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::{Crossings, Lanes, Segment, LANES};
+    use super::{ConeReads, Crossings, Lanes, LayerMip, Segment, LANES};
+    use crate::image::Rgba;
     use std::arch::x86_64::*;
 
     /// Four halves to f32 with F16C.
@@ -645,6 +674,122 @@ mod avx2 {
         let v = _mm_cvtph_ps(_mm_cvtsi64_si128(packed as i64));
         let mut out = [0.0f32; 4];
         _mm_storeu_ps(out.as_mut_ptr(), v);
+        out
+    }
+
+    /// See [`super::cones`]: [`super::LayerMip::fetch`] of levels `k0` (where it is not 0)
+    /// and `k0 + 1` for the eight lanes at once, then [`super::cone`]'s blend per lane.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn cones(mip: &LayerMip, reads: &ConeReads) -> [Rgba; LANES] {
+        let k0 = _mm256_loadu_si256(reads.k0.as_ptr().cast());
+        let qx = _mm256_loadu_ps(reads.qx.as_ptr());
+        let qy = _mm256_loadu_ps(reads.qy.as_ptr());
+        let a = taps(mip, k0, qx, qy);
+        let b = taps(mip, _mm256_add_epi32(k0, _mm256_set1_epi32(1)), qx, qy);
+        let mut out = [[0.0f32; 4]; LANES];
+        for (j, o) in out.iter_mut().enumerate() {
+            if !reads.mask[j] {
+                continue;
+            }
+            let ca = if reads.k0[j] == 0 {
+                _mm_loadu_ps(reads.level0[j].as_ptr())
+            } else {
+                a.bilinear(mip, j)
+            };
+            let cb = b.bilinear(mip, j);
+            let t = _mm_set1_ps(reads.t[j]);
+            let c = _mm_add_ps(ca, _mm_mul_ps(t, _mm_sub_ps(cb, ca)));
+            _mm_storeu_ps(o.as_mut_ptr(), c);
+        }
+        out
+    }
+
+    /// Per lane, the level read (0-based in `LayerMip::levels`), its four texels' indices and
+    /// their bilinear weights, in the order [`super::LayerMip::fetch`] sums them.
+    struct Taps {
+        level: [i32; LANES],
+        index: [[i32; LANES]; 4],
+        weight: [[f32; LANES]; 4],
+    }
+
+    impl Taps {
+        /// Lane `j`'s bilinear read, summed as `fetch` sums it.
+        #[inline(always)]
+        unsafe fn bilinear(&self, mip: &LayerMip, j: usize) -> __m128 {
+            let data = mip.levels[self.level[j] as usize].2.as_ptr().cast::<f32>();
+            let mut c = _mm_setzero_ps();
+            for k in 0..4 {
+                let texel = _mm_loadu_ps(data.add(4 * self.index[k][j] as usize));
+                c = _mm_add_ps(c, _mm_mul_ps(_mm_set1_ps(self.weight[k][j]), texel));
+            }
+            c
+        }
+    }
+
+    /// [`super::LayerMip::fetch`]'s texel positions and weights at levels `k` (>= 1) for eight
+    /// lanes: the same operations, so the same values.
+    #[inline(always)]
+    unsafe fn taps(mip: &LayerMip, k: __m256i, qx: __m256, qy: __m256) -> Taps {
+        let one_i = _mm256_set1_epi32(1);
+        // At least level 1: lanes that read no level (outside the mask, or `k0` 0) still
+        // index the tables in bounds.
+        let kk = _mm256_max_epi32(
+            _mm256_min_epi32(k, _mm256_set1_epi32(mip.levels.len() as i32)),
+            one_i,
+        );
+        let level = _mm256_sub_epi32(kk, one_i);
+        let dims = mip.dims.as_ptr().cast::<i32>();
+        let w = _mm256_i32gather_epi32::<4>(dims, _mm256_add_epi32(level, level));
+        let h = _mm256_i32gather_epi32::<4>(dims.add(1), _mm256_add_epi32(level, level));
+        // 1 / 2^k from its exponent: exact, as the scalar quotient.
+        let inv = _mm256_castsi256_ps(_mm256_slli_epi32::<23>(_mm256_sub_epi32(
+            _mm256_set1_epi32(127),
+            kk,
+        )));
+        // `(q * inv - 0.5).max(0.0)`, its cell clamped into the level and the fraction into
+        // [0, 1] (clamping before the conversion gives the same cell as after it). Plain
+        // functions, not closures, so that they inline with AVX2.
+        #[inline(always)]
+        unsafe fn axis(q: __m256, n: __m256i, inv: __m256) -> (__m256i, __m256i, __m256) {
+            let (zero, one, half) = (
+                _mm256_setzero_ps(),
+                _mm256_set1_ps(1.0),
+                _mm256_set1_ps(0.5),
+            );
+            let one_i = _mm256_set1_epi32(1);
+            let u = _mm256_max_ps(_mm256_sub_ps(_mm256_mul_ps(q, inv), half), zero);
+            let last = _mm256_sub_epi32(n, one_i);
+            let c0 = _mm256_cvttps_epi32(_mm256_min_ps(u, _mm256_cvtepi32_ps(last)));
+            let c1 = _mm256_min_epi32(_mm256_add_epi32(c0, one_i), last);
+            let f = _mm256_sub_ps(u, _mm256_cvtepi32_ps(c0));
+            (c0, c1, _mm256_min_ps(_mm256_max_ps(f, zero), one))
+        }
+        #[inline(always)]
+        unsafe fn row(y: __m256i, x: __m256i, w: __m256i) -> __m256i {
+            _mm256_add_epi32(_mm256_mullo_epi32(y, w), x)
+        }
+        let (x0, x1, fx) = axis(qx, w, inv);
+        let (y0, y1, fy) = axis(qy, h, inv);
+        let one = _mm256_set1_ps(1.0);
+        let (gx, gy) = (_mm256_sub_ps(one, fx), _mm256_sub_ps(one, fy));
+        let mut out = Taps {
+            level: [0; LANES],
+            index: [[0; LANES]; 4],
+            weight: [[0.0; LANES]; 4],
+        };
+        _mm256_storeu_si256(out.level.as_mut_ptr().cast(), level);
+        for (k, (i, wt)) in [
+            (row(y0, x0, w), _mm256_mul_ps(gx, gy)),
+            (row(y0, x1, w), _mm256_mul_ps(fx, gy)),
+            (row(y1, x0, w), _mm256_mul_ps(gx, fy)),
+            (row(y1, x1, w), _mm256_mul_ps(fx, fy)),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            _mm256_storeu_si256(out.index[k].as_mut_ptr().cast(), i);
+            _mm256_storeu_ps(out.weight[k].as_mut_ptr(), wt);
+        }
         out
     }
 
@@ -702,6 +847,14 @@ mod avx2 {
         let mut hi = _mm256_setzero_ps();
         let mut prev = _mm256_set1_ps(enter);
         let mut prev_front = all;
+        // The samples at the bracket's ends, kept as they are gathered (the refinement starts
+        // from them), and the lanes whose bracket opens at the entry point, which no step
+        // sampled.
+        let mut h_prev = _mm256_setzero_ps();
+        let mut h_lo = _mm256_setzero_ps();
+        let mut h_hi = _mm256_setzero_ps();
+        let mut i_hi = _mm256_setzero_si256();
+        let mut from_entry = _mm256_setzero_ps();
         for k in 0..=most {
             let kf = _mm256_set1_ps(k as f32);
             let in_layer = _mm256_cmp_ps::<_CMP_LE_OQ>(kf, steps);
@@ -715,10 +868,21 @@ mod avx2 {
             );
             lo = _mm256_blendv_ps(lo, prev, cross);
             hi = _mm256_blendv_ps(hi, c, cross);
+            h_lo = _mm256_blendv_ps(h_lo, h_prev, cross);
+            h_hi = _mm256_blendv_ps(h_hi, h, cross);
+            i_hi = _mm256_castps_si256(_mm256_blendv_ps(
+                _mm256_castsi256_ps(i_hi),
+                _mm256_castsi256_ps(i),
+                cross,
+            ));
+            if k == 0 {
+                from_entry = cross;
+            }
             found = _mm256_or_ps(found, cross);
             seeking = _mm256_andnot_ps(cross, seeking);
             prev_front = _mm256_andnot_ps(behind, all);
             prev = c;
+            h_prev = h;
             if _mm256_movemask_ps(seeking) == 0 {
                 break;
             }
@@ -734,10 +898,12 @@ mod avx2 {
             _mm256_storeu_ps(out.hi.as_mut_ptr(), hi);
             return out;
         }
-        // Refinement: three false-position steps with bisection as a guard, as `refine`.
-        let mut h_lo = _mm256_i32gather_ps::<4>(base, index(lo, px, py, vx, vy, wv, last));
-        let mut i_hi = index(hi, px, py, vx, vy, wv, last);
-        let mut h_hi = _mm256_i32gather_ps::<4>(base, i_hi);
+        // Refinement: three false-position steps with bisection as a guard, as `refine`, from
+        // the samples at the bracket's ends (the same positions `refine` samples again).
+        if _mm256_movemask_ps(from_entry) != 0 {
+            let at_entry = _mm256_i32gather_ps::<4>(base, index(lo, px, py, vx, vy, wv, last));
+            h_lo = _mm256_blendv_ps(h_lo, at_entry, from_entry);
+        }
         let abs = _mm256_castsi256_ps(_mm256_set1_epi32(i32::MAX));
         let inf = _mm256_set1_ps(f32::INFINITY);
         let half = _mm256_set1_ps(0.5);
@@ -990,6 +1156,72 @@ fn cone(mip: &LayerMip, level: Option<ConeLevel>, q: Vec2, level0: impl FnOnce()
     let a = if k0 == 0 { level0() } else { mip.fetch(k0, q) };
     let b = mip.fetch(k0 + 1, q);
     std::array::from_fn(|k| a[k] + t * (b[k] - a[k]))
+}
+
+/// The cone reads of a packet's lanes in one layer's mipmap, made together by [`cones`]: per
+/// lane in `mask`, [`cone`] at `(qx, qy)` between levels `k0` and `k0 + 1` (`t` of the way),
+/// `level0` standing for level 0 where `k0` is 0.
+struct ConeReads {
+    mask: [bool; LANES],
+    qx: [f32; LANES],
+    qy: [f32; LANES],
+    k0: [i32; LANES],
+    t: [f32; LANES],
+    level0: [Rgba; LANES],
+}
+
+impl ConeReads {
+    #[inline(always)]
+    fn new() -> Self {
+        Self {
+            mask: [false; LANES],
+            qx: [0.0; LANES],
+            qy: [0.0; LANES],
+            k0: [0; LANES],
+            t: [0.0; LANES],
+            level0: [[0.0; 4]; LANES],
+        }
+    }
+
+    /// Lane `j` reads at `q` between the levels of `level`.
+    #[inline(always)]
+    fn push(&mut self, j: usize, q: Vec2, level: ConeLevel, level0: Rgba) {
+        self.mask[j] = true;
+        (self.qx[j], self.qy[j]) = (q.x, q.y);
+        self.k0[j] = level.k0 as i32;
+        self.t[j] = level.t;
+        self.level0[j] = level0;
+    }
+
+    #[inline(always)]
+    fn any(&self) -> bool {
+        self.mask.iter().any(|&m| m)
+    }
+}
+
+/// The colours of `reads` in `mip`, lane by lane as [`cone`] (zero in the lanes outside the
+/// mask). With AVX2 (`simd`) the eight lanes' texel positions and weights are worked out side
+/// by side, with the same arithmetic, so the same bits.
+#[inline(always)]
+fn cones(mip: &LayerMip, reads: &ConeReads, simd: bool) -> [Rgba; LANES] {
+    #[cfg(target_arch = "x86_64")]
+    if simd && !mip.levels.is_empty() {
+        // SAFETY: `simd` is only set where AVX2 was detected (`simd_fits`); the mipmap has a
+        // level, and its levels are no larger than the layer, whose indices fit in i32.
+        return unsafe { avx2::cones(mip, reads) };
+    }
+    let _ = simd;
+    std::array::from_fn(|j| {
+        if !reads.mask[j] {
+            return [0.0; 4];
+        }
+        let level = ConeLevel {
+            k0: reads.k0[j] as usize,
+            t: reads.t[j],
+        };
+        let q = Vec2::new(reads.qx[j], reads.qy[j]);
+        cone(mip, Some(level), q, || reads.level0[j])
+    })
 }
 
 /// Between `lo` (in front of the surface) and `hi` (at or behind it): three false-position
