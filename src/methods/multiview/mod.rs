@@ -44,6 +44,7 @@ pub mod nbuffer;
 pub mod trace;
 
 use glam::Vec2;
+use rayon::prelude::*;
 
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, LensEffects, SampleSet, SamplerKind, ThinLens};
@@ -357,8 +358,10 @@ fn render_with(
                 })
                 .collect()
         });
+        // The layers' mipmaps side by side, a layer to a task.
         let mips: Option<Vec<LayerMip>> = settings.cone.then(|| {
             (0..m)
+                .into_par_iter()
                 .map(|l| {
                     let (a, b) = layers.spacing.bounds(l);
                     let d = lambda * a.abs().max(b.abs());

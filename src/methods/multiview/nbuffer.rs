@@ -32,11 +32,23 @@ impl NBuffer {
                 .enumerate()
                 .for_each(|(y, row)| {
                     let y1 = (y + h).min(height - 1);
-                    for (x, v) in row.iter_mut().enumerate() {
-                        let x1 = (x + h).min(width - 1);
-                        let a = prev[y * width + x].min(prev[y * width + x1]);
-                        let b = prev[y1 * width + x].min(prev[y1 * width + x1]);
-                        *v = a.min(b);
+                    let (r0, r1) = (&prev[y * width..][..width], &prev[y1 * width..][..width]);
+                    // Where `x + h` is inside the row, four slices side by side (vectorised);
+                    // past it, the last pixel stands in for `x + h`, as the clamp says.
+                    let inner = width.saturating_sub(h);
+                    let (head, tail) = row.split_at_mut(inner);
+                    for ((((v, a0), a1), b0), b1) in head
+                        .iter_mut()
+                        .zip(&r0[..inner])
+                        .zip(&r0[h..])
+                        .zip(&r1[..inner])
+                        .zip(&r1[h..])
+                    {
+                        *v = a0.min(*a1).min(b0.min(*b1));
+                    }
+                    for (x, v) in (inner..).zip(tail) {
+                        let x1 = width - 1;
+                        *v = r0[x].min(r0[x1]).min(r1[x].min(r1[x1]));
                     }
                 });
             out.push(next);

@@ -30,6 +30,7 @@
 //! tile, trading the aliasing of one shared pattern for noise.
 
 use glam::Vec2;
+use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::nbuffer::NBuffer;
@@ -62,40 +63,53 @@ impl LayerMip {
     /// The mipmap of layer `l`, down to `max_level`.
     pub fn new(layers: &DepthLayers, l: usize, max_level: usize) -> Self {
         let (w, h) = (layers.width, layers.height);
-        let base: Vec<Rgba> = (0..w * h)
-            .map(|i| {
-                let j = l * w * h + i;
-                if layers.coc_px[j].is_finite() {
-                    from_half(&layers.color[j])
-                } else {
-                    [0.0; 4]
-                }
-            })
-            .collect();
         let mut levels: Vec<(usize, usize, Vec<Rgba>)> = Vec::new();
-        let mut prev = (w, h, base);
-        for _ in 0..max_level {
-            let (pw, ph, ref p) = prev;
-            if pw == 1 && ph == 1 {
-                break;
-            }
-            let (nw, nh) = (pw.div_ceil(2), ph.div_ceil(2));
-            let mut next = vec![[0.0f32; 4]; nw * nh];
-            for y in 0..nh {
-                for x in 0..nw {
-                    let mut s = [0.0f32; 4];
-                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                        let (sx, sy) = ((2 * x + dx).min(pw - 1), (2 * y + dy).min(ph - 1));
-                        let c = p[sy * pw + sx];
-                        for k in 0..4 {
-                            s[k] += 0.25 * c[k];
-                        }
-                    }
-                    next[y * nw + x] = s;
+        if max_level > 0 && w * h > 0 {
+            // Level 0, the layer's colours (converted a slice at a time: F16C where the CPU
+            // has it, the same values), empty pixels transparent black.
+            let plane = l * w * h..(l + 1) * w * h;
+            let mut base = vec![[0.0f32; 4]; w * h];
+            layers.color[plane.clone()]
+                .as_flattened()
+                .convert_to_f32_slice(base.as_flattened_mut());
+            for (c, coc) in base.iter_mut().zip(&layers.coc_px[plane]) {
+                if !coc.is_finite() {
+                    *c = [0.0; 4];
                 }
             }
-            levels.push((nw, nh, next.clone()));
-            prev = (nw, nh, next);
+            // `cur` is the last level made; each level made pushes the one before it (not
+            // level 0, which the hits read from the layer itself).
+            let mut cur = (w, h, base);
+            let mut made = false;
+            for _ in 0..max_level {
+                let (pw, ph, ref p) = cur;
+                if pw == 1 && ph == 1 {
+                    break;
+                }
+                let (nw, nh) = (pw.div_ceil(2), ph.div_ceil(2));
+                let mut next = vec![[0.0f32; 4]; nw * nh];
+                for (y, row) in next.chunks_exact_mut(nw).enumerate() {
+                    let (r0, r1) = (2 * y * pw, (2 * y + 1).min(ph - 1) * pw);
+                    for (x, out) in row.iter_mut().enumerate() {
+                        let (x0, x1) = (2 * x, (2 * x + 1).min(pw - 1));
+                        let mut s = [0.0f32; 4];
+                        for c in [p[r0 + x0], p[r0 + x1], p[r1 + x0], p[r1 + x1]] {
+                            for k in 0..4 {
+                                s[k] += 0.25 * c[k];
+                            }
+                        }
+                        *out = s;
+                    }
+                }
+                let before = std::mem::replace(&mut cur, (nw, nh, next));
+                if made {
+                    levels.push(before);
+                }
+                made = true;
+            }
+            if made {
+                levels.push(cur);
+            }
         }
         let dims = levels.iter().map(|l| [l.0 as i32, l.1 as i32]).collect();
         Self { levels, dims }
@@ -1289,4 +1303,127 @@ pub fn mean_spacing(set: &[Vec2]) -> f32 {
         })
         .sum();
     sum / set.len() as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lens::Camera;
+    use crate::random::SplitMix64;
+    use crate::raster::LayerSpacing;
+    use glam::Vec3;
+
+    /// One layer of `w x h` random colours (premultiplied, alpha in [0, 1]), a fifth of its
+    /// pixels empty.
+    fn random_layer(w: usize, h: usize, seed: u64) -> DepthLayers {
+        let camera = Camera::look_at(Vec3::ZERO, Vec3::NEG_Z, Vec3::Y);
+        let lens = camera.thin_lens().unwrap();
+        let spacing = LayerSpacing {
+            lens,
+            coc_near_px: -8.0,
+            delta_px: 4.0,
+            layers: 1,
+            overlap: 0.1,
+        };
+        let mut layers = DepthLayers::new(spacing, w, h);
+        let mut rng = SplitMix64::new(seed);
+        for i in 0..w * h {
+            let a = rng.next_f32();
+            layers.color[i] =
+                [rng.next_f32() * a, rng.next_f32() * a, 4.0 * a, a].map(half::f16::from_f32);
+            layers.coc_px[i] = if rng.below(5) == 0 {
+                f32::INFINITY
+            } else {
+                rng.range(-8.0, -4.0)
+            };
+        }
+        layers
+    }
+
+    #[test]
+    fn mip_levels_are_the_means_of_their_blocks() {
+        // Level k at texel (x, y) is the mean of the layer's 2^k x 2^k block there (empty
+        // pixels counted as transparent black), computed here directly from the pixels, not
+        // level by level; odd sizes check the clamped last texels' neighbours.
+        let (w, h) = (37, 23);
+        let layers = random_layer(w, h, 5);
+        let mip = LayerMip::new(&layers, 0, 4);
+        assert_eq!(mip.levels.len(), 4);
+        let pixel = |x: usize, y: usize| -> Rgba {
+            let i = y * w + x;
+            if layers.coc_px[i].is_finite() {
+                from_half(&layers.color[i])
+            } else {
+                [0.0; 4]
+            }
+        };
+        for (k, (lw, lh, data)) in (1..).zip(&mip.levels) {
+            let s = 1usize << k;
+            assert_eq!((*lw, *lh), (w.div_ceil(s), h.div_ceil(s)), "level {k}");
+            for ty in 0..h / s {
+                for tx in 0..w / s {
+                    let mut want = [0.0f64; 4];
+                    for y in ty * s..(ty + 1) * s {
+                        for x in tx * s..(tx + 1) * s {
+                            for (m, c) in want.iter_mut().zip(pixel(x, y)) {
+                                *m += c as f64 / (s * s) as f64;
+                            }
+                        }
+                    }
+                    let got = data[ty * lw + tx];
+                    for c in 0..4 {
+                        assert!(
+                            (got[c] as f64 - want[c]).abs() <= 1e-5 * (1.0 + want[c].abs()),
+                            "level {k} texel ({tx}, {ty}) channel {c}: {} vs {}",
+                            got[c],
+                            want[c]
+                        );
+                    }
+                }
+            }
+        }
+        // No levels asked for, none made.
+        assert!(LayerMip::new(&layers, 0, 0).levels.is_empty());
+    }
+
+    #[test]
+    fn cone_reads_eight_at_a_time_are_one_at_a_time_bit_for_bit() {
+        // Positions inside, on the border of and far outside the layer, levels from 0 to past
+        // the coarsest kept, lanes in and out of the mask.
+        if !simd_fits(1) {
+            eprintln!("skipped: this CPU has no AVX2 and F16C");
+            return;
+        }
+        let layers = random_layer(45, 29, 9);
+        let mip = LayerMip::new(&layers, 0, 5);
+        let mut rng = SplitMix64::new(11);
+        for round in 0..2000 {
+            let mut reads = ConeReads::new();
+            for j in 0..LANES {
+                if rng.below(4) == 0 {
+                    continue;
+                }
+                let q = match rng.below(4) {
+                    0 => Vec2::new(rng.range(-200.0, 200.0), rng.range(-200.0, 200.0)),
+                    1 => Vec2::new(rng.below(46) as f32, rng.below(30) as f32),
+                    _ => Vec2::new(rng.range(0.0, 45.0), rng.range(0.0, 29.0)),
+                };
+                let level = ConeLevel {
+                    k0: rng.below(8),
+                    t: rng.next_f32(),
+                };
+                let level0 = [rng.next_f32(), rng.next_f32(), rng.next_f32(), 1.0];
+                reads.push(j, q, level, level0);
+            }
+            let fast = cones(&mip, &reads, true);
+            let slow = cones(&mip, &reads, false);
+            for j in 0..LANES {
+                assert_eq!(
+                    fast[j].map(f32::to_bits),
+                    slow[j].map(f32::to_bits),
+                    "round {round}, lane {j}"
+                );
+            }
+        }
+    }
 }
