@@ -8,9 +8,10 @@
 //! 1. `decompose` (sections 4.1-4.2, [`decompose`]): layers uniform in signed CoC from the
 //!    nearest geometry (eq. 4, spacing delta in pixels, or a given number of layers), each with
 //!    its own depth buffer ([`crate::raster::DepthLayers`]), 10% overlap between neighbours.
-//! 2. `nbuffer` (section 4.3, [`nbuffer`]): per layer an N-buffer of the minimum CoC for early
-//!    layer culling; and, for cone tracing, the layers' mipmaps with coverage in alpha.
-//! 3. `trace` (sections 4.3-4.5, [`trace`]): per pixel, N lens rays from the shared
+//! 2. `mipmap`: for cone tracing, the layers' mipmaps with coverage in alpha.
+//! 3. `cull` (section 4.3, [`cull`]): per layer the minimum CoC over each pixel's window, for
+//!    early layer culling (the paper's N-buffer query, computed once per pixel: see the module).
+//! 4. `trace` (sections 4.3-4.5, [`trace`]): per pixel, N lens rays from the shared
 //!    [`crate::lens::SampleSet`] over the shared [`Aperture`] (so the bokeh matches
 //!    `reference`), traced as height-field tests layer after layer, first hit kept, averaged;
 //!    cone tracing and per-pixel jitter of the sample set.
@@ -40,7 +41,7 @@
 //!   blocks the square of its share of the light: the chart behind `railing`'s bars came out
 //!   1.2% too bright, and `railing` gains 1.8 dB (32 rays), Cycles' railing 0.7 dB.
 
-pub mod nbuffer;
+pub mod cull;
 pub mod trace;
 
 use glam::Vec2;
@@ -55,7 +56,7 @@ use crate::timing::Timings;
 use crate::{Error, Result};
 
 use super::MethodOutput;
-use nbuffer::NBuffer;
+use cull::WindowMin;
 use trace::{LayerMip, TraceInput};
 
 /// `--timings` labels of `multiview`.
@@ -64,8 +65,10 @@ pub mod pass {
     pub const PREPARE: &str = "multiview/prepare";
     /// Rasterize into the depth layers.
     pub const DECOMPOSE: &str = "multiview/decompose";
-    /// N-buffers (and the mipmaps for cone tracing).
-    pub const NBUFFER: &str = "multiview/nbuffer";
+    /// The layers' mipmaps, for cone tracing.
+    pub const MIPMAP: &str = "multiview/mipmap";
+    /// Culling windows.
+    pub const CULL: &str = "multiview/cull";
     /// Lens rays through the layers.
     pub const TRACE: &str = "multiview/trace";
 }
@@ -359,22 +362,10 @@ fn render_with(
     let lambda = trace::mean_spacing(&sets[0]);
     let m = layers.spacing.layers;
     let (w, h) = (layers.width, layers.height);
-    let (filled, nbuffers, mips) = timings.time(pass::NBUFFER, || {
-        let filled: Vec<bool> = (0..m).map(|l| layers.filled(l) > 0).collect();
-        let nbuffers: Option<Vec<Option<NBuffer>>> = settings.culling.then(|| {
-            (0..m)
-                .map(|l| {
-                    filled[l].then(|| {
-                        let (a, b) = layers.spacing.bounds(l);
-                        let window = 2.0 * a.abs().max(b.abs()) + 3.0;
-                        let levels = (window.log2().ceil() as usize + 1).min(nbuffer::MAX_LEVELS);
-                        NBuffer::new(&layers.coc_px[l * w * h..(l + 1) * w * h], w, h, levels)
-                    })
-                })
-                .collect()
-        });
-        // The layers' mipmaps side by side, a layer to a task.
-        let mips: Option<Vec<LayerMip>> = settings.cone.then(|| {
+    let filled: Vec<bool> = (0..m).map(|l| layers.filled(l) > 0).collect();
+    // The layers' mipmaps side by side, a layer to a task.
+    let mips: Option<Vec<LayerMip>> = settings.cone.then(|| {
+        timings.time(pass::MIPMAP, || {
             (0..m)
                 .into_par_iter()
                 .map(|l| {
@@ -392,12 +383,11 @@ fn render_with(
                     }
                 })
                 .collect()
-        });
-        (filled, nbuffers, mips)
+        })
     });
     let input = TraceInput {
         layers: &layers,
-        nbuffers: nbuffers.as_deref(),
+        culls: None,
         filled: &filled,
         mips: mips.as_deref(),
         graze: settings.graze,
@@ -410,13 +400,29 @@ fn render_with(
             .has_cats_eye()
             .then_some((settings.effects, frame)),
     };
+    let culls: Option<Vec<Option<WindowMin>>> = settings.culling.then(|| {
+        timings.time(pass::CULL, || {
+            (0..m)
+                .map(|l| {
+                    filled[l].then(|| {
+                        let plane = &layers.coc_px[l * w * h..(l + 1) * w * h];
+                        WindowMin::new(plane, w, h, trace::cull_radius(&input, l))
+                    })
+                })
+                .collect()
+        })
+    });
+    let input = TraceInput {
+        culls: culls.as_deref(),
+        ..input
+    };
     let image = timings.time(pass::TRACE, || trace_fn(&input));
     let bytes = layers.bytes()
-        + nbuffers
+        + culls
             .iter()
             .flatten()
             .flatten()
-            .map(NBuffer::bytes)
+            .map(WindowMin::bytes)
             .sum::<usize>()
         + mips.iter().flatten().map(LayerMip::bytes).sum::<usize>();
     // The pinhole depth: the nearest layer's surface at each pixel, back from CoC to depth.

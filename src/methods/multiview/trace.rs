@@ -33,7 +33,7 @@ use glam::Vec2;
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
-use super::nbuffer::NBuffer;
+use super::cull::WindowMin;
 use crate::image::{ColorImage, Rgba};
 use crate::lens::{LensEffects, ThinLens};
 use crate::raster::{from_half, DepthLayers};
@@ -157,9 +157,9 @@ impl LayerMip {
 pub struct TraceInput<'a> {
     /// The layers.
     pub layers: &'a DepthLayers,
-    /// Per layer, its N-buffer (`None`: not culled, e.g. an empty layer has none and is
-    /// skipped by `filled`).
-    pub nbuffers: Option<&'a [Option<NBuffer>]>,
+    /// Per layer, the minimum CoC over each pixel's culling window ([`cull_radius`]; `None`:
+    /// not culled, e.g. an empty layer has none and is skipped by `filled`).
+    pub culls: Option<&'a [Option<WindowMin>]>,
     /// Per layer, whether it has any surface.
     pub filled: &'a [bool],
     /// Per layer, its mipmap for cone tracing (`None`: plain rays).
@@ -202,17 +202,33 @@ pub fn trace_baseline(input: &TraceInput) -> ColorImage {
     })
 }
 
+/// The radius of the window around a pixel, in pixels, in which its lens rays, and the cones
+/// of those that graze layer `l` ([`graze_reach`]), can read that layer: a ray's position is
+/// linear in its CoC, so its farthest point in the layer is at the bound of larger `|C|`.
+/// (`input.culls` is not read.)
+pub fn cull_radius(input: &TraceInput, l: usize) -> usize {
+    let rmax = longest_ray(input);
+    let (a, b) = input.layers.spacing.bounds(l);
+    let r = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1 + graze_reach(input, l);
+    r.max(0) as usize
+}
+
+/// The largest `|v|` of the lens samples: pixels of image per pixel of CoC.
+fn longest_ray(input: &TraceInput) -> f32 {
+    input
+        .sets
+        .iter()
+        .flatten()
+        .map(|v| v.length())
+        .fold(0.0f32, f32::max)
+}
+
 fn trace_with(
     input: &TraceInput,
     row_fn: impl Fn(&TraceInput, &RayTable, f32, usize, &mut [Rgba]) + Sync,
 ) -> ColorImage {
     let (_, _, w, h) = input.region;
-    let rmax = input
-        .sets
-        .iter()
-        .flatten()
-        .map(|v| v.length())
-        .fold(0.0f32, f32::max);
+    let rmax = longest_ray(input);
     let table = RayTable::new(input);
     let mut data = vec![[0.0f32; 4]; w * h];
     data.par_chunks_mut(w.max(1))
@@ -260,15 +276,13 @@ fn trace_row_inner(
     let (_, c_last) = layers.spacing.bounds(m.saturating_sub(1));
     let reach = c_first.abs().max(c_last.abs()) * rmax + 1.0;
     let (lw, lh) = (layers.width as f32, layers.height as f32);
-    // Per layer, the same for every pixel: its N-buffer, the window the rays can reach (and
-    // what their cones read around them), and the CoC beyond which its surfaces are missed.
-    let culls: Vec<Option<(&NBuffer, i64, f32)>> = (0..m)
+    // Per layer, the same for every pixel: its culling windows' minima, and the CoC beyond
+    // which its surfaces are missed.
+    let culls: Vec<Option<(&WindowMin, f32)>> = (0..m)
         .map(|l| {
-            let nb = input.nbuffers.and_then(|n| n[l].as_ref())?;
-            let (a, b) = layers.spacing.bounds(l);
-            let r = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1 + graze_reach(input, l);
-            let overlap = layers.spacing.overlap * layers.spacing.delta_px;
-            Some((nb, r, b + overlap))
+            let window = input.culls.and_then(|c| c[l].as_ref())?;
+            let (_, b) = layers.spacing.bounds(l);
+            Some((window, b + layers.spacing.overlap * layers.spacing.delta_px))
         })
         .collect();
     for (fx, out) in row.iter_mut().enumerate() {
@@ -278,11 +292,8 @@ fn trace_row_inner(
         // Early layer culling for all rays of the pixel.
         for ((o, &filled), cull) in open.iter_mut().zip(input.filled).zip(&culls) {
             *o = filled;
-            if let (true, Some((nb, r, limit))) = (filled, cull) {
-                let (xi, yi) = (x as i64, y as i64);
-                if let Some(min) = nb.min(xi - r, yi - r, xi + r, yi + r) {
-                    *o = min <= *limit;
-                }
+            if let (true, Some((window, limit))) = (filled, cull) {
+                *o = window.at(x, y) <= *limit;
             }
         }
         open_list.clear();
