@@ -1,6 +1,6 @@
 //! `multiview` benchmarks at 1280x720 on the built-in `railing` and `grass` scenes. Ids:
 //! `multiview/decompose/<scene>/1280x720` (the depth layers) and
-//! `multiview/total/<n>spp/<scene>/1280x720` (decompose, N-buffers, mipmaps and tracing with
+//! `multiview/total/<n>spp/<scene>/1280x720` (decompose, mipmaps, culling windows and tracing with
 //! the default settings and n lens samples). Compare with `reference/<scene>/256spp/...`: the
 //! layered method's cost stops growing with the scene's triangles.
 
