@@ -202,15 +202,21 @@ pub fn trace_baseline(input: &TraceInput) -> ColorImage {
     })
 }
 
-/// The radius of the window around a pixel, in pixels, in which its lens rays, and the cones
-/// of those that graze layer `l` ([`graze_reach`]), can read that layer: a ray's position is
-/// linear in its CoC, so its farthest point in the layer is at the bound of larger `|C|`.
+/// The radius of the window around a pixel, in pixels, in which its lens rays can hit layer
+/// `l`, or the cones of those that pass it read it ([`graze`]): a layer with no surface there
+/// can be skipped. A ray's position is linear in its CoC, so its samples lie within
+/// `max(|C_l|, |C_l+1|) |v|` of the pixel; a grazing cone reads at the middle `C` of the layer,
+/// `|C| |v|` away, bilinear taps of mip level `k` lie within `1.5 * 2^k` pixels of their point,
+/// and the level read is at most one above `log2` of the cone's diameter `lambda |C|`.
 /// (`input.culls` is not read.)
 pub fn cull_radius(input: &TraceInput, l: usize) -> usize {
     let rmax = longest_ray(input);
     let (a, b) = input.layers.spacing.bounds(l);
-    let r = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1 + graze_reach(input, l);
-    r.max(0) as usize
+    let hits = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1;
+    let grazes = graze_level(input, l).map_or(0, |(c, _)| {
+        (c.abs() * rmax + 3.0 * input.lambda * c.abs()).ceil() as i64 + 1
+    });
+    hits.max(grazes).max(0) as usize
 }
 
 /// The largest `|v|` of the lens samples: pixels of image per pixel of CoC.
@@ -1060,18 +1066,6 @@ fn layer(input: &TraceInput, l: usize, p: Vec2, v: Vec2, speed: f32, state: &mut
 fn grazes(input: &TraceInput, l: usize) -> bool {
     let (ca, cb) = input.layers.spacing.bounds(l);
     input.graze && input.mips.is_some() && ca + cb < 0.0
-}
-
-/// How far from a ray's path, in pixels, [`graze`] may read layer `l` (0 if it does not):
-/// bilinear taps of mip level `k` lie within `1.5 * 2^k` pixels of their point, and the level
-/// read is at most one above `log2` of the cone's diameter `lambda |C|`.
-#[inline(always)]
-fn graze_reach(input: &TraceInput, l: usize) -> i64 {
-    if !grazes(input, l) {
-        return 0;
-    }
-    let (ca, cb) = input.layers.spacing.bounds(l);
-    (3.0 * input.lambda * ca.abs().max(cb.abs())).ceil() as i64 + 1
 }
 
 /// A ray that passed layer `l` without hitting it: where [`grazes`], its cone still meets the
