@@ -252,10 +252,12 @@ pub fn decompose(
 }
 
 /// Estimated peak bytes of `multiview` with `layers` layers on a frame of `lens`: the layers
-/// (12 bytes a pixel each), their N-buffers (up to 9 levels of 4 bytes) and mipmaps.
+/// (12 bytes a pixel each), their culling windows (4 bytes) and mipmaps (a third of 16 bytes,
+/// rounded up), and the transients of building them (a layer's colours in f32 per thread, and
+/// three images of 4 bytes for a culling window) and the traced image.
 pub fn peak_bytes(lens: &ThinLens, layers: usize) -> u64 {
     let px = (lens.width_px * lens.height_px) as u64;
-    layers as u64 * px * (12 + 9 * 4 + 6) + px * 16
+    layers as u64 * px * (12 + 4 + 6) + px * (2 * 16 + 3 * 4 + 16)
 }
 
 /// The lens sample sets (one, or [`JITTER_SETS`] for jitter) and the noise tile.
