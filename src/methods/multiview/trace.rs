@@ -99,7 +99,7 @@ pub fn trace_baseline(input: &TraceInput) -> ColorImage {
 }
 
 /// The radius of the window around a pixel, in pixels, in which its lens rays can hit layer
-/// `l`, or the cones of those that pass it read it ([`graze`]): a layer with no surface there
+/// `l`, or the cones of those that pass it read it (`graze`): a layer with no surface there
 /// can be skipped. A ray's position is linear in its CoC, so its samples lie within
 /// `max(|C_l|, |C_l+1|) |v|` of the pixel; a grazing cone reads at the middle `C` of the layer,
 /// `|C| |v|` away, bilinear taps of mip level `k` lie within `1.5 * 2^k` pixels of their point,
