@@ -120,7 +120,8 @@ pub struct MultiviewSettings {
     pub graze: bool,
     /// Per-pixel jitter of the sample set (section 4.5). Default on.
     pub jitter: bool,
-    /// Early layer culling with N-buffers (section 4.3). Default on.
+    /// Early layer culling (section 4.3; the N-buffer query as a window minimum per pixel,
+    /// [`cull`]). Default on.
     pub culling: bool,
     /// Coverage masks and guard band of the layers (default both on; off: pixel centres over
     /// the frame, as the paper).

@@ -11,7 +11,7 @@
 //! the paper's false-position iteration (the surface taken as linear between the bracketing
 //! samples) with bisection as a guard refine it. Empty pixels hold +inf and are never hit. A
 //! ray whose segment in a layer leaves the image is discarded, as in the paper. A layer the pixel's rays
-//! cannot hit (the N-buffer minimum over the region they can reach lies beyond the layer) is
+//! cannot hit (the minimum over the window they can reach, `cull`, lies beyond the layer) is
 //! skipped.
 //!
 //! A hit meets the layer's premultiplied colour with its coverage in alpha (partly covered
