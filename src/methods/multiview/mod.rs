@@ -8,7 +8,7 @@
 //! 1. `decompose` (sections 4.1-4.2, [`decompose`]): layers uniform in signed CoC from the
 //!    nearest geometry (eq. 4, spacing delta in pixels, or a given number of layers), each with
 //!    its own depth buffer ([`crate::raster::DepthLayers`]), 10% overlap between neighbours.
-//! 2. `mipmap` ([`mipmap`]): for cone tracing, the layers' mipmaps with coverage in alpha.
+//! 2. `mipmap`: for cone tracing, the layers' mipmaps with coverage in alpha.
 //! 3. `cull` (section 4.3, [`cull`]): per layer the minimum CoC over each pixel's window, for
 //!    early layer culling (the paper's N-buffer query, computed once per pixel: see the module).
 //! 4. `trace` (sections 4.3-4.5, [`trace`]): per pixel, N lens rays from the shared
@@ -42,7 +42,6 @@
 //!   1.2% too bright, and `railing` gains 1.8 dB (32 rays), Cycles' railing 0.7 dB.
 
 pub mod cull;
-pub mod mipmap;
 pub mod trace;
 
 use glam::Vec2;
@@ -58,8 +57,7 @@ use crate::{Error, Result};
 
 use super::MethodOutput;
 use cull::WindowMin;
-use mipmap::LayerMip;
-use trace::TraceInput;
+use trace::{LayerMip, TraceInput};
 
 /// `--timings` labels of `multiview`.
 pub mod pass {
