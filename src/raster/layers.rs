@@ -94,6 +94,8 @@ pub struct DepthLayers {
     pub color: Vec<HalfRgba>,
     /// Tiles' scratch buffers, handed back as each tile finishes (see [`LayersTile`]).
     pool: Pool,
+    /// Per layer, whether a tile wrote a surface to it ([`DepthLayers::filled`]).
+    written: Vec<bool>,
 }
 
 /// Scratch buffers of [`LayersTile`]s, shared by the tiles of a pass. Scratch, not content:
@@ -137,6 +139,7 @@ impl DepthLayers {
             coc_px: vec![f32::INFINITY; n],
             color: vec![[f16::ZERO; 4]; n],
             pool: Pool::default(),
+            written: vec![false; spacing.layers],
         }
     }
 
@@ -146,13 +149,10 @@ impl DepthLayers {
         (l * self.height + y) * self.width + x
     }
 
-    /// Number of non-empty pixels of layer `l`.
-    pub fn filled(&self, l: usize) -> usize {
-        let n = self.width * self.height;
-        self.coc_px[l * n..(l + 1) * n]
-            .iter()
-            .filter(|c| c.is_finite())
-            .count()
+    /// Whether the rasterizer wrote a surface to layer `l` (known as the tiles end: a scan of
+    /// the planes took 50 ms on `railing` at 1280x720).
+    pub fn filled(&self, l: usize) -> bool {
+        self.written[l]
     }
 
     /// Bytes held.
@@ -349,6 +349,7 @@ impl Sink for DepthLayers {
             let d = self.index(l, rect.x0 + i % tw, rect.y0 + i / tw);
             self.coc_px[d] = coc;
             self.color[d] = color;
+            self.written[l] = true;
         }
     }
 

@@ -17,7 +17,6 @@ use rayon::prelude::*;
 #[derive(Clone, Debug, PartialEq)]
 pub struct WindowMin {
     width: usize,
-    radius: usize,
     values: Vec<f32>,
 }
 
@@ -30,14 +29,8 @@ impl WindowMin {
         let both = rows_min(&across, height, radius);
         Self {
             width,
-            radius,
             values: transpose(&both, height, width),
         }
-    }
-
-    /// The window's radius in pixels.
-    pub fn radius(&self) -> usize {
-        self.radius
     }
 
     /// The minimum over the window around pixel `(x, y)`.

@@ -365,7 +365,8 @@ fn render_with(
     let lambda = trace::mean_spacing(&sets[0]);
     let m = layers.spacing.layers;
     let (w, h) = (layers.width, layers.height);
-    let filled: Vec<bool> = (0..m).map(|l| layers.filled(l) > 0).collect();
+    // The mipmaps and culling skip the empty layers.
+    let filled: Vec<bool> = (0..m).map(|l| layers.filled(l)).collect();
     // The layers' mipmaps side by side, a layer to a task.
     let mips: Option<Vec<LayerMip>> = settings.cone.then(|| {
         timings.time(pass::MIPMAP, || {

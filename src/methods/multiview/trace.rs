@@ -845,6 +845,16 @@ mod avx2 {
         _mm256_min_epi32(_mm256_max_epi32(i, _mm256_setzero_si256()), last)
     }
 
+    /// `new` in the lanes of `mask`, `old` elsewhere, for plane indices.
+    #[inline(always)]
+    unsafe fn select_index(old: __m256i, new: __m256i, mask: __m256) -> __m256i {
+        _mm256_castps_si256(_mm256_blendv_ps(
+            _mm256_castsi256_ps(old),
+            _mm256_castsi256_ps(new),
+            mask,
+        ))
+    }
+
     /// See [`super::crossings`]: the same samples, tests and refinement, eight lanes at a time.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
@@ -901,11 +911,7 @@ mod avx2 {
             hi = _mm256_blendv_ps(hi, c, cross);
             h_lo = _mm256_blendv_ps(h_lo, h_prev, cross);
             h_hi = _mm256_blendv_ps(h_hi, h, cross);
-            i_hi = _mm256_castps_si256(_mm256_blendv_ps(
-                _mm256_castsi256_ps(i_hi),
-                _mm256_castsi256_ps(i),
-                cross,
-            ));
+            i_hi = select_index(i_hi, i, cross);
             if k == 0 {
                 from_entry = cross;
             }
@@ -965,11 +971,7 @@ mod avx2 {
             let to_hi = _mm256_cmp_ps::<_CMP_LE_OQ>(h_mid, mid);
             hi = _mm256_blendv_ps(hi, mid, to_hi);
             h_hi = _mm256_blendv_ps(h_hi, h_mid, to_hi);
-            i_hi = _mm256_castps_si256(_mm256_blendv_ps(
-                _mm256_castsi256_ps(i_hi),
-                _mm256_castsi256_ps(i_mid),
-                to_hi,
-            ));
+            i_hi = select_index(i_hi, i_mid, to_hi);
             lo = _mm256_blendv_ps(mid, lo, to_hi);
             h_lo = _mm256_blendv_ps(h_mid, h_lo, to_hi);
         }
