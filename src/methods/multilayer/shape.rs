@@ -328,49 +328,59 @@ struct Reach {
     tiles_x: usize,
 }
 
-/// The fragments of a level with CoC radius in the level's band, with their signed CoC and
-/// full-precision colour: what the gather reads.
+/// One fragment of a level's band: what the gather reads of it, side by side (one cache line
+/// holds it, where separate arrays took one line each).
+#[derive(Clone, Copy, Debug)]
+struct BandFragment {
+    /// CoC radius in cells, and the normalisation of the gather grid at that radius: worked
+    /// out once per fragment, not once per cell that reads it.
+    t: f32,
+    norm: f32,
+    /// Where the fragment's energy lies, in cells from its cell's centre.
+    shift: [f32; 2],
+    /// Signed CoC in pixels.
+    coc: f32,
+    depth: f32,
+    /// Full-precision colour.
+    color: Rgba,
+}
+
+/// The fragments of a level with CoC radius in the level's band: what the gather reads.
 #[derive(Clone, Debug, Default)]
 struct BandLevel {
     offsets: Vec<u32>,
-    coc: Vec<f32>,
-    depth: Vec<f32>,
-    color: Vec<Rgba>,
-    /// Where the fragment's energy lies, in cells from its cell's centre.
-    shift: Vec<[f32; 2]>,
-    /// CoC radius in cells, and the normalisation of the gather grid at that radius: worked
-    /// out once per fragment, not once per cell that reads it.
-    t: Vec<f32>,
-    norm: Vec<f32>,
+    fragments: Vec<BandFragment>,
 }
 
 impl BandLevel {
     /// The fragments of `level` with CoC radius in `[lo, hi)`.
     fn new(level: &Level, borders: &Borders, shape: &GatherShape, (lo, hi): (f32, f32)) -> Self {
-        let rows: Vec<(Vec<u32>, BandLevel)> = (0..level.height)
+        let rows: Vec<(Vec<u32>, Vec<BandFragment>)> = (0..level.height)
             .into_par_iter()
             .map(|cy| {
                 let mut counts = Vec::with_capacity(level.width);
-                let mut b = BandLevel::default();
+                let mut b = Vec::new();
                 let inv_b = 1.0 / level.footprint_px;
                 for cx in 0..level.width {
                     let (depths, colors) = level.cell(cx, cy);
                     let centroids = level.cell_centroids(cx, cy);
-                    let before = b.depth.len();
+                    let before = b.len();
                     for (k, (&z, c)) in depths.iter().zip(colors).enumerate() {
                         let coc = borders.lens.coc_px(z);
                         let r = coc.abs();
                         if r >= lo && r < hi {
-                            b.coc.push(coc);
-                            b.depth.push(z);
-                            b.color.push(from_half(c));
                             let at = centroids.get(k).copied().unwrap_or([0.0; 2]);
-                            b.shift.push([at[0] * inv_b, at[1] * inv_b]);
-                            b.t.push(r * inv_b);
-                            b.norm.push(shape.norm(r * inv_b));
+                            b.push(BandFragment {
+                                t: r * inv_b,
+                                norm: shape.norm(r * inv_b),
+                                shift: [at[0] * inv_b, at[1] * inv_b],
+                                coc,
+                                depth: z,
+                                color: from_half(c),
+                            });
                         }
                     }
-                    counts.push((b.depth.len() - before) as u32);
+                    counts.push((b.len() - before) as u32);
                 }
                 (counts, b)
             })
@@ -382,12 +392,7 @@ impl BandLevel {
                 let last = *out.offsets.last().unwrap_or(&0);
                 out.offsets.push(last + k);
             }
-            out.coc.extend_from_slice(&b.coc);
-            out.depth.extend_from_slice(&b.depth);
-            out.color.extend_from_slice(&b.color);
-            out.shift.extend_from_slice(&b.shift);
-            out.t.extend_from_slice(&b.t);
-            out.norm.extend_from_slice(&b.norm);
+            out.fragments.extend_from_slice(&b);
         }
         out
     }
@@ -401,7 +406,7 @@ fn reach_of(
     shape: &GatherShape,
     (tiles_x, tiles_y): (usize, usize),
 ) -> Option<Reach> {
-    if band.depth.is_empty() {
+    if band.fragments.is_empty() {
         return None;
     }
     let tile = TILE_PX as f32;
@@ -414,7 +419,9 @@ fn reach_of(
             for cx in 0..level.width {
                 let i = cy * level.width + cx;
                 let (a, e) = (band.offsets[i] as usize, band.offsets[i + 1] as usize);
-                let m = band.coc[a..e].iter().fold(0.0f32, |m, c| m.max(c.abs()));
+                let m = band.fragments[a..e]
+                    .iter()
+                    .fold(0.0f32, |m, f| m.max(f.coc.abs()));
                 if m > 0.0 {
                     let tx = tile_of(level.origin_px + level.stride_px * cx as f32, tiles_x);
                     found.push((ty * tiles_x + tx, m));
@@ -838,6 +845,12 @@ fn gather_row_inner(inputs: &GatherInputs, cy: usize) -> GatherRow {
     };
     let tiles_y = reach.tiles.len() / reach.tiles_x;
     let ty = tile_of(cy, tiles_y);
+    // How far in memory the cell at each offset lies behind the gathering one.
+    let deltas: Vec<isize> = shape
+        .offsets
+        .iter()
+        .map(|o| k * (o.j as isize * w + o.i as isize))
+        .collect();
     let mut counts = Vec::with_capacity(level.width);
     let mut depth = Vec::new();
     let mut color = Vec::new();
@@ -851,33 +864,46 @@ fn gather_row_inner(inputs: &GatherInputs, cy: usize) -> GatherRow {
         }
         groups.clear();
         let limit = shape.reach_cells(r_px * inv_b);
-        for o in shape.offsets.iter().take_while(|o| o.r <= limit) {
-            let sx = (cx as isize - k * o.i as isize).clamp(0, w - 1) as usize;
-            let sy = (cy as isize - k * o.j as isize).clamp(0, h - 1) as usize;
-            let i = sy * level.width + sx;
+        // Away from the level's edges no offset within the limit leaves it: each cell is read
+        // at a fixed distance in memory from this one, without clamping.
+        let n = k * limit as isize;
+        let (x, y) = (cx as isize, cy as isize);
+        let inside = x >= n && x + n < w && y >= n && y + n < h;
+        let centre = y * w + x;
+        for (o, &delta) in shape
+            .offsets
+            .iter()
+            .zip(&deltas)
+            .take_while(|(o, _)| o.r <= limit)
+        {
+            let i = if inside {
+                (centre - delta) as usize
+            } else {
+                let sx = (x - k * o.i as isize).clamp(0, w - 1) as usize;
+                let sy = (y - k * o.j as isize).clamp(0, h - 1) as usize;
+                sy * level.width + sx
+            };
             let (a, e) = (band.offsets[i] as usize, band.offsets[i + 1] as usize);
+            if e == a {
+                continue;
+            }
             if e == a + 1 {
                 // One fragment (the usual case): straight into its surface.
-                let cover = shape.coverage(o, band.t[a], band.coc[a] > 0.0, band.shift[a]);
+                let f = &band.fragments[a];
+                let cover = shape.coverage(o, f.t, f.coc > 0.0, f.shift);
                 if cover > 0.0 {
-                    let weight = cover * band.norm[a];
-                    let p = band.color[a].map(|v| v * weight);
-                    add_to_groups(&mut groups, band.depth[a], p, epsilon);
+                    let weight = cover * f.norm;
+                    let p = f.color.map(|v| v * weight);
+                    add_to_groups(&mut groups, f.depth, p, epsilon);
                 }
                 continue;
             }
             entries.clear();
             let mut run = Run::new();
-            for f in a..e {
-                let cover = shape.coverage(o, band.t[f], band.coc[f] > 0.0, band.shift[f]);
+            for f in &band.fragments[a..e] {
+                let cover = shape.coverage(o, f.t, f.coc > 0.0, f.shift);
                 if cover > 0.0 {
-                    run.add(
-                        band.depth[f],
-                        cover * band.norm[f],
-                        band.color[f],
-                        epsilon,
-                        &mut entries,
-                    );
+                    run.add(f.depth, cover * f.norm, f.color, epsilon, &mut entries);
                 }
             }
             run.flush(&mut entries);
