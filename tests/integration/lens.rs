@@ -34,6 +34,25 @@ fn coc_has_analytic_values_sign_zero_at_focus_and_limit_at_infinity() {
         "behind focus is positive"
     );
     assert!((coc_px(1000.0, 0.01, 2.0, 1e12) - 5.0).abs() < 1e-5);
+    // Infinite depth, and depths whose product with z_f overflows f32: the far limit.
+    for z in [f32::INFINITY, 1e38, f32::MAX] {
+        assert!((coc_px(1000.0, 0.01, 2.0, z) - 5.0).abs() < 1e-5, "z {z}");
+    }
+    // Within a few roundings of the formula in f64 over near, focus and far depths.
+    for (focus, z) in [
+        (2.0f32, 0.05f32),
+        (2.0, 1.9999),
+        (2.0, 2.0001),
+        (0.3, 7.0),
+        (40.0, 1e6),
+    ] {
+        let exact = 1000.0 * 0.01 * (1.0 / f64::from(focus) - 1.0 / f64::from(z));
+        let got = f64::from(coc_px(1000.0, 0.01, focus, z));
+        assert!(
+            (got - exact).abs() <= 1e-6 * exact.abs().max(1e-3),
+            "focus {focus} z {z}: {got} vs {exact}"
+        );
+    }
 }
 
 /// The depth of a CoC solves the CoC formula: analytic values, the round trip over near and far
