@@ -459,9 +459,10 @@ fn trace_packet(
         (vx[j], vy[j], speed[j]) = (v.x, v.y, table.speed(set, r));
     }
     let mut state: [RayState; LANES] = std::array::from_fn(|_| RayState::default());
-    // Lanes still tracing (the unused ones of a short packet never are).
-    let mut live = [false; LANES];
-    live[..n].fill(true);
+    // Lanes still tracing, one bit each (the unused ones of a short packet never are). Bits
+    // rather than an array of flags: testing the whole packet then reads a register, not
+    // eight stores.
+    let mut live: u32 = (1 << n) - 1;
     for &l in open {
         let (ca, _) = spacing.bounds(l);
         let enter = ca - spacing.overlap * spacing.delta_px;
@@ -472,7 +473,7 @@ fn trace_packet(
         for (j, &r) in rays.iter().enumerate() {
             (steps[j], dc[j]) = table.step(set, l, r);
             stepsf[j] = steps[j] as f32;
-            if live[j] {
+            if lane(live, j) {
                 most = most.max(steps[j]);
             }
         }
@@ -490,7 +491,7 @@ fn trace_packet(
             dc: &dc,
             steps: &steps,
             stepsf: &stepsf,
-            live: &live,
+            live,
         };
         let Crossings {
             found,
@@ -506,7 +507,7 @@ fn trace_packet(
             // `graze_at` for the lanes that passed the layer, their cones read together.
             let mut reads = ConeReads::new();
             for j in 0..LANES {
-                if live[j] && !found[j] {
+                if lane(live & !found, j) {
                     let v = Vec2::new(vx[j], vy[j]);
                     reads.push(j, p - c * v, level, [0.0; 4]);
                 }
@@ -514,15 +515,15 @@ fn trace_packet(
             if reads.any() {
                 let colors = cones(&mips[l], &reads, simd);
                 for j in 0..LANES {
-                    if reads.mask[j] {
-                        let c1 = &colors[j];
-                        live[j] = !(c1[3] > 0.0 && state[j].take(c1));
+                    let c1 = &colors[j];
+                    if lane(reads.mask, j) && c1[3] > 0.0 && state[j].take(c1) {
+                        live &= !(1 << j);
                     }
                 }
             }
         }
-        if !found.iter().any(|&f| f) {
-            if !live.iter().any(|&a| a) {
+        if found == 0 {
+            if live == 0 {
                 break;
             }
             continue;
@@ -530,7 +531,7 @@ fn trace_packet(
         // The hits' cone reads, made together (`shade` lane by lane).
         let mut reads = ConeReads::new();
         for j in 0..LANES {
-            if !found[j] {
+            if !lane(found, j) {
                 continue;
             }
             let v = Vec2::new(vx[j], vy[j]);
@@ -546,26 +547,38 @@ fn trace_packet(
                         reads.push(j, p - hi[j] * v, level, level0);
                     }
                     // Level 0 alone, or no mipmaps: the hit pixel's colour.
-                    None => live[j] = !state[j].take(&color()),
+                    None => {
+                        if state[j].take(&color()) {
+                            live &= !(1 << j);
+                        }
+                    }
                 }
             } else {
                 // Behind a thin object: the rest of the layer, as `layer` walks it.
-                live[j] = !layer(input, l, p, v, speed[j], &mut state[j]);
+                if layer(input, l, p, v, speed[j], &mut state[j]) {
+                    live &= !(1 << j);
+                }
             }
         }
         if let (true, Some(mips)) = (reads.any(), input.mips) {
             let colors = cones(&mips[l], &reads, simd);
             for j in 0..LANES {
-                if reads.mask[j] {
-                    live[j] = !state[j].take(&colors[j]);
+                if lane(reads.mask, j) && state[j].take(&colors[j]) {
+                    live &= !(1 << j);
                 }
             }
         }
-        if !live.iter().any(|&a| a) {
+        if live == 0 {
             break;
         }
     }
     state.map(|s| s.col)
+}
+
+/// Whether lane `j` is set in the lane bits `bits`.
+#[inline(always)]
+fn lane(bits: u32, j: usize) -> bool {
+    bits >> j & 1 != 0
 }
 
 /// The rays of a packet, as [`crossings`] reads them.
@@ -576,15 +589,16 @@ struct Lanes<'a> {
     dc: &'a [f32; LANES],
     steps: &'a [usize; LANES],
     stepsf: &'a [f32; LANES],
-    /// Lanes still tracing.
-    live: &'a [bool; LANES],
+    /// Lanes still tracing, one bit each.
+    live: u32,
 }
 
 /// Each lane's first crossing in a layer, refined: whether it has one, the ray's CoC there,
 /// the surface's CoC just in front of it, and the index of the pixel hit in the whole stack of
 /// layers.
 struct Crossings {
-    found: [bool; LANES],
+    /// One bit per lane.
+    found: u32,
     hi: [f32; LANES],
     h_lo: [f32; LANES],
     i_hi: [usize; LANES],
@@ -620,7 +634,7 @@ fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
             let c = seg.ca + dc[j] * kk as f32;
             let q = p - c * v(j);
             let behind = layers.coc_px[layers.index(l, q.x as usize, q.y as usize)] <= c;
-            let cross = live[j] && !found[j] && k <= steps[j] && behind && prev_front[j];
+            let cross = lane(live, j) && !found[j] && k <= steps[j] && behind && prev_front[j];
             if cross {
                 (lo[j], hi[j]) = (prev[j], c);
             }
@@ -630,7 +644,7 @@ fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
         }
     }
     let mut out = Crossings {
-        found,
+        found: (0..LANES).fold(0, |m, j| m | u32::from(found[j]) << j),
         hi,
         h_lo: [0.0; LANES],
         i_hi: [0; LANES],
@@ -719,7 +733,7 @@ mod avx2 {
         let b = taps(mip, _mm256_add_epi32(k0, _mm256_set1_epi32(1)), qx, qy);
         let mut out = [[0.0f32; 4]; LANES];
         for (j, o) in out.iter_mut().enumerate() {
-            if !reads.mask[j] {
+            if !super::lane(reads.mask, j) {
                 continue;
             }
             let ca = if reads.k0[j] == 0 {
@@ -869,17 +883,10 @@ mod avx2 {
         let vy = _mm256_loadu_ps(lanes.vy.as_ptr());
         let dc = _mm256_loadu_ps(lanes.dc.as_ptr());
         let steps = _mm256_loadu_ps(lanes.stepsf.as_ptr());
-        let mask_of = |b: bool| if b { -1i32 } else { 0 };
-        let live = lanes.live;
-        let mut seeking = _mm256_castsi256_ps(_mm256_setr_epi32(
-            mask_of(live[0]),
-            mask_of(live[1]),
-            mask_of(live[2]),
-            mask_of(live[3]),
-            mask_of(live[4]),
-            mask_of(live[5]),
-            mask_of(live[6]),
-            mask_of(live[7]),
+        let bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let mut seeking = _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+            _mm256_and_si256(_mm256_set1_epi32(lanes.live as i32), bits),
+            bits,
         ));
         let all = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
         let cav = _mm256_set1_ps(ca);
@@ -926,7 +933,7 @@ mod avx2 {
         }
         let found_bits = _mm256_movemask_ps(found);
         let mut out = Crossings {
-            found: std::array::from_fn(|j| found_bits >> j & 1 != 0),
+            found: found_bits as u32,
             hi: [0.0; LANES],
             h_lo: [0.0; LANES],
             i_hi: [0; LANES],
@@ -1183,7 +1190,8 @@ fn cone(mip: &LayerMip, level: Option<ConeLevel>, q: Vec2, level0: impl FnOnce()
 /// lane in `mask`, [`cone`] at `(qx, qy)` between levels `k0` and `k0 + 1` (`t` of the way),
 /// `level0` standing for level 0 where `k0` is 0.
 struct ConeReads {
-    mask: [bool; LANES],
+    /// One bit per lane.
+    mask: u32,
     qx: [f32; LANES],
     qy: [f32; LANES],
     k0: [i32; LANES],
@@ -1195,7 +1203,7 @@ impl ConeReads {
     #[inline(always)]
     fn new() -> Self {
         Self {
-            mask: [false; LANES],
+            mask: 0,
             qx: [0.0; LANES],
             qy: [0.0; LANES],
             k0: [0; LANES],
@@ -1207,7 +1215,7 @@ impl ConeReads {
     /// Lane `j` reads at `q` between the levels of `level`.
     #[inline(always)]
     fn push(&mut self, j: usize, q: Vec2, level: ConeLevel, level0: Rgba) {
-        self.mask[j] = true;
+        self.mask |= 1 << j;
         (self.qx[j], self.qy[j]) = (q.x, q.y);
         self.k0[j] = level.k0 as i32;
         self.t[j] = level.t;
@@ -1216,7 +1224,7 @@ impl ConeReads {
 
     #[inline(always)]
     fn any(&self) -> bool {
-        self.mask.iter().any(|&m| m)
+        self.mask != 0
     }
 }
 
@@ -1233,7 +1241,7 @@ fn cones(mip: &LayerMip, reads: &ConeReads, simd: bool) -> [Rgba; LANES] {
     }
     let _ = simd;
     std::array::from_fn(|j| {
-        if !reads.mask[j] {
+        if !lane(reads.mask, j) {
             return [0.0; 4];
         }
         let level = ConeLevel {
