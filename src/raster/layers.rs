@@ -25,7 +25,7 @@
 use half::f16;
 
 use super::fragments::CocScale;
-use super::{to_half, Fragment, HalfRgba, HeldFragment, Sink, TileRect, TileSink};
+use super::{to_half, Fragment, HalfRgba, HeldFragment, Reach, Sink, TileRect, TileSink};
 use crate::lens::ThinLens;
 
 /// How depths are cut into layers.
@@ -96,6 +96,8 @@ pub struct DepthLayers {
     pool: Pool,
     /// Per layer, whether a tile wrote a surface to it ([`DepthLayers::filled`]).
     written: Vec<bool>,
+    /// Which surfaces of a guard band can be read from the frame ([`DepthLayers::with_reach`]).
+    reach: Option<Reach>,
 }
 
 /// Scratch buffers of [`LayersTile`]s, shared by the tiles of a pass. Scratch, not content:
@@ -140,7 +142,16 @@ impl DepthLayers {
             color: vec![[f16::ZERO; 4]; n],
             pool: Pool::default(),
             written: vec![false; spacing.layers],
+            reach: None,
         }
+    }
+
+    /// Drops, as if hidden and before they are shaded, the fragments of a guard band that
+    /// nothing in the frame reads (`reach`: its frame and how far a surface can be read from,
+    /// in CoC radii and pixels).
+    pub fn with_reach(mut self, reach: Reach) -> Self {
+        self.reach = Some(reach);
+        self
     }
 
     /// Index of pixel `(x, y)` of layer `l`.
@@ -181,6 +192,9 @@ pub struct LayersTile {
     spacing: LayerSpacing,
     /// Slots, layer after layer; valid where `used` is set.
     held: Vec<[HeldFragment; SURFACES]>,
+    /// Per pixel of a tile in the guard band, the depth from which its fragments cannot be read
+    /// from the frame ([`Reach::depth_limit`]); empty elsewhere.
+    limit: Vec<f32>,
     used: Vec<u64>,
     /// After [`TileSink::finish`]: the slots that hold a surface, in slot order, with the
     /// signed CoC of the nearer surface and the two composited.
@@ -273,10 +287,21 @@ impl LayersTile {
     }
 }
 
+impl LayersTile {
+    /// Whether a fragment at `depth_m` in pixel `i` of the tile lies beyond the frame's reach.
+    #[inline(always)]
+    fn unread(&self, i: usize, depth_m: f32) -> bool {
+        self.limit.get(i).is_some_and(|&z| depth_m >= z)
+    }
+}
+
 impl TileSink for LayersTile {
     #[inline]
     fn occluded(&self, x: u32, y: u32, depth_m: f32) -> bool {
         let i = (y as usize - self.rect.y0) * self.rect.width() + (x as usize - self.rect.x0);
+        if self.unread(i, depth_m) {
+            return true;
+        }
         let (l, other) = self.spacing.targets(self.spacing.lens.coc_px(depth_m));
         self.hidden(l, i, depth_m) && other.map_or(true, |o| self.hidden(o, i, depth_m))
     }
@@ -288,6 +313,9 @@ impl TileSink for LayersTile {
             return;
         }
         let i = (f.y as usize - self.rect.y0) * self.rect.width() + (f.x as usize - self.rect.x0);
+        if self.unread(i, f.depth_m) {
+            return;
+        }
         let (l, other) = self.spacing.targets(self.spacing.lens.coc_px(f.depth_m));
         self.write(l, i, &held);
         if let Some(o) = other.filter(|_| held.covers_pixel()) {
@@ -331,10 +359,17 @@ impl Sink for DepthLayers {
         if held.len() < n {
             held.resize(n, [HeldFragment::EMPTY; SURFACES]);
         }
+        let limit = match &self.reach {
+            Some(reach) if !reach.holds(&rect) => (0..rect.width() * rect.height())
+                .map(|k| reach.depth_limit(rect.x0 + k % rect.width(), rect.y0 + k / rect.width()))
+                .collect(),
+            _ => Vec::new(),
+        };
         LayersTile {
             rect,
             spacing: self.spacing,
             held,
+            limit,
             used: vec![0; n.div_ceil(64)],
             kept: Vec::new(),
             pool: self.pool.clone(),
@@ -363,5 +398,60 @@ impl Sink for DepthLayers {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tile of the guard band drops, as if hidden, the fragments at or behind its pixels'
+    /// depth limits and keeps nearer ones; a tile inside the frame drops nothing.
+    #[test]
+    fn a_band_tile_drops_what_the_frame_cannot_read() {
+        // `C(z) = 10 (1/2 - 1/z)` pixels: in focus at 2 m, 5 px at infinity.
+        let lens = ThinLens {
+            width_px: 180,
+            height_px: 140,
+            f_px: 1000.0,
+            lens_radius_m: 0.01,
+            focus_m: 2.0,
+            near_m: 0.01,
+            far_m: 1e4,
+        };
+        let reach = Reach {
+            frame: (40, 40, 100, 60),
+            lens,
+            factor: 1.5,
+            slack_px: 3.0,
+            square: true,
+        };
+        let spacing = LayerSpacing {
+            lens,
+            coc_near_px: -40.0,
+            delta_px: 4.0,
+            layers: 12,
+            overlap: 0.1,
+        };
+        let layers = DepthLayers::new(spacing, 180, 140).with_reach(reach);
+        let band = layers.begin_tile(TileRect {
+            x0: 0,
+            y0: 64,
+            x1: 16,
+            y1: 72,
+        });
+        // 31.5 px left of the frame: only CoCs of (31.5 - 3) / 1.5 = 19 px or more are read.
+        let z = reach.depth_limit(8, 70);
+        assert!((lens.coc_px(z) + 19.0).abs() < 1e-3, "{z}");
+        assert!(band.occluded(8, 70, z));
+        assert!(band.occluded(8, 70, 50.0));
+        assert!(!band.occluded(8, 70, z * 0.99));
+        let inside = layers.begin_tile(TileRect {
+            x0: 48,
+            y0: 48,
+            x1: 64,
+            y1: 64,
+        });
+        assert!(!inside.occluded(50, 50, 50.0));
     }
 }

@@ -50,7 +50,7 @@ use rayon::prelude::*;
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, LensEffects, SampleSet, SamplerKind, ThinLens};
 use crate::random::SplitMix64;
-use crate::raster::{DepthLayers, LayerSpacing, LayeredInput, PreparedScene, View};
+use crate::raster::{DepthLayers, LayerSpacing, LayeredInput, PreparedScene, Reach, View};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::{Error, Result};
@@ -236,6 +236,28 @@ pub fn decompose(
     lens: ThinLens,
     settings: &MultiviewSettings,
 ) -> Result<DepthLayers> {
+    decompose_with_band(prepared, lens, settings, None)
+}
+
+/// How far from a pixel of the frame the trace reads a layer, per axis, in the layer's CoC
+/// radii: the rays' offsets `|C v|` (`longest` the longest `|v|` of the sample sets), and the
+/// cones' mipmap reads (bilinear on a level whose texels are at most `2 lambda |C|` wide, so
+/// texels up to `3 lambda |C|` away).
+pub fn read_radii(longest: f32, lambda: f32) -> f32 {
+    longest + 3.0 * lambda
+}
+
+/// [`decompose`] of a frame with a guard band of `band.0` pixels on each side, whose surfaces
+/// are dropped (before they are shaded) where no ray of the frame reads them: farther from the
+/// frame, along either axis, than `band.1` ([`read_radii`]) times the largest CoC they can be
+/// traced at, plus two pixels. The trace reads the same values, so the image
+/// is the same.
+fn decompose_with_band(
+    prepared: &PreparedScene,
+    lens: ThinLens,
+    settings: &MultiviewSettings,
+    band: Option<(usize, f32)>,
+) -> Result<DepthLayers> {
     let spacing = spacing_for(lens, settings, coc_range(prepared, &lens));
     crate::budget::check(
         peak_bytes(&lens, spacing.layers),
@@ -248,6 +270,24 @@ pub fn decompose(
     let view = View::pinhole(lens);
     let binned = settings.input.bin(prepared, &view);
     let mut layers = DepthLayers::new(spacing, lens.width_px, lens.height_px);
+    if let Some((guard, radii)) = band.filter(|b| b.0 > 0) {
+        // A surface of CoC C is traced in its layer, at CoCs up to a layer and the entry
+        // margin beyond C, or in the layer it overlaps (within the margin of the boundary), a
+        // layer and the margin beyond that.
+        let beyond = (1.0 + 2.0 * spacing.overlap) * spacing.delta_px;
+        layers = layers.with_reach(Reach {
+            frame: (
+                guard,
+                guard,
+                lens.width_px.saturating_sub(2 * guard),
+                lens.height_px.saturating_sub(2 * guard),
+            ),
+            lens,
+            factor: radii,
+            slack_px: radii * beyond + 2.0,
+            square: true,
+        });
+    }
     binned.rasterize(prepared, &mut layers);
     Ok(layers)
 }
@@ -360,9 +400,17 @@ fn render_with(
     // just outside it; only the frame is traced.
     let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
-    let layers = timings.time(pass::DECOMPOSE, || decompose(&prepared, lens, settings))?;
     let (sets, noise) = sample_sets(settings)?;
     let lambda = trace::mean_spacing(&sets[0]);
+    let longest = sets
+        .iter()
+        .flatten()
+        .map(|v| v.length())
+        .fold(0.0f32, f32::max);
+    let band = Some((guard, read_radii(longest, lambda)));
+    let layers = timings.time(pass::DECOMPOSE, || {
+        decompose_with_band(&prepared, lens, settings, band)
+    })?;
     let m = layers.spacing.layers;
     let (w, h) = (layers.width, layers.height);
     // The mipmaps and culling skip the empty layers.
