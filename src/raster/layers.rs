@@ -210,6 +210,12 @@ impl LayersTile {
         l * self.rect.width() * self.rect.height() + i
     }
 
+    /// Whether a fragment at `depth_m` in pixel `i` of the tile lies beyond the frame's reach.
+    #[inline(always)]
+    fn unread(&self, i: usize, depth_m: f32) -> bool {
+        self.limit.get(i).is_some_and(|&z| depth_m >= z)
+    }
+
     #[inline]
     fn is_used(&self, s: usize) -> bool {
         self.used[s / 64] & (1 << (s % 64)) != 0
@@ -284,14 +290,6 @@ impl LayersTile {
                 k += 1;
             }
         }
-    }
-}
-
-impl LayersTile {
-    /// Whether a fragment at `depth_m` in pixel `i` of the tile lies beyond the frame's reach.
-    #[inline(always)]
-    fn unread(&self, i: usize, depth_m: f32) -> bool {
-        self.limit.get(i).is_some_and(|&z| depth_m >= z)
     }
 }
 

@@ -250,8 +250,7 @@ pub fn read_radii(longest: f32, lambda: f32) -> f32 {
 /// [`decompose`] of a frame with a guard band of `band.0` pixels on each side, whose surfaces
 /// are dropped (before they are shaded) where no ray of the frame reads them: farther from the
 /// frame, along either axis, than `band.1` ([`read_radii`]) times the largest CoC they can be
-/// traced at, plus two pixels. The trace reads the same values, so the image
-/// is the same.
+/// traced at, plus two pixels. The trace reads the same values, so the image is the same.
 fn decompose_with_band(
     prepared: &PreparedScene,
     lens: ThinLens,
