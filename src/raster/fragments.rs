@@ -758,12 +758,12 @@ impl Sink for FragmentLists {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::lens::ThinLens;
 
     /// `C(z) = 10 (1/2 - 1/z)` pixels: in focus at 2 m, 5 px at infinity.
-    fn reach() -> Reach {
+    pub(in crate::raster) fn reach() -> Reach {
         Reach {
             frame: (40, 40, 100, 60),
             lens: ThinLens {
@@ -804,21 +804,28 @@ mod tests {
         );
     }
 
+    /// A tile of the guard band left of [`reach`]'s frame, holding pixel (8, 70).
+    pub(in crate::raster) const BAND_TILE: TileRect = TileRect {
+        x0: 0,
+        y0: 64,
+        x1: 16,
+        y1: 72,
+    };
+
+    /// `tile` (of [`BAND_TILE`]) drops at pixel (8, 70) the fragments at or behind `limit`, as
+    /// if hidden, and keeps nearer ones.
+    pub(in crate::raster) fn assert_drops_from(tile: &impl TileSink, limit: f32) {
+        assert!(tile.occluded(8, 70, limit));
+        assert!(tile.occluded(8, 70, 50.0));
+        assert!(!tile.occluded(8, 70, limit * 0.99));
+    }
+
     /// A fragment at or behind the limit is dropped as if hidden, nearer ones are kept.
     #[test]
     fn a_tile_drops_what_cannot_reach_the_frame() {
         let r = reach();
         let lists = FragmentLists::new(180, 140, 4).with_reach(r);
-        let tile = lists.begin_tile(TileRect {
-            x0: 0,
-            y0: 64,
-            x1: 16,
-            y1: 72,
-        });
-        let z = r.depth_limit(8, 70);
-        assert!(tile.occluded(8, 70, z));
-        assert!(tile.occluded(8, 70, 50.0));
-        assert!(!tile.occluded(8, 70, z * 0.99));
+        assert_drops_from(&lists.begin_tile(BAND_TILE), r.depth_limit(8, 70));
     }
 
     /// The fragments of pixel (0, 0) of a one-pixel list of `cap` slots fed `frags` in

@@ -407,43 +407,26 @@ mod tests {
     /// depth limits and keeps nearer ones; a tile inside the frame drops nothing.
     #[test]
     fn a_band_tile_drops_what_the_frame_cannot_read() {
-        // `C(z) = 10 (1/2 - 1/z)` pixels: in focus at 2 m, 5 px at infinity.
-        let lens = ThinLens {
-            width_px: 180,
-            height_px: 140,
-            f_px: 1000.0,
-            lens_radius_m: 0.01,
-            focus_m: 2.0,
-            near_m: 0.01,
-            far_m: 1e4,
-        };
+        use crate::raster::fragments::tests::{assert_drops_from, reach, BAND_TILE};
+        // The fragment lists' test lens and frame, with square distances as multiview's band.
         let reach = Reach {
-            frame: (40, 40, 100, 60),
-            lens,
             factor: 1.5,
             slack_px: 3.0,
             square: true,
+            ..reach()
         };
         let spacing = LayerSpacing {
-            lens,
+            lens: reach.lens,
             coc_near_px: -40.0,
             delta_px: 4.0,
             layers: 12,
             overlap: 0.1,
         };
         let layers = DepthLayers::new(spacing, 180, 140).with_reach(reach);
-        let band = layers.begin_tile(TileRect {
-            x0: 0,
-            y0: 64,
-            x1: 16,
-            y1: 72,
-        });
         // 31.5 px left of the frame: only CoCs of (31.5 - 3) / 1.5 = 19 px or more are read.
         let z = reach.depth_limit(8, 70);
-        assert!((lens.coc_px(z) + 19.0).abs() < 1e-3, "{z}");
-        assert!(band.occluded(8, 70, z));
-        assert!(band.occluded(8, 70, 50.0));
-        assert!(!band.occluded(8, 70, z * 0.99));
+        assert!((reach.lens.coc_px(z) + 19.0).abs() < 1e-3, "{z}");
+        assert_drops_from(&layers.begin_tile(BAND_TILE), z);
         let inside = layers.begin_tile(TileRect {
             x0: 48,
             y0: 48,

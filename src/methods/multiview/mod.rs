@@ -243,7 +243,7 @@ pub fn decompose(
 /// radii: the rays' offsets `|C v|` (`longest` the longest `|v|` of the sample sets), and the
 /// cones' mipmap reads (bilinear on a level whose texels are at most `2 lambda |C|` wide, so
 /// texels up to `3 lambda |C|` away).
-pub fn read_radii(longest: f32, lambda: f32) -> f32 {
+fn read_radii(longest: f32, lambda: f32) -> f32 {
     longest + 3.0 * lambda
 }
 
