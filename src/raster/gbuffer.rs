@@ -43,8 +43,8 @@ impl GBuffer {
     pub fn new(width: usize, height: usize) -> Self {
         // Filled in parallel: a frame is megabytes, and rasterizing overwrites it anyway.
         let n = width * height;
-        let color = (0..n).into_par_iter().map(|_| [0.0; 4]).collect();
-        let depth = (0..n).into_par_iter().map(|_| f32::INFINITY).collect();
+        let color = super::filled_in_parallel([0.0; 4], n);
+        let depth = super::filled_in_parallel(f32::INFINITY, n);
         Self {
             color: ColorImage::from_vec(width, height, color).expect("size matches"),
             depth: GrayImage::from_vec(width, height, depth).expect("size matches"),

@@ -23,6 +23,7 @@
 //! neighbour layer: a partly transparent one written twice would be met twice by one ray.
 
 use half::f16;
+use rayon::prelude::*;
 
 use super::fragments::CocScale;
 use super::{to_half, Fragment, HalfRgba, HeldFragment, Reach, Sink, TileRect, TileSink};
@@ -138,8 +139,8 @@ impl DepthLayers {
             spacing,
             width,
             height,
-            coc_px: vec![f32::INFINITY; n],
-            color: vec![[f16::ZERO; 4]; n],
+            coc_px: super::filled_in_parallel(f32::INFINITY, n),
+            color: super::filled_in_parallel([f16::ZERO; 4], n),
             pool: Pool::default(),
             written: vec![false; spacing.layers],
             reach: None,
@@ -376,26 +377,45 @@ impl Sink for DepthLayers {
     }
 
     fn end_tile(&mut self, rect: TileRect, tile: LayersTile) {
-        let (tw, n) = (rect.width(), rect.width() * rect.height());
-        for &(s, coc, color) in &tile.kept {
-            let (l, i) = (s as usize / n, s as usize % n);
-            let d = self.index(l, rect.x0 + i % tw, rect.y0 + i / tw);
-            self.coc_px[d] = coc;
-            self.color[d] = color;
-            self.written[l] = true;
-        }
+        self.keep(&[(rect, tile)]);
     }
 
     fn end_tiles(&mut self, tiles: Vec<(TileRect, LayersTile)>) {
-        for (rect, tile) in tiles {
-            self.end_tile(rect, tile);
-        }
+        self.keep(&tiles);
         // The pass is over: its scratch buffers go.
         self.pool
             .0
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .clear();
+    }
+}
+
+impl DepthLayers {
+    /// Copies the tiles' kept surfaces into the layers, a layer to a task (a tile's list is in
+    /// slot order, so layer after layer).
+    fn keep(&mut self, tiles: &[(TileRect, LayersTile)]) {
+        let (w, plane) = (self.width, self.width * self.height);
+        self.coc_px
+            .par_chunks_mut(plane)
+            .zip(self.color.par_chunks_mut(plane))
+            .zip(self.written.par_iter_mut())
+            .enumerate()
+            .for_each(|(l, ((coc_px, color), written))| {
+                for (rect, tile) in tiles {
+                    let (tw, n) = (rect.width(), rect.width() * rect.height());
+                    let kept = &tile.kept;
+                    let start = kept.partition_point(|k| (k.0 as usize) < l * n);
+                    let end = kept.partition_point(|k| (k.0 as usize) < (l + 1) * n);
+                    for &(s, coc, c) in &kept[start..end] {
+                        let i = s as usize - l * n;
+                        let d = (rect.y0 + i / tw) * w + rect.x0 + i % tw;
+                        coc_px[d] = coc;
+                        color[d] = c;
+                    }
+                    *written |= start < end;
+                }
+            });
     }
 }
 

@@ -52,6 +52,16 @@ use crate::lens::ThinLens;
 use crate::scene::{AlphaMode, Scene};
 use crate::Result;
 
+/// `n` copies of `value`, written by all threads: a layer stack or fragment store is tens to
+/// hundreds of megabytes, and the first write to each page (the kernel clears it) is most of
+/// the cost (`vec!` wrote 142 MB of `multiview`'s layers on one thread in 74 ms of its 255 ms
+/// `decompose` on `railing` at 1280x720).
+pub(crate) fn filled_in_parallel<T: Copy + Send + Sync>(value: T, n: usize) -> Vec<T> {
+    let mut v = Vec::with_capacity(n);
+    v.par_extend((0..n).into_par_iter().map(|_| value));
+    v
+}
+
 /// Tile side in pixels. 64 rather than 32: a quarter of the per-triangle, per-tile setup
 /// (shader, row runs), 3 % faster on `raster/pinhole/railing` with the same output; a tile's
 /// buffers (96 KiB) still fit in L2.

@@ -382,12 +382,15 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
 
 /// Per sample set, ray and layer, what the trace of a ray needs that does not depend on the
 /// pixel: its speed `|v|` (pixels per pixel of CoC), and in each layer its number of steps and
-/// its CoC step (computed as [`layer`] computes them, so the same bits).
+/// its CoC step (computed as [`layer`] computes them, so the same bits); and per layer, where
+/// the rays that pass it graze it ([`graze_level`], the same for every ray: a `log2` per layer
+/// instead of one per packet and layer).
 pub struct RayTable {
     rays: usize,
     layers: usize,
     speed: Vec<f32>,
     steps: Vec<(u32, f32)>,
+    graze: Vec<Option<(f32, ConeLevel)>>,
 }
 
 impl RayTable {
@@ -413,6 +416,7 @@ impl RayTable {
             layers,
             speed,
             steps,
+            graze: (0..layers).map(|l| graze_level(input, l)).collect(),
         }
     }
 
@@ -503,7 +507,7 @@ fn trace_packet(
         } else {
             crossings(&segment, &lanes)
         };
-        if let (Some((c, level)), Some(mips)) = (graze_level(input, l), input.mips) {
+        if let (Some((c, level)), Some(mips)) = (table.graze[l], input.mips) {
             // `graze_at` for the lanes that passed the layer, their cones read together.
             let mut reads = ConeReads::new();
             for j in 0..LANES {
