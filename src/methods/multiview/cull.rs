@@ -25,11 +25,9 @@ impl WindowMin {
     pub fn new(values: &[f32], width: usize, height: usize, radius: usize) -> Self {
         assert_eq!(values.len(), width * height, "image size");
         let rows = rows_min(values, width, radius);
-        let across = transpose(&rows, width, height);
-        let both = rows_min(&across, height, radius);
         Self {
             width,
-            values: transpose(&both, height, width),
+            values: columns_min(&rows, width, height, radius),
         }
     }
 
@@ -110,28 +108,64 @@ fn running_min(src: &[f32], radius: usize, dst: &mut [f32], scratch: &mut Scratc
     }
 }
 
-/// The transpose of a `width x height` row-major image, in tiles.
-fn transpose(values: &[f32], width: usize, height: usize) -> Vec<f32> {
-    const TILE: usize = 32;
+/// Each column of `values` (`width x height`, row-major) replaced by its running minimum of
+/// radius `radius`: [`running_min`]'s blocks, a whole row at a time (the rows are contiguous,
+/// so the minima run along them eight or sixteen columns to an instruction, with no
+/// transpose). Block `b` of the padded column gives the output rows whose windows start in it,
+/// from its suffix minima and the next block's prefix minima: a task per block.
+fn columns_min(values: &[f32], width: usize, height: usize, radius: usize) -> Vec<f32> {
     let mut out = vec![0.0f32; values.len()];
-    if height == 0 {
+    if width == 0 || height == 0 {
         return out;
     }
-    // Output rows are input columns: a band of TILE output rows per task.
-    out.par_chunks_mut(height * TILE)
-        .enumerate()
-        .for_each(|(band, dst)| {
-            let x0 = band * TILE;
-            let xs = dst.len() / height;
-            for y0 in (0..height).step_by(TILE) {
-                for y in y0..(y0 + TILE).min(height) {
-                    let row = &values[y * width + x0..][..xs];
-                    for (dx, &v) in row.iter().enumerate() {
-                        dst[dx * height + y] = v;
+    let radius = radius.min(height);
+    let k = 2 * radius + 1;
+    // Row `i` of the column padded with +inf by `radius` at both ends.
+    let row = |i: usize| {
+        (i >= radius && i - radius < height).then(|| &values[(i - radius) * width..][..width])
+    };
+    out.par_chunks_mut(k * width).enumerate().for_each_init(
+        Vec::new,
+        |scratch: &mut Vec<f32>, (b, dst)| {
+            // The block's suffix minima, then the next block's prefix minima, row by row.
+            scratch.clear();
+            scratch.resize((2 * k + 1) * width, f32::INFINITY);
+            let (suffix, rest) = scratch.split_at_mut(k * width);
+            let (prefix, run) = rest.split_at_mut(k * width);
+            let start = b * k;
+            for (j, s) in suffix.chunks_exact_mut(width).enumerate().rev() {
+                if let Some(src) = row(start + j) {
+                    for (r, &v) in run.iter_mut().zip(src) {
+                        *r = r.min(v);
+                    }
+                }
+                s.copy_from_slice(run);
+            }
+            run.fill(f32::INFINITY);
+            for (j, p) in prefix.chunks_exact_mut(width).enumerate() {
+                if let Some(src) = row(start + k + j) {
+                    for (r, &v) in run.iter_mut().zip(src) {
+                        *r = r.min(v);
+                    }
+                }
+                p.copy_from_slice(run);
+            }
+            // A window starting at padded row `a` (output row `a`) ends at `a + k - 1`.
+            for (j, d) in dst.chunks_exact_mut(width).enumerate() {
+                let s = &suffix[j * width..][..width];
+                match j.checked_sub(1) {
+                    // The window is the block itself.
+                    None => d.copy_from_slice(s),
+                    Some(i) => {
+                        let p = &prefix[i * width..][..width];
+                        for ((o, &a), &c) in d.iter_mut().zip(s).zip(p) {
+                            *o = a.min(c);
+                        }
                     }
                 }
             }
-        });
+        },
+    );
     out
 }
 

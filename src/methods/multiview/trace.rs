@@ -64,24 +64,33 @@ impl LayerMip {
     pub fn new(layers: &DepthLayers, l: usize, max_level: usize) -> Self {
         let (w, h) = (layers.width, layers.height);
         let mut levels: Vec<(usize, usize, Vec<Rgba>)> = Vec::new();
-        if max_level > 0 && w * h > 0 {
-            // Level 0, the layer's colours (converted a slice at a time: F16C where the CPU
-            // has it, the same values), empty pixels transparent black.
-            let plane = l * w * h..(l + 1) * w * h;
-            let mut base = vec![[0.0f32; 4]; w * h];
-            layers.color[plane.clone()]
-                .as_flattened()
-                .convert_to_f32_slice(base.as_flattened_mut());
-            for (c, coc) in base.iter_mut().zip(&layers.coc_px[plane]) {
-                if !coc.is_finite() {
-                    *c = [0.0; 4];
+        if max_level > 0 && w * h > 0 && (w, h) != (1, 1) {
+            // Level 1 from the layer's colours, two rows at a time (converted a slice at a
+            // time: F16C where the CPU has it, the same values), empty pixels transparent
+            // black: the layer is never held whole in f32.
+            let plane = l * w * h;
+            let load = |y: usize, row: &mut [Rgba]| {
+                let at = plane + y * w..plane + (y + 1) * w;
+                layers.color[at.clone()]
+                    .as_flattened()
+                    .convert_to_f32_slice(row.as_flattened_mut());
+                for (c, coc) in row.iter_mut().zip(&layers.coc_px[at]) {
+                    if !coc.is_finite() {
+                        *c = [0.0; 4];
+                    }
                 }
+            };
+            let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+            let mut first = vec![[0.0f32; 4]; nw * nh];
+            let (mut r0, mut r1) = (vec![[0.0f32; 4]; w], vec![[0.0f32; 4]; w]);
+            for (y, row) in first.chunks_exact_mut(nw).enumerate() {
+                load(2 * y, &mut r0);
+                load((2 * y + 1).min(h - 1), &mut r1);
+                halve_row(&r0, &r1, row);
             }
-            // `cur` is the last level made; each level made pushes the one before it (not
-            // level 0, which the hits read from the layer itself).
-            let mut cur = (w, h, base);
-            let mut made = false;
-            for _ in 0..max_level {
+            // `cur` is the last level made; each level made pushes the one before it.
+            let mut cur = (nw, nh, first);
+            for _ in 1..max_level {
                 let (pw, ph, ref p) = cur;
                 if pw == 1 && ph == 1 {
                     break;
@@ -89,27 +98,13 @@ impl LayerMip {
                 let (nw, nh) = (pw.div_ceil(2), ph.div_ceil(2));
                 let mut next = vec![[0.0f32; 4]; nw * nh];
                 for (y, row) in next.chunks_exact_mut(nw).enumerate() {
-                    let (r0, r1) = (2 * y * pw, (2 * y + 1).min(ph - 1) * pw);
-                    for (x, out) in row.iter_mut().enumerate() {
-                        let (x0, x1) = (2 * x, (2 * x + 1).min(pw - 1));
-                        let mut s = [0.0f32; 4];
-                        for c in [p[r0 + x0], p[r0 + x1], p[r1 + x0], p[r1 + x1]] {
-                            for k in 0..4 {
-                                s[k] += 0.25 * c[k];
-                            }
-                        }
-                        *out = s;
-                    }
+                    let r0 = &p[2 * y * pw..][..pw];
+                    let r1 = &p[(2 * y + 1).min(ph - 1) * pw..][..pw];
+                    halve_row(r0, r1, row);
                 }
-                let before = std::mem::replace(&mut cur, (nw, nh, next));
-                if made {
-                    levels.push(before);
-                }
-                made = true;
+                levels.push(std::mem::replace(&mut cur, (nw, nh, next)));
             }
-            if made {
-                levels.push(cur);
-            }
+            levels.push(cur);
         }
         let dims = levels.iter().map(|l| [l.0 as i32, l.1 as i32]).collect();
         Self { levels, dims }
@@ -150,6 +145,23 @@ impl LayerMip {
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         self.levels.iter().map(|l| l.2.len() * 16).sum()
+    }
+}
+
+/// A row of the next mipmap level from two rows `r0`, `r1` of a level: the mean of each 2x2
+/// block (the last column repeated where the width is odd).
+#[inline]
+fn halve_row(r0: &[Rgba], r1: &[Rgba], out: &mut [Rgba]) {
+    let last = r0.len() - 1;
+    for (x, o) in out.iter_mut().enumerate() {
+        let (x0, x1) = (2 * x, (2 * x + 1).min(last));
+        let mut s = [0.0f32; 4];
+        for c in [r0[x0], r0[x1], r1[x0], r1[x1]] {
+            for k in 0..4 {
+                s[k] += 0.25 * c[k];
+            }
+        }
+        *o = s;
     }
 }
 
