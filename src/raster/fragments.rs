@@ -22,6 +22,7 @@
 //! for fragments side by side, so that a surface cut by a triangle edge stays opaque.
 
 use half::f16;
+use rayon::prelude::*;
 
 use super::{Fragment, Sink, TileRect, TileSink, COVERAGE_SAMPLES, FULL_COVERAGE};
 use crate::image::Rgba;
@@ -375,34 +376,84 @@ impl FragmentLists {
     }
 
     /// Moves the finished tiles into the compact arrays: counts per pixel, prefix sum, fill.
-    /// Called by the rasterizing code after the last tile.
+    /// Called by the rasterizing code after the last tile. The tiles of a row of tiles (the
+    /// same rows of the image) fill one contiguous run of the arrays, so the rows of tiles are
+    /// copied side by side, a row to a task.
     pub fn compact(&mut self) {
-        let w = self.width;
-        let mut counts = vec![0u32; w * self.height];
-        for (rect, tile) in &self.tiles {
-            for (k, &c) in tile.counts.iter().enumerate() {
-                let (tx, ty) = (k % rect.width(), k / rect.width());
-                counts[(rect.y0 + ty) * w + rect.x0 + tx] = c;
+        let (w, n) = (self.width, self.width * self.height);
+        let tiles = std::mem::take(&mut self.tiles);
+        // Bands of tiles over the same rows, in row order; tiles in any other order (not the
+        // rasterizer's) make one band of the whole image.
+        type Band<'a> = (usize, usize, Vec<&'a (TileRect, FragmentTile)>);
+        let mut bands: Vec<Band> = Vec::new();
+        for t in &tiles {
+            match bands.last_mut() {
+                Some((y0, y1, band)) if (*y0, *y1) == (t.0.y0, t.0.y1) => band.push(t),
+                _ => bands.push((t.0.y0, t.0.y1, vec![t])),
             }
         }
+        if !bands.windows(2).all(|b| b[0].1 <= b[1].0) {
+            bands = vec![(0, self.height, tiles.iter().collect())];
+        }
+        // Each band's pixels, and later its fragments, as a slice of its own.
+        fn split<T>(
+            mut rest: &mut [T],
+            ends: impl Iterator<Item = (usize, usize)>,
+        ) -> Vec<&mut [T]> {
+            let mut at = 0;
+            let mut out = Vec::new();
+            for (a, b) in ends {
+                let (_, tail) = std::mem::take(&mut rest).split_at_mut(a - at);
+                let (mine, tail) = tail.split_at_mut(b - a);
+                out.push(mine);
+                rest = tail;
+                at = b;
+            }
+            out
+        }
+        let mut counts = vec![0u32; n];
+        split(&mut counts, bands.iter().map(|b| (b.0 * w, b.1 * w)))
+            .into_par_iter()
+            .zip(&bands)
+            .for_each(|(counts, (y0, _, band))| {
+                for (rect, tile) in band {
+                    for (k, &c) in tile.counts.iter().enumerate() {
+                        let (tx, ty) = (k % rect.width(), k / rect.width());
+                        counts[(rect.y0 - y0 + ty) * w + rect.x0 + tx] = c;
+                    }
+                }
+            });
         self.offsets[0] = 0;
         for (i, &c) in counts.iter().enumerate() {
             self.offsets[i + 1] = self.offsets[i] + c;
         }
-        let total = self.offsets[counts.len()] as usize;
-        self.depth = vec![0.0; total];
-        self.color = vec![[f16::ZERO; 4]; total];
-        for (rect, tile) in std::mem::take(&mut self.tiles) {
-            let mut src = 0usize;
-            for (k, &c) in tile.counts.iter().enumerate() {
-                let (tx, ty) = (k % rect.width(), k / rect.width());
-                let dst = self.offsets[(rect.y0 + ty) * w + rect.x0 + tx] as usize;
-                let c = c as usize;
-                self.depth[dst..dst + c].copy_from_slice(&tile.out_depth[src..src + c]);
-                self.color[dst..dst + c].copy_from_slice(&tile.out_color[src..src + c]);
-                src += c;
-            }
-        }
+        let total = self.offsets[n] as usize;
+        self.depth = super::filled_in_parallel(0.0, total);
+        self.color = super::filled_in_parallel([f16::ZERO; 4], total);
+        let offsets = &self.offsets;
+        let runs = || {
+            bands
+                .iter()
+                .map(|b| (offsets[b.0 * w] as usize, offsets[b.1 * w] as usize))
+        };
+        split(&mut self.depth, runs())
+            .into_par_iter()
+            .zip(split(&mut self.color, runs()))
+            .zip(&bands)
+            .for_each(|((depth, color), (y0, _, band))| {
+                let base = offsets[y0 * w] as usize;
+                for (rect, tile) in band {
+                    let mut src = 0usize;
+                    for (k, &c) in tile.counts.iter().enumerate() {
+                        let (tx, ty) = (k % rect.width(), k / rect.width());
+                        let dst = offsets[(rect.y0 + ty) * w + rect.x0 + tx] as usize - base;
+                        let c = c as usize;
+                        depth[dst..dst + c].copy_from_slice(&tile.out_depth[src..src + c]);
+                        color[dst..dst + c].copy_from_slice(&tile.out_color[src..src + c]);
+                        src += c;
+                    }
+                }
+            });
     }
 }
 
