@@ -917,6 +917,74 @@ pub(super) mod tests {
         out
     }
 
+    /// Lists built by several tiles, rows of tiles copied side by side, read back pixel by
+    /// pixel: each pixel its own fragments, nearest first, whichever tile (a partial one at the
+    /// right and bottom edges) held them; tiles in another order than the rasterizer's give the
+    /// same lists.
+    #[test]
+    fn compacted_lists_hold_each_pixels_fragments() {
+        let (w, h) = (150usize, 70usize);
+        // Pixel, then its fragments' depths.
+        let pixels: [((usize, usize), &[f32]); 5] = [
+            ((3, 5), &[1.0, 4.0]),
+            ((70, 10), &[2.5]),
+            ((149, 69), &[0.5, 3.0, 6.0]),
+            ((64, 64), &[2.0]),
+            ((10, 66), &[1.5, 1.75]),
+        ];
+        let rects: Vec<TileRect> = (0..h.div_ceil(64))
+            .flat_map(|ty| {
+                (0..w.div_ceil(64)).map(move |tx| TileRect {
+                    x0: tx * 64,
+                    y0: ty * 64,
+                    x1: ((tx + 1) * 64).min(w),
+                    y1: ((ty + 1) * 64).min(h),
+                })
+            })
+            .collect();
+        for reversed in [false, true] {
+            let mut lists = FragmentLists::new(w, h, 4);
+            let mut order = rects.clone();
+            if reversed {
+                order.reverse();
+            }
+            for rect in order {
+                let mut tile = lists.begin_tile(rect);
+                for &((x, y), depths) in &pixels {
+                    if !((rect.x0..rect.x1).contains(&x) && (rect.y0..rect.y1).contains(&y)) {
+                        continue;
+                    }
+                    // Farthest first: the list sorts them.
+                    for &z in depths.iter().rev() {
+                        tile.fragment(&Fragment {
+                            x: x as u32,
+                            y: y as u32,
+                            depth_m: z,
+                            color: [z / 8.0, 0.5, 0.25, 0.5],
+                            blend: true,
+                            coverage: FULL_COVERAGE,
+                            dithered: false,
+                            back_facing: false,
+                        });
+                    }
+                }
+                tile.finish();
+                lists.end_tile(rect, tile);
+            }
+            lists.compact();
+            let total: usize = pixels.iter().map(|p| p.1.len()).sum();
+            assert_eq!(lists.depths().len(), total, "reversed {reversed}");
+            for &((x, y), depths) in &pixels {
+                let (d, c) = lists.pixel(x, y);
+                assert_eq!(d, depths, "({x}, {y}), reversed {reversed}");
+                for (c, &z) in c.iter().zip(depths) {
+                    assert_eq!(c[0], to_half([z / 8.0 * 0.5; 4])[0], "({x}, {y})");
+                }
+            }
+            assert_eq!(lists.pixel(4, 5).0.len(), 0);
+        }
+    }
+
     /// A full list keeps, merged, what it has no slot for: behind an opaque near surface and an
     /// anti-aliased edge (half the samples), the surface behind the edge still fills the other
     /// half, in whichever order the fragments arrive. The papers' nearest-N list drops it.

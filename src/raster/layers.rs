@@ -396,6 +396,10 @@ impl DepthLayers {
     /// slot order, so layer after layer).
     fn keep(&mut self, tiles: &[(TileRect, LayersTile)]) {
         let (w, plane) = (self.width, self.width * self.height);
+        if plane == 0 {
+            // No pixels, so no surfaces (and no chunks to cut).
+            return;
+        }
         self.coc_px
             .par_chunks_mut(plane)
             .zip(self.color.par_chunks_mut(plane))
@@ -422,6 +426,88 @@ impl DepthLayers {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Surfaces written by several tiles land in their own layer and pixel (the copy runs a
+    /// layer to a task), the layers no tile wrote stay empty and say so, and a stack of no
+    /// pixels takes its tiles back without a fault.
+    #[test]
+    fn tiles_copy_their_surfaces_to_their_layers_and_pixels() {
+        use crate::raster::fragments::tests::reach;
+        use crate::raster::FULL_COVERAGE;
+        let lens = reach().lens;
+        let spacing = LayerSpacing {
+            lens,
+            coc_near_px: -10.0,
+            delta_px: 4.0,
+            layers: 6,
+            overlap: 0.0,
+        };
+        let (w, h) = (150, 70);
+        let mut layers = DepthLayers::new(spacing, w, h);
+        // One opaque surface per pixel, at a depth and in a colour of its own, in 3x2 tiles.
+        let surfaces = [
+            (3, 5, 1.2f32),
+            (70, 10, 2.0),
+            (140, 65, 9.0),
+            (64, 64, 2.0),
+            (10, 66, 1.5),
+        ];
+        let rects: Vec<TileRect> = (0..h.div_ceil(64))
+            .flat_map(|ty| {
+                (0..w.div_ceil(64)).map(move |tx| TileRect {
+                    x0: tx * 64,
+                    y0: ty * 64,
+                    x1: ((tx + 1) * 64).min(w),
+                    y1: ((ty + 1) * 64).min(h),
+                })
+            })
+            .collect();
+        let tiles = rects
+            .iter()
+            .map(|&rect| {
+                let mut tile = layers.begin_tile(rect);
+                for (k, &(x, y, z)) in surfaces.iter().enumerate() {
+                    if (rect.x0..rect.x1).contains(&x) && (rect.y0..rect.y1).contains(&y) {
+                        tile.fragment(&Fragment {
+                            x: x as u32,
+                            y: y as u32,
+                            depth_m: z,
+                            color: [0.1 * k as f32, 0.5, 0.25, 1.0],
+                            blend: false,
+                            coverage: FULL_COVERAGE,
+                            dithered: false,
+                            back_facing: false,
+                        });
+                    }
+                }
+                tile.finish();
+                (rect, tile)
+            })
+            .collect();
+        layers.end_tiles(tiles);
+        let mut written = [false; 6];
+        for (k, &(x, y, z)) in surfaces.iter().enumerate() {
+            let c = lens.coc_px(z);
+            let l = spacing.layer_of_coc(c);
+            written[l] = true;
+            let i = layers.index(l, x, y);
+            assert_eq!(layers.coc_px[i], c, "surface {k}");
+            assert_eq!(
+                layers.color[i][0],
+                to_half([0.1 * k as f32; 4])[0],
+                "surface {k}"
+            );
+        }
+        let stored = layers.coc_px.iter().filter(|c| c.is_finite()).count();
+        assert_eq!(stored, surfaces.len());
+        for (l, &w) in written.iter().enumerate() {
+            assert_eq!(layers.filled(l), w, "layer {l}");
+        }
+        assert!(written.iter().any(|&w| !w), "an empty layer is checked too");
+        let mut none = DepthLayers::new(spacing, 0, 0);
+        none.end_tiles(Vec::new());
+        assert!(!none.filled(0));
+    }
 
     /// A tile of the guard band drops, as if hidden, the fragments at or behind its pixels'
     /// depth limits and keeps nearer ones; a tile inside the frame drops nothing.
