@@ -1197,9 +1197,8 @@ impl ConeLevel {
 }
 
 /// `log2 x` for finite `x > 0` (not subnormal), within 3e-7 of the exact value and the sum's
-/// rounding to f32: the exponent,
-/// and for the mantissa `m` (taken into `[sqrt(1/2), sqrt(2))`) the series
-/// `log2 m = 2 / ln 2 (s + s^3 / 3 + s^5 / 5 + s^7 / 7)` of `s = (m - 1) / (m + 1)`,
+/// rounding to f32: the exponent, and for the mantissa `m` (taken into `[sqrt(1/2), sqrt(2))`)
+/// the series `log2 m = 2 / ln 2 (s + s^3 / 3 + s^5 / 5 + s^7 / 7)` of `s = (m - 1) / (m + 1)`,
 /// `|s| < 0.172`. Plain arithmetic and selects, no call: the compiler computes a packet's eight
 /// lanes together, where the library's `log2f` was a call per hit (2.3% of the trace).
 #[inline(always)]
