@@ -452,16 +452,7 @@ mod tests {
             (64, 64, 2.0),
             (10, 66, 1.5),
         ];
-        let rects: Vec<TileRect> = (0..h.div_ceil(64))
-            .flat_map(|ty| {
-                (0..w.div_ceil(64)).map(move |tx| TileRect {
-                    x0: tx * 64,
-                    y0: ty * 64,
-                    x1: ((tx + 1) * 64).min(w),
-                    y1: ((ty + 1) * 64).min(h),
-                })
-            })
-            .collect();
+        let rects = crate::raster::tile_grid(w, h);
         let tiles = rects
             .iter()
             .map(|&rect| {

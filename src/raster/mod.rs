@@ -62,6 +62,22 @@ pub(crate) fn filled_in_parallel<T: Copy + Send + Sync>(value: T, n: usize) -> V
     v
 }
 
+/// The [`TILE`]-pixel tiles of a `width x height` image, row-major (the last column and row
+/// of tiles cut at the image's edges): the order in which the rasterizer hands them to a
+/// [`Sink`].
+pub(crate) fn tile_grid(width: usize, height: usize) -> Vec<TileRect> {
+    (0..height.div_ceil(TILE))
+        .flat_map(|ty| {
+            (0..width.div_ceil(TILE)).map(move |tx| TileRect {
+                x0: tx * TILE,
+                y0: ty * TILE,
+                x1: ((tx + 1) * TILE).min(width),
+                y1: ((ty + 1) * TILE).min(height),
+            })
+        })
+        .collect()
+}
+
 /// Tile side in pixels. 64 rather than 32: a quarter of the per-triangle, per-tile setup
 /// (shader, row runs), 3 % faster on `raster/pinhole/railing` with the same output; a tile's
 /// buffers (96 KiB) still fit in L2.
@@ -435,8 +451,6 @@ pub const GUARD_BAND_MAX_FRACTION: f32 = 0.125;
 pub struct BinnedView {
     triangles: Vec<SetupTriangle>,
     bins: Vec<Vec<u32>>,
-    tiles_x: usize,
-    tiles_y: usize,
     width: usize,
     height: usize,
     lod_bias: f32,
@@ -563,8 +577,6 @@ impl BinnedView {
         Self {
             triangles,
             bins,
-            tiles_x,
-            tiles_y,
             width,
             height,
             lod_bias: view.lod_bias,
@@ -580,16 +592,7 @@ impl BinnedView {
     /// The tiles of the image, row-major: the `i`th rectangle is the one [`Sink`]s receive
     /// `i`th and [`BinnedView::rasterize_tile`] takes as `i`.
     pub fn tile_rects(&self) -> Vec<TileRect> {
-        (0..self.tiles_y)
-            .flat_map(|ty| {
-                (0..self.tiles_x).map(move |tx| TileRect {
-                    x0: tx * TILE,
-                    y0: ty * TILE,
-                    x1: ((tx + 1) * TILE).min(self.width),
-                    y1: ((ty + 1) * TILE).min(self.height),
-                })
-            })
-            .collect()
+        tile_grid(self.width, self.height)
     }
 
     /// Rasterizes the triangles of tile `index` (at `rect`, from [`BinnedView::tile_rects`])
