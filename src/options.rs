@@ -10,7 +10,7 @@ use crate::methods::gaussian::GaussianSettings;
 use crate::methods::hammon::{CocMode, HammonSettings, LerpDistances};
 use crate::methods::lowrank::LowRankSettings;
 use crate::methods::multilayer::{Bokeh, FilterSteps, MultilayerSettings};
-use crate::methods::multiview::{LayerCount, MultiviewSettings};
+use crate::methods::multiview::{LayerCount, MipFilter, MultiviewSettings};
 use crate::methods::poisson::{self, PoissonSettings};
 use crate::methods::reference::ReferenceSettings;
 use crate::methods::registry::MethodSettings;
@@ -239,6 +239,16 @@ pub struct PostArgs {
     /// that passes a layer also takes the coverage its cone meets there.
     #[arg(long, help_heading = "multiview", conflicts_with = "no_cone")]
     pub paper_cone: bool,
+    /// multiview: the cones' mipmap filter, `tent` (`[1 3 3 1]`: the same footprint wherever a
+    /// read falls among the texels, so the blur does not shift with the guard band from frame
+    /// to frame) or `box` (the paper's 2x2 means). Default tent, box with --paper-cone.
+    #[arg(
+        long,
+        value_name = "box|tent",
+        help_heading = "multiview",
+        conflicts_with = "no_cone"
+    )]
+    pub cone_mipmap: Option<String>,
     /// multiview: the same lens samples for every pixel (no jitter).
     #[arg(long, help_heading = "multiview")]
     pub no_jitter: bool,
@@ -605,6 +615,11 @@ impl PostArgs {
                     },
                     cone: !self.no_cone,
                     graze: !self.paper_cone,
+                    mip_filter: match &self.cone_mipmap {
+                        Some(name) => MipFilter::parse(name).context("invalid --cone-mipmap")?,
+                        None if self.paper_cone => MipFilter::Box,
+                        None => MipFilter::default(),
+                    },
                     jitter: !self.no_jitter,
                     culling: !self.no_culling,
                     input: self.layered_input(),

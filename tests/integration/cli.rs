@@ -226,6 +226,47 @@ fn the_diff_map_never_overwrites_an_input() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// `render --method multiview` reads its cones in the tent mipmap by default, `--cone-mipmap
+/// box` in the paper's (another image), and refuses an unknown filter, naming the flag and the
+/// choices.
+#[test]
+fn multiview_takes_a_cone_mipmap_and_refuses_an_unknown_one() {
+    let dir = temp_dir("cone-mipmap");
+    let size = [
+        "--width",
+        "96",
+        "--height",
+        "54",
+        "--method",
+        "multiview",
+        "--samples",
+        "8",
+    ];
+    let run =
+        |extra: &[&str], name: &str| render_image(&[&size[..], extra].concat(), &dir.join(name));
+    let default = run(&[], "default.exr");
+    let tent = run(&["--cone-mipmap", "tent"], "tent.exr");
+    let boxed = run(&["--cone-mipmap", "box"], "box.exr");
+    assert_eq!(default, tent);
+    assert_ne!(default, boxed);
+    let o = defocus(
+        &[
+            &["render"][..],
+            &size[..],
+            &["--cone-mipmap", "cubic", "--out", s(&dir.join("x.exr"))],
+        ]
+        .concat(),
+    );
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(
+        err.contains("--cone-mipmap") && err.contains("box, tent"),
+        "{err}"
+    );
+    assert!(!dir.join("x.exr").exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 /// `--ml-bokeh full` is taken by `render --method multilayer` (its images are tested in
 /// `multilayer.rs`), and an unknown bokeh is refused, naming the flag and the choices.
 #[test]

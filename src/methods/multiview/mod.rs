@@ -40,6 +40,11 @@
 //!   centre hits takes the surface's coverage of its cone, so an object thinner than the cones
 //!   blocks the square of its share of the light: the chart behind `railing`'s bars came out
 //!   1.2% too bright, and `railing` gains 1.8 dB (32 rays), Cycles' railing 0.7 dB.
+//! - The cones' mipmaps (default tent; `--cone-mipmap box`, or `--paper-cone`, for the paper's
+//!   2x2 box): levels filtered by the `[1 3 3 1]` tent and read for a cone `sqrt(3/5)` as wide
+//!   ([`MipFilter`]), the same footprint width as the box's, but one that does not change
+//!   with where a read falls among the texels. With the box it followed the guard band's width,
+//!   so the near blur shifted from frame to frame in a rack focus.
 
 pub mod cull;
 pub mod trace;
@@ -57,6 +62,7 @@ use crate::{Error, Result};
 
 use super::MethodOutput;
 use cull::WindowMin;
+pub use trace::MipFilter;
 use trace::{LayerMip, TraceInput};
 
 /// `--timings` labels of `multiview`.
@@ -116,6 +122,9 @@ pub struct MultiviewSettings {
     /// take its coverage, as the paper, which lets thin objects block too little light.
     /// Default on (measured in the README).
     pub graze: bool,
+    /// How the cones' mipmaps are filtered: the paper's 2x2 box, or a `[1 3 3 1]` tent whose
+    /// footprint does not follow the texels' phase (measured in the README). Default tent.
+    pub mip_filter: MipFilter,
     /// Per-pixel jitter of the sample set (section 4.5). Default on.
     pub jitter: bool,
     /// Early layer culling (section 4.3; the N-buffer query as a window minimum per pixel,
@@ -143,6 +152,7 @@ impl Default for MultiviewSettings {
             overlap: 0.1,
             cone: true,
             graze: true,
+            mip_filter: MipFilter::Tent,
             jitter: true,
             culling: true,
             input: LayeredInput::default(),
@@ -241,10 +251,10 @@ pub fn decompose(
 
 /// How far from a pixel of the frame the trace reads a layer, per axis, in the layer's CoC
 /// radii: the rays' offsets `|C v|` (`longest` the longest `|v|` of the sample sets), and the
-/// cones' mipmap reads (bilinear on a level whose texels are at most `2 lambda |C|` wide, so
-/// texels up to `3 lambda |C|` away).
-fn read_radii(longest: f32, lambda: f32) -> f32 {
-    longest + 3.0 * lambda
+/// pixels the cones' mipmap reads draw on, up to [`MipFilter::reach`] times the cone's
+/// diameter `lambda |C|` away.
+fn read_radii(longest: f32, lambda: f32, filter: MipFilter) -> f32 {
+    longest + filter.reach() * lambda
 }
 
 /// [`decompose`] of a frame with a guard band of `band.0` pixels on each side, whose surfaces
@@ -354,7 +364,7 @@ pub fn render(
     camera: &Camera,
     settings: &MultiviewSettings,
 ) -> Result<MethodOutput> {
-    render_with(scene, camera, settings, trace::trace)
+    render_with(scene, camera, settings, trace::trace, true)
 }
 
 /// [`render`] with the trace pass built for the portable baseline only
@@ -364,14 +374,17 @@ pub fn render_baseline(
     camera: &Camera,
     settings: &MultiviewSettings,
 ) -> Result<MethodOutput> {
-    render_with(scene, camera, settings, trace::trace_baseline)
+    render_with(scene, camera, settings, trace::trace_baseline, true)
 }
 
+/// [`render`] with the trace pass `trace_fn`; `trim`: the guard band's surfaces that no ray of
+/// the frame reads are dropped ([`decompose_with_band`]), which must not change the image.
 fn render_with(
     scene: &Scene,
     camera: &Camera,
     settings: &MultiviewSettings,
     trace_fn: fn(&TraceInput) -> ColorImage,
+    trim: bool,
 ) -> Result<MethodOutput> {
     settings.validate()?;
     if settings.effects.is_chromatic() {
@@ -387,7 +400,7 @@ fn render_with(
                 fstop: camera.fstop / scale,
                 ..camera.clone()
             };
-            render_with(scene, &channel_camera, &mono, trace_fn)
+            render_with(scene, &channel_camera, &mono, trace_fn, trim)
         });
     }
     let frame = camera.thin_lens()?;
@@ -406,7 +419,7 @@ fn render_with(
         .flatten()
         .map(|v| v.length())
         .fold(0.0f32, f32::max);
-    let band = Some((guard, read_radii(longest, lambda)));
+    let band = trim.then(|| (guard, read_radii(longest, lambda, settings.mip_filter)));
     let layers = timings.time(pass::DECOMPOSE, || {
         decompose_with_band(&prepared, lens, settings, band)
     })?;
@@ -421,16 +434,16 @@ fn render_with(
                 .into_par_iter()
                 .map(|l| {
                     let (a, b) = layers.spacing.bounds(l);
-                    let d = lambda * a.abs().max(b.abs());
+                    let d = lambda * settings.mip_filter.level_scale() * a.abs().max(b.abs());
                     let levels = if d > 1.0 {
                         d.log2().ceil() as usize + 1
                     } else {
                         0
                     };
                     if filled[l] {
-                        LayerMip::new(&layers, l, levels)
+                        LayerMip::new(&layers, l, levels, settings.mip_filter)
                     } else {
-                        LayerMip::new(&layers, l, 0)
+                        LayerMip::new(&layers, l, 0, settings.mip_filter)
                     }
                 })
                 .collect()
@@ -441,6 +454,7 @@ fn render_with(
         culls: None,
         filled: &filled,
         mips: mips.as_deref(),
+        mip_filter: settings.mip_filter,
         graze: settings.graze,
         sets: &sets,
         noise: &noise,
@@ -513,4 +527,35 @@ fn pinhole_depth(layers: &DepthLayers) -> Vec<f32> {
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::builtin;
+
+    #[test]
+    fn dropping_the_surfaces_no_ray_reads_changes_no_pixel() {
+        // The guard band's trimming keeps whatever a ray or a cone's mipmap read draws on, for
+        // either mipmap filter (the tent's reads reach farther): `traps`' railing crosses the
+        // frame's border, near enough for the largest band and blur. (Checked to fail with the
+        // tent's reach taken as 0.)
+        let scene = builtin::load("traps").unwrap();
+        let mut camera = scene.defaults.clone().unwrap().camera;
+        camera.width_px = 640;
+        camera.height_px = 360;
+        for mip_filter in [MipFilter::Box, MipFilter::Tent] {
+            let settings = MultiviewSettings {
+                samples: 16,
+                mip_filter,
+                ..MultiviewSettings::default()
+            };
+            let run = |trim| render_with(&scene, &camera, &settings, trace::trace, trim).unwrap();
+            let (trimmed, whole) = (run(true), run(false));
+            assert!(
+                trimmed.image == whole.image,
+                "{mip_filter:?}: trimming changed the image"
+            );
+        }
+    }
 }
