@@ -15,11 +15,44 @@ pub(crate) fn defocus(args: &[&str]) -> Output {
 }
 
 /// A fresh, empty temporary folder for one test (names are unique across the CLI tests).
-pub(crate) fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("defocus-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+pub(crate) fn temp_dir(name: &str) -> TempFolder {
+    TempFolder::new(&format!("defocus-cli-{}-{name}", std::process::id()))
+}
+
+/// A temporary folder, removed when dropped unless the test is failing (it is then kept, to
+/// look at): the tests' outputs do not pile up in the system's temporary folder.
+pub(crate) struct TempFolder(PathBuf);
+
+impl TempFolder {
+    /// The folder `name` in the system's temporary folder, emptied.
+    pub(crate) fn new(name: &str) -> Self {
+        let dir = std::env::temp_dir().join(name);
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        Self(dir)
+    }
+}
+
+impl std::ops::Deref for TempFolder {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TempFolder {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempFolder {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
 }
 
 /// The path as a command-line argument.

@@ -978,8 +978,7 @@ fn output_naming_the_input_file_is_refused() {
 
 #[test]
 fn jpeg_colour_is_read_and_srgb_decoded_and_refused_as_depth_or_output() {
-    let dir = std::env::temp_dir().join(format!("defocus-jpeg-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = TempDir::new("jpeg");
     let path = dir.join("photo.jpg");
     // A flat mid-grey JPEG: lossless enough at full quality for a flat image.
     let img = image::RgbImage::from_pixel(16, 8, image::Rgb([128, 128, 128]));
@@ -998,7 +997,6 @@ fn jpeg_colour_is_read_and_srgb_decoded_and_refused_as_depth_or_output() {
     assert!(e.to_string().contains("JPEG"), "{e}");
     let e = defocus::image::io::write_color(&dir.join("out.jpg"), &c).unwrap_err();
     assert!(e.to_string().contains("JPEG"), "{e}");
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// A data window's place in its display window: the offset, whether it is the whole frame, and

@@ -16,14 +16,12 @@ use defocus::scene::{AlphaMode, FilterMode, Material, Scene, WrapMode};
 use glam::{Affine3A, Mat4, Quat, Vec2, Vec3};
 use serde_json::{json, Value};
 
+use crate::cli::TempFolder;
 use crate::{add_screen_rect, shared_assets, test_camera};
 
-/// A fresh, empty temporary folder for one test.
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("defocus-scenes-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A fresh, empty temporary folder for one test, removed when it passes.
+fn temp_dir(name: &str) -> TempFolder {
+    TempFolder::new(&format!("defocus-scenes-{}-{name}", std::process::id()))
 }
 
 /// An 8-bit RGBA PNG of `w`x`h` pixels, row 0 at the top.

@@ -11,7 +11,7 @@ use defocus::image::{io, ColorImage};
 use defocus::scene::load::{read_scene_file, read_scene_file_with, LoadOptions};
 use serde_json::json;
 
-use crate::cli::{defocus, s, stderr, temp_dir};
+use crate::cli::{defocus, s, stderr, temp_dir, TempFolder};
 
 /// Longest a refused reference may take to be refused (a device read without end, or a FIFO
 /// that blocks, takes forever).
@@ -95,13 +95,13 @@ const TRIANGLE_OBJ: &str = "v 0 0 -1\nv 1 0 -1\nv 0 1 -1\nvt 0 0\nvt 1 0\nvt 0 1
 /// A scene folder `base/scene` with valid files in it (`ok.bin`, `ok.png`, `ok.mtl`), the
 /// same files outside it (`base/outside.*`, plus a file of secrets), and links from inside
 /// to outside. Returns (base, scene folder).
-fn scene_folder(name: &str) -> (PathBuf, PathBuf) {
+fn scene_folder(name: &str) -> (TempFolder, PathBuf) {
     let base = temp_dir(name);
     let scene = base.join("scene");
     std::fs::create_dir(&scene).unwrap();
     let png = ColorImage::new(2, 2, [0.5, 0.5, 0.5, 1.0]);
-    for dir in [&scene, &base] {
-        let stem = if dir == &scene { "ok" } else { "outside" };
+    for dir in [scene.as_path(), &base] {
+        let stem = if dir == scene { "ok" } else { "outside" };
         std::fs::write(dir.join(format!("{stem}.bin")), triangle_buffer()).unwrap();
         io::write_color(&dir.join(format!("{stem}.png")), &png).unwrap();
         std::fs::write(dir.join(format!("{stem}.mtl")), "newmtl m\nKd 1 1 1\n").unwrap();
