@@ -111,6 +111,18 @@ impl MipFilter {
             Self::Tent => 5.0 * self.level_scale(),
         }
     }
+
+    /// How far from a bilinear read's point at level `k` (>= 1), in pixels per axis, the
+    /// pixels it draws on lie: its taps lie within a texel (`2^k` pixels), and a texel draws on
+    /// pixels half a texel from its centre (box) or `1.5 2^k - 1` pixels (tent: `2` at level 1,
+    /// then the `[1 3 3 1]` taps `1.5` texels of the level below away, plus theirs).
+    pub fn texel_reach(self, k: usize) -> f32 {
+        let texel = (1u64 << k.min(62)) as f32;
+        match self {
+            Self::Box => 1.5 * texel,
+            Self::Tent => 2.5 * texel - 1.0,
+        }
+    }
 }
 
 /// Mipmaps of a layer's colour with coverage in alpha (alpha 1 where the layer has a surface,
@@ -334,14 +346,15 @@ pub fn trace_baseline(input: &TraceInput) -> ColorImage {
 /// `l`, or the cones of those that pass it read it (`graze`): a layer with no surface there
 /// can be skipped. A ray's position is linear in its CoC, so its samples lie within
 /// `max(|C_l|, |C_l+1|) |v|` of the pixel; a grazing cone reads at the middle `C` of the layer,
-/// `|C| |v|` away, and the pixels its read draws on lie within [`MipFilter::reach`] times the
-/// cone's diameter `lambda |C|` of that point. (`input.culls` is not read.)
+/// `|C| |v|` away, between the levels `k0` and `k0 + 1` of the layer's [`graze_level`], so the
+/// pixels it draws on lie within [`MipFilter::texel_reach`] of level `k0 + 1` of that point.
+/// (`input.culls` is not read.)
 pub fn cull_radius(input: &TraceInput, l: usize) -> usize {
     let rmax = longest_ray(input);
     let (a, b) = input.layers.spacing.bounds(l);
     let hits = (a.abs().max(b.abs()) * rmax).ceil() as i64 + 1;
-    let grazes = graze_level(input, l).map_or(0, |(c, _)| {
-        (c.abs() * rmax + input.mip_filter.reach() * input.lambda * c.abs()).ceil() as i64 + 1
+    let grazes = graze_level(input, l).map_or(0, |(c, level)| {
+        (c.abs() * rmax + input.mip_filter.texel_reach(level.k0 + 1)).ceil() as i64 + 1
     });
     hits.max(grazes).max(0) as usize
 }
@@ -1652,10 +1665,9 @@ mod tests {
         }
     }
 
-    /// The footprint of cone reads of diameter `d` in a mipmap by `filter` of a one-pixel-wide
-    /// vertical line at column `x0` (coverage 1, the rest empty): the coverage read at 1/4-pixel
-    /// steps across it, and its standard deviation about the line's centre, in pixels.
-    fn line_footprint(filter: MipFilter, d: f32, x0: usize) -> (Vec<f32>, f64) {
+    /// The mipmap by `filter`, 6 levels, of a layer of 160x8 pixels empty but for a
+    /// one-pixel-wide vertical line at column `x0` (coverage 1).
+    fn line_mip(filter: MipFilter, x0: usize) -> LayerMip {
         let (w, h) = (160, 8);
         let mut layers = random_layer(w, h, 1);
         for y in 0..h {
@@ -1665,7 +1677,42 @@ mod tests {
                 layers.color[i] = [half::f16::ONE; 4];
             }
         }
-        let mip = LayerMip::new(&layers, 0, 6, filter);
+        LayerMip::new(&layers, 0, 6, filter)
+    }
+
+    #[test]
+    fn texel_reach_bounds_the_pixels_a_read_draws_on_tightly() {
+        // Reads of level k at 1/8-pixel steps around a line at every phase of the level's
+        // texels: the farthest read that sees the line has its centre within the reach less
+        // half a pixel (the reach bounds the pixels' extent), and no more than a quarter of a
+        // pixel nearer (the reach is tight). The culling windows rely on it.
+        for filter in [MipFilter::Box, MipFilter::Tent] {
+            for k in 1..=4usize {
+                let reach = filter.texel_reach(k);
+                let mut farthest = 0.0f32;
+                for x0 in 64..64 + (1 << k) {
+                    let mip = line_mip(filter, x0);
+                    let centre = x0 as f32 + 0.5;
+                    for i in -400..=400 {
+                        let q = centre + i as f32 / 8.0;
+                        if mip.fetch(k, Vec2::new(q, 4.0))[3] > 0.0 {
+                            farthest = farthest.max((q - centre).abs());
+                        }
+                    }
+                }
+                assert!(
+                    farthest <= reach - 0.5 && farthest >= reach - 0.75,
+                    "{filter:?} level {k}: reads see the line {farthest} px away, reach {reach}"
+                );
+            }
+        }
+    }
+
+    /// The footprint of cone reads of diameter `d` in a mipmap by `filter` of a one-pixel-wide
+    /// vertical line at column `x0` (coverage 1, the rest empty): the coverage read at 1/4-pixel
+    /// steps across it, and its standard deviation about the line's centre, in pixels.
+    fn line_footprint(filter: MipFilter, d: f32, x0: usize) -> (Vec<f32>, f64) {
+        let mip = line_mip(filter, x0);
         let level = ConeLevel::of(d * filter.level_scale());
         let centre = x0 as f64 + 0.5;
         let qs: Vec<f64> = (-256..=256).map(|i| centre + i as f64 / 4.0).collect();
