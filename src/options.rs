@@ -10,7 +10,7 @@ use crate::methods::gaussian::GaussianSettings;
 use crate::methods::hammon::{CocMode, HammonSettings, LerpDistances};
 use crate::methods::lowrank::LowRankSettings;
 use crate::methods::multilayer::{Bokeh, FilterSteps, MultilayerSettings};
-use crate::methods::multiview::{LayerCount, MipFilter, MultiviewSettings};
+use crate::methods::multiview::{LayerCount, LayerOrigin, MipFilter, MultiviewSettings};
 use crate::methods::poisson::{self, PoissonSettings};
 use crate::methods::reference::ReferenceSettings;
 use crate::methods::registry::MethodSettings;
@@ -231,6 +231,19 @@ pub struct PostArgs {
         help_heading = "multiview"
     )]
     pub layer_spacing: f32,
+    /// multiview: where spaced layers' boundaries fall: `near` (from the nearest surface, the
+    /// spacing as given: the paper's) or `focus` (from the nearest surface, the spacing changed
+    /// by at most half so that the focal plane lies at the middle of a layer and no in-focus
+    /// surface is split between two: up to 2 dB better at 640x360, up to 0.5 dB worse at
+    /// 1280x720 on the built-in scenes).
+    #[arg(
+        long,
+        default_value = "near",
+        value_name = "near|focus",
+        conflicts_with = "layers",
+        help_heading = "multiview"
+    )]
+    pub layer_origin: String,
     /// multiview: no approximate cone tracing (plain rays).
     #[arg(long, help_heading = "multiview")]
     pub no_cone: bool,
@@ -613,6 +626,8 @@ impl PostArgs {
                             spacing_px: self.layer_spacing,
                         },
                     },
+                    layer_origin: LayerOrigin::parse(&self.layer_origin)
+                        .context("invalid --layer-origin")?,
                     cone: !self.no_cone,
                     graze: !self.paper_cone,
                     mip_filter: match &self.cone_mipmap {

@@ -71,6 +71,17 @@ pub(crate) fn render_image(args: &[&str], out: &Path) -> defocus::image::ColorIm
     io::read_color(out).unwrap()
 }
 
+/// Runs `defocus render` with `args` and `flag value`, which it must refuse, naming `flag` and
+/// `choices`, without writing its output (in `dir`).
+fn render_refuses(args: &[&str], flag: &str, value: &str, choices: &str, dir: &Path) {
+    let out = dir.join("refused.exr");
+    let o = defocus(&[&["render"][..], args, &[flag, value, "--out", s(&out)]].concat());
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains(flag) && err.contains(choices), "{err}");
+    assert!(!out.exists());
+}
+
 /// What the command printed on stderr.
 pub(crate) fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
@@ -282,22 +293,25 @@ fn multiview_takes_a_cone_mipmap_and_refuses_an_unknown_one() {
     let boxed = run(&["--cone-mipmap", "box"], "box.exr");
     assert_eq!(default, tent);
     assert_ne!(default, boxed);
-    let o = defocus(
-        &[
-            &["render"][..],
-            &size[..],
-            &["--cone-mipmap", "cubic", "--out", s(&dir.join("x.exr"))],
-        ]
-        .concat(),
-    );
-    assert!(!o.status.success());
-    let err = stderr(&o);
-    assert!(
-        err.contains("--cone-mipmap") && err.contains("box, tent"),
-        "{err}"
-    );
-    assert!(!dir.join("x.exr").exists());
+    render_refuses(&size, "--cone-mipmap", "cubic", "box, tent", &dir);
     std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// `render --method multiview --layer-origin focus` takes the focus-centred layers (another
+/// image than the default `near`, which is the paper's), and an unknown origin is refused,
+/// naming the flag and the choices.
+#[test]
+fn multiview_takes_a_layer_origin_and_refuses_an_unknown_one() {
+    let dir = temp_dir("layer-origin");
+    // Wide open, so the near railing lies several spacings in front of the focal plane.
+    let size = "--width 160 --height 90 --method multiview --samples 8 --fstop 1";
+    let size: Vec<&str> = size.split(' ').collect();
+    let run =
+        |extra: &[&str], name: &str| render_image(&[&size[..], extra].concat(), &dir.join(name));
+    let default = run(&[], "default.exr");
+    assert!(default == run(&["--layer-origin", "near"], "near.exr"));
+    assert!(default != run(&["--layer-origin", "focus"], "focus.exr"));
+    render_refuses(&size, "--layer-origin", "far", "near, focus", &dir);
 }
 
 /// `--ml-bokeh full` is taken by `render --method multilayer` (its images are tested in
@@ -309,19 +323,5 @@ fn multilayer_takes_full_bokeh_and_refuses_an_unknown_one() {
     let size = ["--width", "96", "--height", "54", "--method", "multilayer"];
     let full = render_image(&[&size[..], &["--ml-bokeh", "full"]].concat(), &out);
     assert_eq!((full.width(), full.height()), (96, 54));
-    let o = defocus(
-        &[
-            &["render"][..],
-            &size[..],
-            &["--ml-bokeh", "round", "--out", s(&dir.join("x.exr"))],
-        ]
-        .concat(),
-    );
-    assert!(!o.status.success());
-    let err = stderr(&o);
-    assert!(
-        err.contains("--ml-bokeh") && err.contains("box, shape, full"),
-        "{err}"
-    );
-    assert!(!dir.join("x.exr").exists());
+    render_refuses(&size, "--ml-bokeh", "round", "box, shape, full", &dir);
 }

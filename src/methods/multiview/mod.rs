@@ -92,6 +92,36 @@ pub enum LayerCount {
     Count(usize),
 }
 
+/// Where the spaced layers' boundaries fall (`--layer-origin`; [`LayerCount::Spacing`] only).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LayerOrigin {
+    /// From the nearest surface, the spacing apart: the paper's. Where the focal plane falls
+    /// in its layer then depends on the scene and the lens.
+    #[default]
+    Near,
+    /// From the nearest surface still, but the spacing shrunk (to no less than half of it, or
+    /// grown by at most half where shrinking would halve it) so that the focal plane lies at
+    /// the middle of a layer: an in-focus surface is never split between two layers at a
+    /// boundary. Measured in the README: up to 2 dB better at 640x360, up to 0.5 dB worse at
+    /// 1280x720.
+    Focus,
+}
+
+impl LayerOrigin {
+    /// Parses `near` or `focus`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s.trim() {
+            "near" => Ok(Self::Near),
+            "focus" => Ok(Self::Focus),
+            other => Err(Error::Unknown {
+                kind: "layer origin",
+                name: other.to_string(),
+                expected: "near, focus".into(),
+            }),
+        }
+    }
+}
+
 /// Most layers.
 pub const MAX_LAYERS: usize = 64;
 
@@ -114,6 +144,8 @@ pub struct MultiviewSettings {
     pub layers: LayerCount,
     /// Overlap of neighbouring layers as a fraction of the spacing. Default 0.1 (the paper).
     pub overlap: f32,
+    /// Where spaced layers' boundaries fall. Default [`LayerOrigin::Near`] (the paper's).
+    pub layer_origin: LayerOrigin,
     /// Approximate cone tracing (section 4.4). Default on.
     pub cone: bool,
     /// With cone tracing, a ray that passes a layer in front of the focal plane without hitting
@@ -150,6 +182,7 @@ impl Default for MultiviewSettings {
             seed: 0,
             layers: LayerCount::Spacing { spacing_px: 4.0 },
             overlap: 0.1,
+            layer_origin: LayerOrigin::Near,
             cone: true,
             graze: true,
             mip_filter: MipFilter::Tent,
@@ -227,7 +260,10 @@ pub fn spacing_for(
                 // frame; now 41.7, as `multilayer`).
                 (range * (1.0 + 1e-4), 1)
             } else {
-                (spacing_px, n)
+                match settings.layer_origin {
+                    LayerOrigin::Near => (spacing_px, n),
+                    LayerOrigin::Focus => focus_centred(spacing_px, (lo, hi)),
+                }
             }
         }
     };
@@ -238,6 +274,32 @@ pub fn spacing_for(
         layers,
         overlap: settings.overlap,
     }
+}
+
+/// [`LayerOrigin::Focus`]: the spacing and layer count for layers from `lo` with the focal
+/// plane (CoC 0) at the middle of layer `j`: `spacing = -lo / (j + 0.5)`, `j` the least for
+/// which it is at most `spacing_px`, or one less where that would take it under half of
+/// `spacing_px`. Where the focal plane lies in the first half of the first layer, or outside
+/// the range, nothing in front of it or no surface near it can be split: the plain spacing.
+fn focus_centred(spacing_px: f32, (lo, hi): (f32, f32)) -> (f32, usize) {
+    let plain = (
+        spacing_px,
+        ((hi - lo) / spacing_px).ceil().max(1.0) as usize,
+    );
+    let x = -lo / spacing_px;
+    if x <= 0.5 || hi <= 0.0 {
+        return plain;
+    }
+    let mut j = (x - 0.5).ceil();
+    if x / (j + 0.5) < 0.5 {
+        j -= 1.0;
+    }
+    let delta = -lo / (j + 0.5);
+    let n = ((hi - lo) / delta).ceil().max(1.0) as usize;
+    if n > MAX_LAYERS {
+        return plain;
+    }
+    (delta, n)
 }
 
 /// Pass `decompose`: the depth layers of the pinhole view.
@@ -557,5 +619,47 @@ mod tests {
                 "{mip_filter:?}: trimming changed the image"
             );
         }
+    }
+
+    #[test]
+    fn focus_centred_layers_put_the_focal_plane_in_a_layers_middle() {
+        // Nearest CoCs from just past half a spacing to many spacings in front of focus, and
+        // spacings from 1 to 7 px: the first layer starts at the nearest CoC, CoC 0 lies at
+        // the middle of a layer, the spacing is within [1/2, 3/2] of the one asked (and at
+        // most it from 1.5 spacings on), and the layers reach the farthest CoC.
+        for spacing in [1.0f32, 2.5, 4.0, 7.0] {
+            for i in 0..400 {
+                let lo = -spacing * (0.51 + i as f32 * 0.037);
+                let hi = spacing * (0.3 + (i % 7) as f32);
+                let (delta, n) = focus_centred(spacing, (lo, hi));
+                let at = -lo / delta;
+                assert!(
+                    (at.fract() - 0.5).abs() < 1e-4,
+                    "lo {lo} hi {hi} spacing {spacing}: CoC 0 at {at} layers"
+                );
+                assert!(
+                    (0.5 * spacing..=1.5 * spacing).contains(&delta),
+                    "lo {lo}: spacing {delta} for {spacing}"
+                );
+                if -lo >= 1.5 * spacing {
+                    assert!(
+                        delta <= spacing * (1.0 + 1e-6),
+                        "lo {lo}: {delta} > {spacing}"
+                    );
+                }
+                assert!(
+                    lo + n as f32 * delta >= hi - 1e-3,
+                    "lo {lo} hi {hi}: {n} x {delta}"
+                );
+                assert!(
+                    lo + (n - 1) as f32 * delta < hi,
+                    "lo {lo} hi {hi}: a layer too many"
+                );
+            }
+        }
+        // The focal plane in the first half of the first layer, or behind every surface: the
+        // plain spacing.
+        assert_eq!(focus_centred(4.0, (-1.5, 10.0)), (4.0, 3));
+        assert_eq!(focus_centred(4.0, (-20.0, -2.0)), (4.0, 5));
     }
 }
