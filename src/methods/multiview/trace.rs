@@ -20,10 +20,10 @@
 //!
 //! Cone tracing (section 4.4): at a hit at CoC `C`, the cone around the ray has diameter
 //! `lambda |C|` (lambda: the mean distance between neighbouring lens samples); the layer's
-//! mipmap at that footprint ([`MipFilter`]) gives a coverage `v1` and a colour `c1`; the ray contributes
-//! `v1 c1` and continues behind with weight `1 - v1` (`v1 c1 + (1 - v1) c2`). By default a
-//! ray that passes a layer in front of the focal plane without hitting it takes the coverage
-//! its cone meets there too ([`graze`]; the paper's version with `--paper-cone`).
+//! mipmap at that footprint ([`MipFilter`]) gives a coverage `v1` and a colour `c1`; the ray
+//! contributes `v1 c1` and continues behind with weight `1 - v1` (`v1 c1 + (1 - v1) c2`). By
+//! default a ray that passes a layer in front of the focal plane without hitting it takes the
+//! coverage its cone meets there too ([`graze`]; the paper's version with `--paper-cone`).
 //!
 //! Jitter (section 4.5): each pixel uses one of 16 sample sets (different seeds of the shared
 //! sampler, so every set covers the aperture as `reference`'s does), picked from a 16x16 noise
@@ -74,14 +74,6 @@ impl MipFilter {
                 name: other.to_string(),
                 expected: "box, tent".into(),
             }),
-        }
-    }
-
-    /// The name [`MipFilter::parse`] reads.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Box => "box",
-            Self::Tent => "tent",
         }
     }
 
