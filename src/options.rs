@@ -207,7 +207,9 @@ pub struct PostArgs {
     /// splat: fragments per pixel: 1 (default) splats the pinhole frame, N > 1 (up to 16,
     /// `render` only) the N nearest fragments of every pixel, so hidden surfaces show through
     /// near blur. multiview: the number of depth layers (1 to 64) [default: from
-    /// --layer-spacing].
+    /// --layer-spacing]; with --frames and a keyframed --fstop or --focus, a fixed count keeps
+    /// the layers at the same depths from frame to frame (spaced layers move through the
+    /// scene, which flickers).
     #[arg(long, value_name = "N", help_heading = "splat, multiview")]
     pub layers: Option<usize>,
     /// splat: fragments whose CoCs differ by at most this many pixels are one surface (summed
