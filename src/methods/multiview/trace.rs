@@ -1559,6 +1559,32 @@ mod tests {
         layers
     }
 
+    /// Layer 0's pixels in f64, row by row, empty pixels transparent black: level 0 of its
+    /// mipmap as the tests compute it.
+    fn level_zero(layers: &DepthLayers) -> Vec<[f64; 4]> {
+        (0..layers.width * layers.height)
+            .map(|i| {
+                if layers.coc_px[i].is_finite() {
+                    from_half(&layers.color[i]).map(f64::from)
+                } else {
+                    [0.0; 4]
+                }
+            })
+            .collect()
+    }
+
+    /// Asserts that texel `got` of a mipmap is `want` within 1e-5 relative, naming `what`.
+    fn assert_texel(got: Rgba, want: [f64; 4], what: &str) {
+        for c in 0..4 {
+            assert!(
+                (got[c] as f64 - want[c]).abs() <= 1e-5 * (1.0 + want[c].abs()),
+                "{what} channel {c}: {} vs {}",
+                got[c],
+                want[c]
+            );
+        }
+    }
+
     #[test]
     fn mip_levels_are_the_means_of_their_blocks() {
         // Level k at texel (x, y) is the mean of the layer's 2^k x 2^k block there (empty
@@ -1568,14 +1594,7 @@ mod tests {
         let layers = random_layer(w, h, 5);
         let mip = LayerMip::new(&layers, 0, 4, MipFilter::Box);
         assert_eq!(mip.levels.len(), 4);
-        let pixel = |x: usize, y: usize| -> Rgba {
-            let i = y * w + x;
-            if layers.coc_px[i].is_finite() {
-                from_half(&layers.color[i])
-            } else {
-                [0.0; 4]
-            }
-        };
+        let pixels = level_zero(&layers);
         for (k, (lw, lh, data)) in (1..).zip(&mip.levels) {
             let s = 1usize << k;
             assert_eq!((*lw, *lh), (w.div_ceil(s), h.div_ceil(s)), "level {k}");
@@ -1584,20 +1603,16 @@ mod tests {
                     let mut want = [0.0f64; 4];
                     for y in ty * s..(ty + 1) * s {
                         for x in tx * s..(tx + 1) * s {
-                            for (m, c) in want.iter_mut().zip(pixel(x, y)) {
-                                *m += c as f64 / (s * s) as f64;
+                            for (m, c) in want.iter_mut().zip(pixels[y * w + x]) {
+                                *m += c / (s * s) as f64;
                             }
                         }
                     }
-                    let got = data[ty * lw + tx];
-                    for c in 0..4 {
-                        assert!(
-                            (got[c] as f64 - want[c]).abs() <= 1e-5 * (1.0 + want[c].abs()),
-                            "level {k} texel ({tx}, {ty}) channel {c}: {} vs {}",
-                            got[c],
-                            want[c]
-                        );
-                    }
+                    assert_texel(
+                        data[ty * lw + tx],
+                        want,
+                        &format!("level {k} texel ({tx}, {ty})"),
+                    );
                 }
             }
         }
@@ -1615,15 +1630,7 @@ mod tests {
         for (w, h) in [(37, 23), (16, 9), (1, 5)] {
             let layers = random_layer(w, h, 7);
             let mip = LayerMip::new(&layers, 0, 4, MipFilter::Tent);
-            let mut below: Vec<[f64; 4]> = (0..w * h)
-                .map(|i| {
-                    if layers.coc_px[i].is_finite() {
-                        from_half(&layers.color[i]).map(f64::from)
-                    } else {
-                        [0.0; 4]
-                    }
-                })
-                .collect();
+            let mut below = level_zero(&layers);
             let (mut bw, mut bh) = (w, h);
             for (k, (lw, lh, data)) in (1..).zip(&mip.levels) {
                 assert_eq!((*lw, *lh), (bw.div_ceil(2), bh.div_ceil(2)), "level {k}");
@@ -1640,16 +1647,11 @@ mod tests {
                                 }
                             }
                         }
-                        let got = data[ty * lw + tx];
-                        let want = level[ty * lw + tx];
-                        for c in 0..4 {
-                            assert!(
-                                (got[c] as f64 - want[c]).abs() <= 1e-5 * (1.0 + want[c].abs()),
-                                "{w}x{h} level {k} texel ({tx}, {ty}) channel {c}: {} vs {}",
-                                got[c],
-                                want[c]
-                            );
-                        }
+                        assert_texel(
+                            data[ty * lw + tx],
+                            level[ty * lw + tx],
+                            &format!("{w}x{h} level {k} texel ({tx}, {ty})"),
+                        );
                     }
                 }
                 (below, bw, bh) = (level, *lw, *lh);
