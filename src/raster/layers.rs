@@ -147,6 +147,25 @@ impl DepthLayers {
         }
     }
 
+    /// Layers for the rasterizer to fill ([`BinnedView::rasterize`](super::BinnedView::rasterize)):
+    /// the same as [`DepthLayers::new`] once every tile of the frame has ended, as each tile's
+    /// pixels are then written in every layer. Until then the planes hold zeros, taken from the
+    /// allocator untouched, so that a plane's memory is written once, not filled and then
+    /// written again, and the colour of a pixel no surface reaches is never written at all.
+    pub fn for_raster(spacing: LayerSpacing, width: usize, height: usize) -> Self {
+        let n = width * height * spacing.layers;
+        Self {
+            spacing,
+            width,
+            height,
+            coc_px: vec![0.0; n],
+            color: zeroed_halves(n),
+            pool: Pool::default(),
+            written: vec![false; spacing.layers],
+            reach: None,
+        }
+    }
+
     /// Drops, as if hidden and before they are shaded, the fragments of a guard band that
     /// nothing in the frame reads (`reach`: its frame and how far a surface can be read from,
     /// in CoC radii and pixels).
@@ -408,18 +427,46 @@ impl DepthLayers {
             .for_each(|(l, ((coc_px, color), written))| {
                 for (rect, tile) in tiles {
                     let (tw, n) = (rect.width(), rect.width() * rect.height());
+                    // The tile's pixels hold no surface, then its kept ones ([`for_raster`]'s
+                    // planes are set here). Colours stay as they are: zero.
+                    for y in rect.y0..rect.y1 {
+                        coc_px[y * w + rect.x0..y * w + rect.x1].fill(f32::INFINITY);
+                    }
                     let kept = &tile.kept;
                     let start = kept.partition_point(|k| (k.0 as usize) < l * n);
                     let end = kept.partition_point(|k| (k.0 as usize) < (l + 1) * n);
+                    // Slots come in order: the row is followed, not divided out.
+                    let (mut y, mut row) = (rect.y0, 0);
                     for &(s, coc, c) in &kept[start..end] {
                         let i = s as usize - l * n;
-                        let d = (rect.y0 + i / tw) * w + rect.x0 + i % tw;
+                        while i >= row + tw {
+                            (y, row) = (y + 1, row + tw);
+                        }
+                        let d = y * w + rect.x0 + i - row;
                         coc_px[d] = coc;
                         color[d] = c;
                     }
                     *written |= start < end;
                 }
             });
+    }
+}
+
+/// `n` colours of zero, taken zeroed from the allocator: their pages are not touched until
+/// written.
+fn zeroed_halves(n: usize) -> Vec<HalfRgba> {
+    let layout = std::alloc::Layout::array::<HalfRgba>(n).expect("the layers' budget bounds n");
+    if layout.size() == 0 {
+        return Vec::new();
+    }
+    // SAFETY: the layout has a non-zero size; the block is `n` colours of all-zero bits, which
+    // are `f16` zeros, and is handed to a `Vec` with the layout it was allocated with.
+    unsafe {
+        let p = std::alloc::alloc_zeroed(layout).cast::<HalfRgba>();
+        if p.is_null() {
+            std::alloc::handle_alloc_error(layout);
+        }
+        Vec::from_raw_parts(p, n, n)
     }
 }
 
@@ -432,6 +479,17 @@ mod tests {
     /// pixels takes its tiles back without a fault.
     #[test]
     fn tiles_copy_their_surfaces_to_their_layers_and_pixels() {
+        tiles_copy_their_surfaces_into(DepthLayers::new);
+    }
+
+    /// The same with the planes the tiles set themselves: every pixel no surface reaches holds
+    /// none once the tiles have ended.
+    #[test]
+    fn layers_for_the_rasterizer_are_set_in_full_by_their_tiles() {
+        tiles_copy_their_surfaces_into(DepthLayers::for_raster);
+    }
+
+    fn tiles_copy_their_surfaces_into(make: fn(LayerSpacing, usize, usize) -> DepthLayers) {
         use crate::raster::fragments::tests::reach;
         use crate::raster::FULL_COVERAGE;
         let lens = reach().lens;
@@ -443,7 +501,7 @@ mod tests {
             overlap: 0.0,
         };
         let (w, h) = (150, 70);
-        let mut layers = DepthLayers::new(spacing, w, h);
+        let mut layers = make(spacing, w, h);
         // One opaque surface per pixel, at a depth and in a colour of its own, in 3x2 tiles.
         let surfaces = [
             (3, 5, 1.2f32),
@@ -491,11 +549,13 @@ mod tests {
         }
         let stored = layers.coc_px.iter().filter(|c| c.is_finite()).count();
         assert_eq!(stored, surfaces.len());
+        let coloured = layers.color.iter().filter(|c| c[1] != f16::ZERO).count();
+        assert_eq!(coloured, surfaces.len());
         for (l, &w) in written.iter().enumerate() {
             assert_eq!(layers.filled(l), w, "layer {l}");
         }
         assert!(written.iter().any(|&w| !w), "an empty layer is checked too");
-        let mut none = DepthLayers::new(spacing, 0, 0);
+        let mut none = make(spacing, 0, 0);
         none.end_tiles(Vec::new());
         assert!(!none.filled(0));
     }

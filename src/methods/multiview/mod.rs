@@ -340,7 +340,7 @@ fn decompose_with_band(
     )?;
     let view = View::pinhole(lens);
     let binned = settings.input.bin(prepared, &view);
-    let mut layers = DepthLayers::new(spacing, lens.width_px, lens.height_px);
+    let mut layers = DepthLayers::for_raster(spacing, lens.width_px, lens.height_px);
     if let Some((guard, radii)) = band.filter(|b| b.0 > 0) {
         // A surface of CoC C is traced in its layer, at CoCs up to a layer and the entry
         // margin beyond C, or in the layer it overlaps (within the margin of the boundary), a
