@@ -406,7 +406,7 @@ pub fn sample_sets(settings: &MultiviewSettings) -> Result<(Vec<Vec<Vec2>>, Vec<
     Ok((sets, noise))
 }
 
-/// Orders a pixel's lens samples so that the trace's packets of eight hold rays of like
+/// Orders a pixel's lens samples so that the trace's packets of sixteen hold rays of like
 /// direction: the inner quarter (by distance from the lens centre) then the rest, each by
 /// angle. Rays of like direction read nearby pixels, cross the same surfaces and finish in the
 /// same layer, so a packet's lanes do less work together (`railing` at 1280x720, 64 rays:
