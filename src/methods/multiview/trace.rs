@@ -602,6 +602,9 @@ fn trace_packet(
     // rather than an array of flags: testing the whole packet then reads a register, not
     // sixteen stores.
     let mut live: u32 = (1 << n) - 1;
+    // The cone reads of a layer, emptied for each use rather than made anew (a lane outside the
+    // mask is never read, so what it held before does not matter).
+    let mut reads = ConeReads::new();
     for &l in open {
         let (ca, _) = spacing.bounds(l);
         let enter = ca - spacing.overlap * spacing.delta_px;
@@ -644,18 +647,16 @@ fn trace_packet(
         };
         if let (Some((c, level)), Some(mips)) = (table.graze[l], input.mips) {
             // `graze_at` for the lanes that passed the layer, their cones read together.
-            let mut reads = ConeReads::new();
-            for j in 0..LANES {
-                if lane(live & !found, j) {
-                    let v = Vec2::new(vx[j], vy[j]);
-                    reads.push(j, p - c * v, level, [0.0; 4]);
-                }
+            reads.clear();
+            for j in lanes_of(live & !found) {
+                let v = Vec2::new(vx[j], vy[j]);
+                reads.push(j, p - c * v, level, [0.0; 4]);
             }
             if reads.any() {
                 let colors = cones(&mips[l], &reads, simd);
-                for j in 0..LANES {
+                for j in lanes_of(reads.mask) {
                     let c1 = &colors[j];
-                    if lane(reads.mask, j) && c1[3] > 0.0 && state[j].take(c1) {
+                    if c1[3] > 0.0 && state[j].take(c1) {
                         live &= !(1 << j);
                     }
                 }
@@ -671,11 +672,8 @@ fn trace_packet(
         // first, all lanes side by side (the lanes without a hit compute a value unused).
         let width = input.lambda * input.mip_filter.level_scale();
         let logs: [f32; LANES] = std::array::from_fn(|j| log2(width * hi[j].abs()));
-        let mut reads = ConeReads::new();
-        for j in 0..LANES {
-            if !lane(found, j) {
-                continue;
-            }
+        reads.clear();
+        for j in lanes_of(found) {
             let v = Vec2::new(vx[j], vy[j]);
             let h_hit = layers.coc_px[i_hi[j]];
             if hi[j] - h_hit <= THICKNESS_PX || (h_lo[j] - h_hit).abs() <= CONTINUITY_PX {
@@ -704,8 +702,8 @@ fn trace_packet(
         }
         if let (true, Some(mips)) = (reads.any(), input.mips) {
             let colors = cones(&mips[l], &reads, simd);
-            for j in 0..LANES {
-                if lane(reads.mask, j) && state[j].take(&colors[j]) {
+            for j in lanes_of(reads.mask) {
+                if state[j].take(&colors[j]) {
                     live &= !(1 << j);
                 }
             }
@@ -721,6 +719,18 @@ fn trace_packet(
 #[inline(always)]
 fn lane(bits: u32, j: usize) -> bool {
     bits >> j & 1 != 0
+}
+
+/// The lanes set in the lane bits `bits`, in order.
+#[inline(always)]
+fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (bits != 0).then(|| {
+            let j = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            j
+        })
+    })
 }
 
 /// The rays of a packet, as [`crossings`] reads them.
@@ -1493,6 +1503,12 @@ impl ConeReads {
         self.k0[j] = level.k0 as i32;
         self.t[j] = level.t;
         self.level0[j] = level0;
+    }
+
+    /// No lane reads.
+    #[inline(always)]
+    fn clear(&mut self) {
+        self.mask = 0;
     }
 
     #[inline(always)]
