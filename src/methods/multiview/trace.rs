@@ -125,6 +125,8 @@ pub struct LayerMip {
     levels: Vec<(usize, usize, Vec<Rgba>)>,
     /// Per level kept, its width and height, for the eight-lane reads ([`cones`]).
     dims: Vec<[i32; 2]>,
+    /// Where at most eight levels are kept: their widths, and their heights, eight to a row.
+    sizes: Option<[[i32; 8]; 2]>,
 }
 
 impl LayerMip {
@@ -166,8 +168,19 @@ impl LayerMip {
             }
             levels.push(cur);
         }
-        let dims = levels.iter().map(|l| [l.0 as i32, l.1 as i32]).collect();
-        Self { levels, dims }
+        let dims: Vec<[i32; 2]> = levels.iter().map(|l| [l.0 as i32, l.1 as i32]).collect();
+        let sizes = (dims.len() <= 8).then(|| {
+            let mut sizes = [[1; 8]; 2];
+            for (k, d) in dims.iter().enumerate() {
+                (sizes[0][k], sizes[1][k]) = (d[0], d[1]);
+            }
+            sizes
+        });
+        Self {
+            levels,
+            dims,
+            sizes,
+        }
     }
 
     /// The premultiplied colour and coverage at level `level` (>= 1) at image position `q`
@@ -941,9 +954,21 @@ mod avx2 {
             one_i,
         );
         let level = _mm256_sub_epi32(kk, one_i);
-        let dims = mip.dims.as_ptr().cast::<i32>();
-        let w = _mm256_i32gather_epi32::<4>(dims, _mm256_add_epi32(level, level));
-        let h = _mm256_i32gather_epi32::<4>(dims.add(1), _mm256_add_epi32(level, level));
+        // A level's size: from a register where the levels fit one (a permute, where a gather
+        // waits on memory), else gathered.
+        let (w, h) = match &mip.sizes {
+            Some([ws, hs]) => (
+                _mm256_permutevar8x32_epi32(_mm256_loadu_si256(ws.as_ptr().cast()), level),
+                _mm256_permutevar8x32_epi32(_mm256_loadu_si256(hs.as_ptr().cast()), level),
+            ),
+            None => {
+                let dims = mip.dims.as_ptr().cast::<i32>();
+                (
+                    _mm256_i32gather_epi32::<4>(dims, _mm256_add_epi32(level, level)),
+                    _mm256_i32gather_epi32::<4>(dims.add(1), _mm256_add_epi32(level, level)),
+                )
+            }
+        };
         // 1 / 2^k from its exponent: exact, as the scalar quotient.
         let inv = _mm256_castsi256_ps(_mm256_slli_epi32::<23>(_mm256_sub_epi32(
             _mm256_set1_epi32(127),
@@ -1887,40 +1912,47 @@ mod tests {
     #[test]
     fn cone_reads_a_register_at_a_time_are_one_at_a_time_bit_for_bit() {
         // Positions inside, on the border of and far outside the layer, levels from 0 to past
-        // the coarsest kept, lanes in and out of the mask.
+        // the coarsest kept, lanes in and out of the mask; levels' sizes from a register (at
+        // most eight levels) and gathered (ten).
         if !simd_fits(1) {
             eprintln!("skipped: this CPU has no AVX2 and F16C");
             return;
         }
-        let layers = random_layer(45, 29, 9);
-        let mip = LayerMip::new(&layers, 0, 5, MipFilter::Tent);
-        let mut rng = SplitMix64::new(11);
-        for round in 0..2000 {
-            let mut reads = ConeReads::new();
-            for j in 0..LANES {
-                if rng.below(4) == 0 {
-                    continue;
+        for (w, h, max_level) in [(45, 29, 5), (600, 3, 12)] {
+            let layers = random_layer(w, h, 9);
+            let mip = LayerMip::new(&layers, 0, max_level, MipFilter::Tent);
+            assert_eq!(mip.sizes.is_some(), mip.levels.len() <= 8);
+            let mut rng = SplitMix64::new(11);
+            for round in 0..2000 {
+                let mut reads = ConeReads::new();
+                for j in 0..LANES {
+                    if rng.below(4) == 0 {
+                        continue;
+                    }
+                    let (wf, hf) = (w as f32, h as f32);
+                    let q = match rng.below(4) {
+                        0 => {
+                            Vec2::new(rng.range(-200.0, wf + 200.0), rng.range(-200.0, hf + 200.0))
+                        }
+                        1 => Vec2::new(rng.below(w + 1) as f32, rng.below(h + 1) as f32),
+                        _ => Vec2::new(rng.range(0.0, wf), rng.range(0.0, hf)),
+                    };
+                    let level = ConeLevel {
+                        k0: rng.below(max_level + 3),
+                        t: rng.next_f32(),
+                    };
+                    let level0 = [rng.next_f32(), rng.next_f32(), rng.next_f32(), 1.0];
+                    reads.push(j, q, level, level0);
                 }
-                let q = match rng.below(4) {
-                    0 => Vec2::new(rng.range(-200.0, 200.0), rng.range(-200.0, 200.0)),
-                    1 => Vec2::new(rng.below(46) as f32, rng.below(30) as f32),
-                    _ => Vec2::new(rng.range(0.0, 45.0), rng.range(0.0, 29.0)),
-                };
-                let level = ConeLevel {
-                    k0: rng.below(8),
-                    t: rng.next_f32(),
-                };
-                let level0 = [rng.next_f32(), rng.next_f32(), rng.next_f32(), 1.0];
-                reads.push(j, q, level, level0);
-            }
-            let fast = cones(&mip, &reads, true);
-            let slow = cones(&mip, &reads, false);
-            for j in 0..LANES {
-                assert_eq!(
-                    fast[j].map(f32::to_bits),
-                    slow[j].map(f32::to_bits),
-                    "round {round}, lane {j}"
-                );
+                let fast = cones(&mip, &reads, true);
+                let slow = cones(&mip, &reads, false);
+                for j in 0..LANES {
+                    assert_eq!(
+                        fast[j].map(f32::to_bits),
+                        slow[j].map(f32::to_bits),
+                        "{w}x{h}, round {round}, lane {j}"
+                    );
+                }
             }
         }
     }
