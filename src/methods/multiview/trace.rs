@@ -652,6 +652,7 @@ fn trace_packet(
             found,
             hi,
             h_lo,
+            h_hi,
             i_hi,
         } = if simd {
             crossings_simd(&segment, &lanes)
@@ -681,41 +682,59 @@ fn trace_packet(
             }
             continue;
         }
-        // The hits' cone reads, made together (`shade` lane by lane). Their levels' `log2`s
-        // first, all lanes side by side (the lanes without a hit compute a value unused).
+        // The crossings, as `layer` and `shade` take them lane by lane: first, all lanes side by
+        // side (a loop the compiler vectorises; the lanes without a crossing compute values
+        // unused), whether each is a hit, whether its cone reads the mipmaps (a cone wider than
+        // a pixel, `ConeLevel::with_log2`), its levels and where it reads.
         let width = input.lambda * input.mip_filter.level_scale();
-        let logs: [f32; LANES] = std::array::from_fn(|j| log2(width * hi[j].abs()));
-        reads.clear();
-        for j in lanes_of(found) {
-            let v = Vec2::new(vx[j], vy[j]);
-            let h_hit = layers.coc_px[i_hi[j]];
-            if hi[j] - h_hit <= THICKNESS_PX || (h_lo[j] - h_hit).abs() <= CONTINUITY_PX {
-                let color = || half4(&layers.color[i_hi[j]], simd);
-                let level = input
-                    .mips
-                    .and_then(|_| ConeLevel::with_log2(width * hi[j].abs(), logs[j]));
-                match level {
-                    Some(level) => {
-                        let level0 = if level.k0 == 0 { color() } else { [0.0; 4] };
-                        reads.push(j, p - hi[j] * v, level, level0);
-                    }
-                    // Level 0 alone, or no mipmaps: the hit pixel's colour.
-                    None => {
-                        if state[j].take(&color()) {
-                            live &= !(1 << j);
-                        }
-                    }
-                }
-            } else {
-                // Behind a thin object: the rest of the layer, as `layer` walks it.
-                if layer(input, l, p, v, speed[j], &mut state[j]) {
-                    live &= !(1 << j);
-                }
+        let mut hits = 0u32;
+        let mut wide = 0u32;
+        let (mut k0, mut t) = ([0i32; LANES], [0.0f32; LANES]);
+        let (mut qx, mut qy) = ([0.0f32; LANES], [0.0f32; LANES]);
+        for j in 0..LANES {
+            // A ray meets the surface where it crosses it (refined to within THICKNESS_PX), or
+            // where it steps onto it from a continuation of the same surface (see `layer`).
+            let hit = hi[j] - h_hi[j] <= THICKNESS_PX || (h_lo[j] - h_hi[j]).abs() <= CONTINUITY_PX;
+            let d = width * hi[j].abs();
+            let f = log2(d);
+            // `ConeLevel::with_log2`: where `d > 1`, `f > 0`, so the floor is its whole part.
+            let floor = f.floor();
+            (k0[j], t[j]) = (floor as i32, f - floor);
+            (qx[j], qy[j]) = (p.x - hi[j] * vx[j], p.y - hi[j] * vy[j]);
+            hits |= u32::from(hit) << j;
+            wide |= u32::from(d > 1.0) << j;
+        }
+        hits &= found;
+        let cone_lanes = if input.mips.is_some() { hits & wide } else { 0 };
+        for j in lanes_of(found & !hits) {
+            // Behind a thin object: the rest of the layer, as `layer` walks it.
+            if layer(
+                input,
+                l,
+                p,
+                Vec2::new(vx[j], vy[j]),
+                speed[j],
+                &mut state[j],
+            ) {
+                live &= !(1 << j);
             }
         }
-        if let (true, Some(mips)) = (reads.any(), input.mips) {
+        for j in lanes_of(hits & !cone_lanes) {
+            // Level 0 alone, or no mipmaps: the hit pixel's colour.
+            if state[j].take(&half4(&layers.color[i_hi[j]], simd)) {
+                live &= !(1 << j);
+            }
+        }
+        if let (true, Some(mips)) = (cone_lanes != 0, input.mips) {
+            // The hits' cone reads, made together (a lane outside the mask is not read).
+            (reads.mask, reads.qx, reads.qy, reads.k0, reads.t) = (cone_lanes, qx, qy, k0, t);
+            for j in lanes_of(cone_lanes) {
+                if k0[j] == 0 {
+                    reads.level0[j] = half4(&layers.color[i_hi[j]], simd);
+                }
+            }
             let colors = cones(&mips[l], &reads, simd);
-            for j in lanes_of(reads.mask) {
+            for j in lanes_of(cone_lanes) {
                 if state[j].take(&colors[j]) {
                     live &= !(1 << j);
                 }
@@ -759,13 +778,14 @@ struct Lanes<'a> {
 }
 
 /// Each lane's first crossing in a layer, refined: whether it has one, the ray's CoC there,
-/// the surface's CoC just in front of it, and the index of the pixel hit in the whole stack of
-/// layers.
+/// the surface's CoC just in front of it and at it, and the index of the pixel hit in the whole
+/// stack of layers.
 struct Crossings {
     /// One bit per lane.
     found: u32,
     hi: [f32; LANES],
     h_lo: [f32; LANES],
+    h_hi: [f32; LANES],
     i_hi: [usize; LANES],
 }
 
@@ -812,6 +832,7 @@ fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
         found: (0..LANES).fold(0, |m, j| m | u32::from(found[j]) << j),
         hi,
         h_lo: [0.0; LANES],
+        h_hi: [0.0; LANES],
         i_hi: [0; LANES],
     };
     for j in 0..LANES {
@@ -819,6 +840,7 @@ fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
             // The packet's pixel keeps its rays inside the layers: `refine` finds the hit.
             let (c, i, h) = refine(layers, l, p, v(j), lo[j], hi[j]).unwrap_or((hi[j], 0, 0.0));
             (out.hi[j], out.i_hi[j], out.h_lo[j]) = (c, i, h);
+            out.h_hi[j] = layers.coc_px[i];
         }
     }
     out
@@ -1237,6 +1259,7 @@ mod avx2 {
             found: 0,
             hi: [0.0; LANES],
             h_lo: [0.0; LANES],
+            h_hi: [0.0; LANES],
             i_hi: [0; LANES],
         };
         for (n, o) in octets.iter().enumerate() {
@@ -1260,6 +1283,7 @@ mod avx2 {
             _mm256_storeu_si256(idx.as_mut_ptr().cast(), o.i_hi);
             _mm256_storeu_ps(out.hi[n * W..].as_mut_ptr(), o.hi);
             _mm256_storeu_ps(out.h_lo[n * W..].as_mut_ptr(), o.h_lo);
+            _mm256_storeu_ps(out.h_hi[n * W..].as_mut_ptr(), o.h_hi);
             for (j, &i) in idx.iter().enumerate() {
                 out.i_hi[n * W + j] = seg.l * w * h + i as usize;
             }
