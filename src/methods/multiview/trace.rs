@@ -615,8 +615,8 @@ fn trace_packet(
     // rather than an array of flags: testing the whole packet then reads a register, not
     // sixteen stores.
     let mut live: u32 = (1 << n) - 1;
-    // The cone reads of a layer, emptied for each use rather than made anew (a lane outside the
-    // mask is never read, so what it held before does not matter).
+    // The cone reads of a layer, their rows overwritten for each use rather than made anew (a
+    // lane outside the mask is never read, so what it held before does not matter).
     let mut reads = ConeReads::new();
     for &l in open {
         let (ca, _) = spacing.bounds(l);
@@ -660,11 +660,16 @@ fn trace_packet(
             crossings(&segment, &lanes)
         };
         if let (Some((c, level)), Some(mips)) = (table.graze[l], input.mips) {
-            // `graze_at` for the lanes that passed the layer, their cones read together.
-            reads.clear();
-            for j in lanes_of(live & !found) {
-                let v = Vec2::new(vx[j], vy[j]);
-                reads.push(j, p - c * v, level, [0.0; 4]);
+            // `graze_at` for the lanes that passed the layer, their cones read together: where
+            // they read, all lanes side by side (a lane outside the mask is not read).
+            reads.mask = live & !found;
+            for j in 0..LANES {
+                (reads.qx[j], reads.qy[j]) = (p.x - c * vx[j], p.y - c * vy[j]);
+            }
+            (reads.k0, reads.t) = ([level.k0 as i32; LANES], [level.t; LANES]);
+            if level.k0 == 0 {
+                // Level 0 is the pixel the ray passed, which it missed.
+                reads.level0 = [[0.0; 4]; LANES];
             }
             if reads.any() {
                 let colors = cones(&mips[l], &reads, simd);
@@ -1544,20 +1549,15 @@ impl ConeReads {
         }
     }
 
-    /// Lane `j` reads at `q` between the levels of `level`.
-    #[inline(always)]
+    /// Lane `j` reads at `q` between the levels of `level` (the trace fills whole rows at a
+    /// time; this is the tests' way in).
+    #[cfg(test)]
     fn push(&mut self, j: usize, q: Vec2, level: ConeLevel, level0: Rgba) {
         self.mask |= 1 << j;
         (self.qx[j], self.qy[j]) = (q.x, q.y);
         self.k0[j] = level.k0 as i32;
         self.t[j] = level.t;
         self.level0[j] = level0;
-    }
-
-    /// No lane reads.
-    #[inline(always)]
-    fn clear(&mut self) {
-        self.mask = 0;
     }
 
     #[inline(always)]
