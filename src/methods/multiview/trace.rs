@@ -584,6 +584,10 @@ impl RayTable {
 /// the trace on `railing` at 1280x720 with 64 rays 1221 -> 1056 ms.
 const LANES: usize = 16;
 
+// The lanes are bits of a `u32` (`1 << n` must not overflow), and the AVX2 path reads whole
+// registers of eight.
+const _: () = assert!(LANES < 32 && LANES % 8 == 0);
+
 /// [`ray`] for up to [`LANES`] rays `rays` of a pixel whose rays stay inside the layers, through
 /// the open layers `open` in order, with the same samples and arithmetic as [`layer`], so the
 /// same colours bit for bit. The lanes step each layer side by side (independent loads, no
