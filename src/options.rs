@@ -254,6 +254,12 @@ pub struct PostArgs {
     /// that passes a layer also takes the coverage its cone meets there.
     #[arg(long, help_heading = "multiview", conflicts_with = "no_cone")]
     pub paper_cone: bool,
+    /// multiview: the paper's false-position refinement of where a ray crosses a layer's
+    /// surface (three steps on a linear model of it; the hit can stay on the neighbouring
+    /// pixel at an in-focus edge); by default the first point at or behind the surface as the
+    /// layer stores it, walked pixel by pixel.
+    #[arg(long, help_heading = "multiview")]
+    pub paper_refine: bool,
     /// multiview: the cones' mipmap filter, `tent` (`[1 3 3 1]`: the same footprint wherever a
     /// read falls among the texels, so the blur does not shift with the guard band from frame
     /// to frame) or `box` (the paper's 2x2 means). Default tent, box with --paper-cone.
@@ -632,6 +638,7 @@ impl PostArgs {
                         .context("invalid --layer-origin")?,
                     cone: !self.no_cone,
                     graze: !self.paper_cone,
+                    paper_refine: self.paper_refine,
                     mip_filter: match &self.cone_mipmap {
                         Some(name) => MipFilter::parse(name).context("invalid --cone-mipmap")?,
                         None if self.paper_cone => MipFilter::Box,

@@ -20,8 +20,13 @@
 //! - Each fragment goes to the layer of its own depth (the exact decomposition): the paper's
 //!   triangle-to-farthest-vertex-layer assignment and copy pass are a GPU work-around for
 //!   independent depth buffers that a CPU rasterizer does not need.
-//! - The ray-layer test samples the segment a pixel apart before the false-position refinement,
-//!   so a thin surface between the segment's ends is not jumped over.
+//! - The ray-layer test samples the segment a pixel apart, so a thin surface between the
+//!   segment's ends is not jumped over, and finds the hit between the samples around the first
+//!   crossing exactly for the layer as stored (one flat surface per pixel, walked pixel by
+//!   pixel) instead of by the paper's false position on a linear model of the surface, which
+//!   stalls where a surface meets a slightly nearer one beside it and then took the hit from
+//!   the wrong pixel: in-focus edges bled a pixel outwards (`--paper-refine` keeps it;
+//!   measured in the README).
 //! - Jitter picks one of 16 complete sample sets per pixel (the paper's first option) rather
 //!   than rotating samples, which would turn polygonal and image apertures.
 //! - Layers see through (the paper has no transparency): each keeps its three nearest surfaces
@@ -154,6 +159,12 @@ pub struct MultiviewSettings {
     /// take its coverage, as the paper, which lets thin objects block too little light.
     /// Default on (measured in the README).
     pub graze: bool,
+    /// Where a ray crosses a layer's surface: by default the first point at or behind it, the
+    /// layer read as stored (one flat surface per pixel, walked pixel by pixel between the
+    /// samples around the crossing); true: the paper's false-position refinement of a linear
+    /// model of the surface, whose hit can stall on the neighbouring pixel at an in-focus edge
+    /// (measured in the README). Default false.
+    pub paper_refine: bool,
     /// How the cones' mipmaps are filtered: the paper's 2x2 box, or a `[1 3 3 1]` tent whose
     /// footprint does not follow the texels' phase (measured in the README). Default tent.
     pub mip_filter: MipFilter,
@@ -185,6 +196,7 @@ impl Default for MultiviewSettings {
             layer_origin: LayerOrigin::Near,
             cone: true,
             graze: true,
+            paper_refine: false,
             mip_filter: MipFilter::Tent,
             jitter: true,
             culling: true,
@@ -518,6 +530,7 @@ fn render_with(
         mips: mips.as_deref(),
         mip_filter: settings.mip_filter,
         graze: settings.graze,
+        paper_refine: settings.paper_refine,
         sets: &sets,
         noise: &noise,
         lambda,

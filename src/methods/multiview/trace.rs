@@ -7,9 +7,10 @@
 //! the layers are uniform in `C`, so each layer is a segment of at most `delta |v|` pixels,
 //! tested against the layer as a height field of CoCs: the ray has hit when it is at or behind
 //! the stored surface (`h(q(C)) <= C`). The segment is sampled a pixel apart from the front;
-//! the first sample behind the surface brackets the hit with the one before, and three steps of
-//! the paper's false-position iteration (the surface taken as linear between the bracketing
-//! samples) with bisection as a guard refine it. Empty pixels hold +inf and are never hit. A
+//! the first sample behind the surface brackets the hit with the one before, and the pixels
+//! between the two are walked in order to the first point at or behind the surface as stored
+//! ([`refine`]; the paper's false-position iteration on a linear model of the surface with
+//! `--paper-refine`). Empty pixels hold +inf and are never hit. A
 //! ray whose segment in a layer leaves the image is discarded, as in the paper. A layer the pixel's rays
 //! cannot hit (the minimum over the window they can reach, `cull`, lies beyond the layer) is
 //! skipped.
@@ -312,6 +313,9 @@ pub struct TraceInput<'a> {
     /// With cone tracing: a ray that passes a layer without hitting it still takes the
     /// coverage its cone meets there ([`graze`]).
     pub graze: bool,
+    /// The paper's false-position refinement of a crossing ([`refine_false_position`]) instead
+    /// of [`refine`]'s walk (portable code only).
+    pub paper_refine: bool,
     /// The lens sample sets (unit aperture points); one, or 16 for jitter.
     pub sets: &'a [Vec<Vec2>],
     /// Per pixel of the noise tile, the index of its sample set.
@@ -643,6 +647,7 @@ fn trace_packet(
             ca,
             enter,
             most,
+            paper_refine: input.paper_refine,
         };
         let lanes = Lanes {
             vx: &vx,
@@ -658,7 +663,7 @@ fn trace_packet(
             h_lo,
             h_hi,
             i_hi,
-        } = if simd {
+        } = if simd && !input.paper_refine {
             crossings_simd(&segment, &lanes)
         } else {
             crossings(&segment, &lanes)
@@ -807,6 +812,8 @@ struct Segment<'a> {
     ca: f32,
     enter: f32,
     most: usize,
+    /// [`refine_false_position`] instead of [`refine`] (the portable twin only).
+    paper_refine: bool,
 }
 
 /// The lanes' first crossings in the layer of `seg`, refined by [`refine`]. The portable twin
@@ -847,7 +854,8 @@ fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
     for j in 0..LANES {
         if found[j] {
             // The packet's pixel keeps its rays inside the layers: `refine` finds the hit.
-            let (c, i, h) = refine(layers, l, p, v(j), lo[j], hi[j]).unwrap_or((hi[j], 0, 0.0));
+            let (c, i, h) = refine_as(seg.paper_refine, layers, l, p, v(j), lo[j], hi[j])
+                .unwrap_or((hi[j], 0, 0.0));
             (out.hi[j], out.i_hi[j], out.h_lo[j]) = (c, i, h);
             out.h_hi[j] = layers.coc_px[i];
         }
@@ -1199,42 +1207,78 @@ mod avx2 {
             }
         }
 
-        /// One false-position step with bisection as a guard, as `refine`.
+        /// The lanes' hits, as `refine` finds them: the pixels between the bracket's ends
+        /// walked in order, all lanes side by side, one gather a pixel.
         #[inline(always)]
         unsafe fn refine(&mut self, walk: &Walk) {
-            let abs = _mm256_castsi256_ps(_mm256_set1_epi32(i32::MAX));
+            let zero = _mm256_setzero_ps();
+            let one = _mm256_set1_epi32(1);
             let inf = _mm256_set1_ps(f32::INFINITY);
-            let half = _mm256_set1_ps(0.5);
-            let (lo, hi) = (self.lo, self.hi);
-            let f_lo = _mm256_sub_ps(self.h_lo, lo);
-            let f_hi = _mm256_sub_ps(self.h_hi, hi);
-            let finite = _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_and_ps(f_lo, abs), inf),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_and_ps(f_hi, abs), inf),
+            let pixel = |c: __m256| {
+                (
+                    _mm256_cvttps_epi32(_mm256_sub_ps(walk.px, _mm256_mul_ps(c, self.vx))),
+                    _mm256_cvttps_epi32(_mm256_sub_ps(walk.py, _mm256_mul_ps(c, self.vy))),
+                )
+            };
+            let (mut x, mut y) = pixel(self.lo);
+            let (bx, by) = pixel(self.hi);
+            // Where `v > 0` the next boundary is the pixel's lower side and the walk steps
+            // down (-1); elsewhere its upper side (+1), stepping up.
+            let down_x = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(self.vx, zero));
+            let down_y = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(self.vy, zero));
+            let (ox, oy) = (
+                _mm256_andnot_si256(down_x, one),
+                _mm256_andnot_si256(down_y, one),
             );
-            let secant = _mm256_and_ps(finite, _mm256_cmp_ps::<_CMP_NEQ_OQ>(f_lo, f_hi));
-            let guess = _mm256_add_ps(
-                lo,
-                _mm256_div_ps(
-                    _mm256_mul_ps(_mm256_sub_ps(hi, lo), f_lo),
-                    _mm256_sub_ps(f_lo, f_hi),
-                ),
-            );
-            let bisect = _mm256_mul_ps(half, _mm256_add_ps(lo, hi));
-            let mid = _mm256_blendv_ps(bisect, guess, secant);
-            let inside = _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GT_OQ>(mid, lo),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(mid, hi),
-            );
-            let mid = _mm256_blendv_ps(bisect, mid, inside);
-            let i_mid = walk.index(mid, self.vx, self.vy);
-            let h_mid = walk.gather(i_mid);
-            let to_hi = _mm256_cmp_ps::<_CMP_LE_OQ>(h_mid, mid);
-            self.hi = _mm256_blendv_ps(hi, mid, to_hi);
-            self.h_hi = _mm256_blendv_ps(self.h_hi, h_mid, to_hi);
-            self.i_hi = select_index(self.i_hi, i_mid, to_hi);
-            self.lo = _mm256_blendv_ps(mid, lo, to_hi);
-            self.h_lo = _mm256_blendv_ps(h_mid, self.h_lo, to_hi);
+            let (sx, sy) = (_mm256_or_si256(down_x, one), _mm256_or_si256(down_y, one));
+            let ones = _mm256_set1_ps(1.0);
+            let (inv_x, inv_y) = (_mm256_div_ps(ones, self.vx), _mm256_div_ps(ones, self.vy));
+            let mut c_in = self.lo;
+            let mut h_front = self.h_lo;
+            let mut active = self.found;
+            while _mm256_movemask_ps(active) != 0 {
+                let i = _mm256_min_epi32(
+                    _mm256_max_epi32(
+                        _mm256_add_epi32(_mm256_mullo_epi32(y, walk.wv), x),
+                        _mm256_setzero_si256(),
+                    ),
+                    walk.last,
+                );
+                let h_px = walk.gather(i);
+                let more_x = _mm256_xor_ps(
+                    _mm256_castsi256_ps(_mm256_cmpeq_epi32(x, bx)),
+                    _mm256_castsi256_ps(_mm256_set1_epi32(-1)),
+                );
+                let more_y = _mm256_xor_ps(
+                    _mm256_castsi256_ps(_mm256_cmpeq_epi32(y, by)),
+                    _mm256_castsi256_ps(_mm256_set1_epi32(-1)),
+                );
+                let side = |p: __m256, t: __m256i, o: __m256i, inv: __m256| {
+                    _mm256_mul_ps(
+                        _mm256_sub_ps(p, _mm256_cvtepi32_ps(_mm256_add_epi32(t, o))),
+                        inv,
+                    )
+                };
+                let cx = _mm256_blendv_ps(inf, side(walk.px, x, ox, inv_x), more_x);
+                let cy = _mm256_blendv_ps(inf, side(walk.py, y, oy, inv_y), more_y);
+                let c_next = _mm256_min_ps(cx, cy);
+                let last = _mm256_andnot_ps(_mm256_or_ps(more_x, more_y), active);
+                let met = _mm256_cmp_ps::<_CMP_LE_OQ>(h_px, _mm256_min_ps(c_next, self.hi));
+                let hit = _mm256_or_ps(_mm256_and_ps(met, active), last);
+                let c_hit = _mm256_min_ps(_mm256_max_ps(c_in, h_px), self.hi);
+                self.hi = _mm256_blendv_ps(self.hi, c_hit, hit);
+                self.h_hi = _mm256_blendv_ps(self.h_hi, h_px, hit);
+                self.i_hi = select_index(self.i_hi, i, hit);
+                self.h_lo = _mm256_blendv_ps(self.h_lo, h_front, hit);
+                active = _mm256_andnot_ps(hit, active);
+                let step_x = _mm256_and_ps(more_x, _mm256_cmp_ps::<_CMP_LT_OQ>(cx, cy));
+                let step_y = _mm256_andnot_ps(step_x, active);
+                let step_x = _mm256_and_ps(step_x, active);
+                x = _mm256_add_epi32(x, _mm256_and_si256(sx, _mm256_castps_si256(step_x)));
+                y = _mm256_add_epi32(y, _mm256_and_si256(sy, _mm256_castps_si256(step_y)));
+                h_front = h_px;
+                c_in = c_next;
+            }
         }
     }
 
@@ -1277,15 +1321,10 @@ mod avx2 {
         if out.found == 0 {
             return out;
         }
-        // Refinement: three false-position steps with bisection as a guard, as `refine`, from
-        // the samples at the bracket's ends (the same positions `refine` samples again).
+        // The hits, as `refine` finds them, from the samples at the bracket's ends.
         for o in octets.iter_mut() {
             o.entry(&walk);
-        }
-        for _ in 0..3 {
-            for o in octets.iter_mut() {
-                o.refine(&walk);
-            }
+            o.refine(&walk);
         }
         for (n, o) in octets.iter().enumerate() {
             let mut idx = [0i32; W];
@@ -1354,8 +1393,8 @@ fn layer(input: &TraceInput, l: usize, p: Vec2, v: Vec2, speed: f32, state: &mut
         let i = layers.index(l, q.x as usize, q.y as usize);
         let behind = layers.coc_px[i] <= c;
         if behind && prev_front {
-            let (c_hit, i_hit, h_front) =
-                refine(layers, l, p, v, prev, c).unwrap_or((c, i, f32::INFINITY));
+            let (c_hit, i_hit, h_front) = refine_as(input.paper_refine, layers, l, p, v, prev, c)
+                .unwrap_or((c, i, f32::INFINITY));
             // A ray meets the surface where it crosses it (refined to within
             // THICKNESS_PX), or where it steps onto it from a continuation of the same
             // surface (a slanted surface sampled pixel by pixel); one that comes in from
@@ -1595,12 +1634,98 @@ fn cones(mip: &LayerMip, reads: &ConeReads, simd: bool) -> [Rgba; LANES] {
     })
 }
 
-/// Between `lo` (in front of the surface) and `hi` (at or behind it): three false-position
-/// steps, each checked, with bisection when the linear guess does not shrink the bracket.
-/// Returns the refined hit (ray CoC and layer pixel) and the surface CoC under the ray just
-/// in front of it.
+/// Between `lo` (in front of the surface) and `hi` (at or behind it): the ray's first point at
+/// or behind the layer's surface, with the layer read as it is stored, one surface per pixel,
+/// flat across it. The pixels the ray passes between the two are walked in order (at most
+/// three for a step of a pixel); in each, the ray meets the surface where its CoC reaches the
+/// pixel's (`h <= C` within the pixel), or at the pixel's side if it comes in already behind
+/// it. Returns the hit (ray CoC and layer pixel) and the surface CoC of the pixel the ray came
+/// from (the hit pixel's own where the ray meets it inside the first).
+///
+/// The paper refines a linear model of the surface between the bracket's ends instead (false
+/// position, [`refine_false_position`]); from a surface to a slightly nearer one beside it (a
+/// poster's edge on a wall) that iteration stalls at the bracket's front end and left the hit
+/// on the neighbouring pixel: the in-focus edge bled a pixel outwards.
 #[inline(always)]
 fn refine(
+    layers: &DepthLayers,
+    l: usize,
+    p: Vec2,
+    v: Vec2,
+    lo: f32,
+    hi: f32,
+) -> Option<(f32, usize, f32)> {
+    let (w, h) = (layers.width as f32, layers.height as f32);
+    let pixel = |c: f32| -> Option<(i32, i32)> {
+        let q = p - c * v;
+        if q.x < 0.0 || q.y < 0.0 || q.x >= w || q.y >= h {
+            return None;
+        }
+        Some((q.x as i32, q.y as i32))
+    };
+    let (mut x, mut y) = pixel(lo)?;
+    let (bx, by) = pixel(hi)?;
+    let at = |x: i32, y: i32| layers.index(l, x as usize, y as usize);
+    // `q` falls as `C` grows where `v` is positive: the next pixel boundary is the pixel's
+    // lower side, and the walk steps down; elsewhere its upper side, stepping up.
+    let (ox, sx) = if v.x > 0.0 { (0, -1) } else { (1, 1) };
+    let (oy, sy) = if v.y > 0.0 { (0, -1) } else { (1, 1) };
+    let (inv_x, inv_y) = (1.0 / v.x, 1.0 / v.y);
+    let mut c_in = lo;
+    let mut h_front = layers.coc_px[at(x, y)];
+    loop {
+        let i = at(x, y);
+        let h_px = layers.coc_px[i];
+        let (more_x, more_y) = (x != bx, y != by);
+        let cx = if more_x {
+            (p.x - (x + ox) as f32) * inv_x
+        } else {
+            f32::INFINITY
+        };
+        let cy = if more_y {
+            (p.y - (y + oy) as f32) * inv_y
+        } else {
+            f32::INFINITY
+        };
+        let c_next = cx.min(cy);
+        // The last pixel is the one the bracket's far end found behind the surface (met there
+        // whatever the rounding of the boundaries before it).
+        if h_px <= c_next.min(hi) || !(more_x || more_y) {
+            return Some((c_in.max(h_px).min(hi), i, h_front));
+        }
+        if more_x && cx < cy {
+            x += sx;
+        } else {
+            y += sy;
+        }
+        (h_front, c_in) = (h_px, c_next);
+    }
+}
+
+/// [`refine_false_position`] where `paper`, else [`refine`].
+#[inline(always)]
+fn refine_as(
+    paper: bool,
+    layers: &DepthLayers,
+    l: usize,
+    p: Vec2,
+    v: Vec2,
+    lo: f32,
+    hi: f32,
+) -> Option<(f32, usize, f32)> {
+    if paper {
+        refine_false_position(layers, l, p, v, lo, hi)
+    } else {
+        refine(layers, l, p, v, lo, hi)
+    }
+}
+
+/// The paper's refinement (`--paper-refine`): between `lo` (in front of the surface) and `hi`
+/// (at or behind it), three false-position steps, each checked, with bisection when the linear
+/// guess does not shrink the bracket. Returns the bracket's far end (ray CoC and layer pixel)
+/// and the surface CoC under the ray at its near end.
+#[inline(always)]
+fn refine_false_position(
     layers: &DepthLayers,
     l: usize,
     p: Vec2,
@@ -1981,6 +2106,159 @@ mod tests {
                         "{w}x{h}, round {round}, lane {j}"
                     );
                 }
+            }
+        }
+    }
+
+    /// A one-layer stack of `w x h` pixels whose surfaces' CoCs are `coc(x, y)`.
+    fn height_field(w: usize, h: usize, mut coc: impl FnMut(usize, usize) -> f32) -> DepthLayers {
+        let mut layers = random_layer(w, h, 3);
+        for y in 0..h {
+            for x in 0..w {
+                layers.coc_px[y * w + x] = coc(x, y);
+            }
+        }
+        layers
+    }
+
+    #[test]
+    fn a_ray_from_a_wall_onto_a_poster_a_hair_nearer_meets_the_wall() {
+        // A wall at CoC 0.01 px (row 23 and above) and a poster at 0 (row 24 and below); a
+        // ray over pixel row 23 whose position moves down a pixel per pixel of CoC, bracketed
+        // by a sample in front of the wall at C = 0 (row 23) and one behind the poster at C = 1
+        // (row 24). It passes behind the wall at C = 0.01, still over row 23: it meets the wall
+        // there. (The paper's false position stays on the poster's pixel at C = 1.)
+        let layers = height_field(8, 48, |_, y| if y < 24 { 0.01 } else { 0.0 });
+        let (p, v) = (Vec2::new(4.5, 23.5), Vec2::new(0.0, -1.0));
+        let (c, i, h_front) = refine(&layers, 0, p, v, 0.0, 1.0).unwrap();
+        assert_eq!((c, i, h_front), (0.01, 23 * 8 + 4, 0.01));
+        let (_, i_paper, _) = refine_false_position(&layers, 0, p, v, 0.0, 1.0).unwrap();
+        assert_eq!(i_paper, 24 * 8 + 4);
+    }
+
+    #[test]
+    fn refine_finds_the_first_point_behind_the_stored_surface() {
+        // Random height fields (a fifth of the pixels empty, the rest in a few levels a
+        // fraction of a pixel apart, so that neighbours are often a hair apart) and random
+        // brackets of up to three pixels of travel: the hit is the first point of the segment
+        // at or behind the surface of the pixel under it, found here by sampling the segment
+        // 20000 times in f64. Points within 1e-4 of a pixel boundary are left out (either
+        // side is right there).
+        let (w, h) = (24, 24);
+        let mut rng = SplitMix64::new(17);
+        let mut checked = 0;
+        for round in 0..400 {
+            let levels: Vec<f32> = (0..4).map(|_| rng.range(-2.0, 2.0)).collect();
+            let layers = height_field(w, h, |_, _| {
+                if rng.below(5) == 0 {
+                    f32::INFINITY
+                } else {
+                    levels[rng.below(4)] + 0.01 * rng.below(3) as f32
+                }
+            });
+            for _ in 0..50 {
+                let p = Vec2::new(8.0 + rng.below(8) as f32, 8.0 + rng.below(8) as f32) + 0.5;
+                let a = rng.range(0.0, std::f32::consts::TAU);
+                let v = Vec2::new(a.cos(), a.sin()) * rng.range(0.05, 1.0);
+                let lo = rng.range(-3.0, 2.0);
+                let hi = lo + rng.range(0.05, 3.0 / v.length()).min(4.0);
+                let hf = |c: f64| {
+                    let (qx, qy) = (p.x as f64 - c * v.x as f64, p.y as f64 - c * v.y as f64);
+                    let i = qy.floor() as usize * w + qx.floor() as usize;
+                    (layers.coc_px[i] as f64, i, qx, qy)
+                };
+                if hf(lo as f64).0 <= lo as f64 || hf(hi as f64).0 > hi as f64 {
+                    continue;
+                }
+                let n = 20_000;
+                let want = (0..=n)
+                    .map(|k| lo as f64 + (hi - lo) as f64 * k as f64 / n as f64)
+                    .find(|&c| hf(c).0 <= c)
+                    .unwrap();
+                let (_, i_want, qx, qy) = hf(want);
+                let near_boundary = |q: f64| (q - q.round()).abs() < 1e-4;
+                if near_boundary(qx) || near_boundary(qy) {
+                    continue;
+                }
+                let (c, i, _) = refine(&layers, 0, p, v, lo, hi).unwrap();
+                assert_eq!(i, i_want, "round {round}: p {p}, v {v}, [{lo}, {hi}]");
+                let tolerance = (hi - lo) as f64 / n as f64 + 1e-5;
+                assert!(
+                    (c as f64 - want).abs() <= tolerance,
+                    "round {round}: hit at {c}, want {want}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > 5000, "only {checked} brackets checked");
+    }
+
+    #[test]
+    fn crossings_a_register_at_a_time_are_one_at_a_time_bit_for_bit() {
+        // Packets of random rays over random height fields as above, lanes in and out of the
+        // live mask: the AVX2 walk and refinement give the portable twin's crossings.
+        if !simd_fits(1) {
+            eprintln!("skipped: this CPU has no AVX2 and F16C");
+            return;
+        }
+        let (w, h) = (40, 40);
+        let mut rng = SplitMix64::new(23);
+        for round in 0..300 {
+            let levels: Vec<f32> = (0..4).map(|_| rng.range(-7.0, -5.0)).collect();
+            let layers = height_field(w, h, |_, _| {
+                if rng.below(5) == 0 {
+                    f32::INFINITY
+                } else {
+                    levels[rng.below(4)] + 0.01 * rng.below(3) as f32
+                }
+            });
+            let (ca, cb) = layers.spacing.bounds(0);
+            let mut vx = [0.0f32; LANES];
+            let mut vy = [0.0f32; LANES];
+            let mut dc = [0.0f32; LANES];
+            let mut steps = [0usize; LANES];
+            let mut stepsf = [0.0f32; LANES];
+            for j in 0..LANES {
+                let a = rng.range(0.0, std::f32::consts::TAU);
+                let v = Vec2::new(a.cos(), a.sin()) * rng.range(0.0, 1.0);
+                (vx[j], vy[j]) = (v.x, v.y);
+                let n = ((cb - ca) * v.length()).ceil().max(1.0) as usize;
+                (steps[j], stepsf[j], dc[j]) = (n, n as f32, (cb - ca) / n as f32);
+            }
+            let live = rng.next_u64() as u32 & ((1 << LANES) - 1);
+            let most = (0..LANES)
+                .filter(|&j| lane(live, j))
+                .map(|j| steps[j])
+                .max();
+            let seg = Segment {
+                layers: &layers,
+                l: 0,
+                p: Vec2::new(20.5, 20.5),
+                ca,
+                enter: ca - layers.spacing.overlap * layers.spacing.delta_px,
+                most: most.unwrap_or(0),
+                paper_refine: false,
+            };
+            let lanes = Lanes {
+                vx: &vx,
+                vy: &vy,
+                dc: &dc,
+                steps: &steps,
+                stepsf: &stepsf,
+                live,
+            };
+            let (a, b) = (crossings(&seg, &lanes), crossings_simd(&seg, &lanes));
+            assert_eq!(a.found, b.found, "round {round}");
+            for j in (0..LANES).filter(|&j| lane(a.found, j)) {
+                let ends = |c: &Crossings| {
+                    (
+                        c.hi[j].to_bits(),
+                        c.h_lo[j].to_bits(),
+                        c.h_hi[j].to_bits(),
+                        c.i_hi[j],
+                    )
+                };
+                assert_eq!(ends(&a), ends(&b), "round {round}, lane {j}");
             }
         }
     }
