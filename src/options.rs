@@ -287,6 +287,13 @@ pub struct PostArgs {
     /// whose blur reaches into the frame.
     #[arg(long, help_heading = "layered methods")]
     pub no_guard_band: bool,
+    /// multilayer, splat --layers N: fragments brighter than this linear luminance (over their
+    /// coverage; 1 is white) are scattered on their own, each pixel of a light's bokeh taking
+    /// it through its one lens ray with that ray's visibility past the nearer surfaces (the
+    /// shadow of a near railing across the bokeh of a light behind it), or `off`: blended as
+    /// every fragment, as the papers. Default 1.
+    #[arg(long, value_name = "LUMINANCE|off", help_heading = "layered methods")]
+    pub highlights: Option<String>,
 
     /// multilayer: fragments kept per pixel, N.
     #[arg(
@@ -412,6 +419,14 @@ pub fn parse_cats_eye(s: &str) -> std::result::Result<(f32, Option<f32>), String
 
 impl PostArgs {
     /// The layered methods' input from `--no-coverage` and `--no-guard-band`.
+    /// `--highlights`, or `default` where not given.
+    fn highlights(&self, default: Option<f32>) -> crate::Result<Option<f32>> {
+        match &self.highlights {
+            None => Ok(default),
+            Some(s) => crate::methods::highlights::parse_threshold(s),
+        }
+    }
+
     fn layered_input(&self) -> LayeredInput {
         LayeredInput {
             coverage: !self.no_coverage,
@@ -620,6 +635,7 @@ impl PostArgs {
                     max_coc_px,
                     input: self.layered_input(),
                     effects: self.lens_effects()?,
+                    highlights: self.highlights(SplatSettings::default().highlights)?,
                 };
                 sp.validate().context("invalid splat option")?;
                 MethodSettings::Splat(sp)
@@ -664,6 +680,7 @@ impl PostArgs {
                     input: self.layered_input(),
                     bokeh: Bokeh::parse(&self.ml_bokeh).context("invalid --ml-bokeh")?,
                     aperture: aperture.clone(),
+                    highlights: self.highlights(MultilayerSettings::default().highlights)?,
                 };
                 m.validate().context("invalid multilayer option")?;
                 MethodSettings::Multilayer(m)

@@ -18,6 +18,7 @@
 pub mod coc_map;
 pub mod gaussian;
 pub mod hammon;
+pub mod highlights;
 pub mod lowrank;
 pub mod multilayer;
 pub mod multiview;

@@ -369,6 +369,11 @@ impl FragmentLists {
         &self.color
     }
 
+    /// All colours, pixel after pixel, to change (the lists' order and depths stay).
+    pub fn colors_mut(&mut self) -> &mut [HalfRgba] {
+        &mut self.color
+    }
+
     /// Depth of the nearest fragment of each pixel (+inf where there is none): the pinhole
     /// depth, for outputs that want one.
     pub fn nearest_depth(&self) -> Vec<f32> {

@@ -271,6 +271,19 @@ fn point_light_becomes_the_aperture_shape_in_splat_and_multiview_as_in_reference
             },
         )
         .unwrap();
+        // The light is brighter than white: by default a highlight, scattered with its rays'
+        // visibility; `--highlights off` blends it as every fragment.
+        let (sp_blended, _) = splat::render_scene(
+            &scene,
+            &camera,
+            &SplatSettings {
+                aperture: aperture.clone(),
+                layers: 4,
+                highlights: None,
+                ..SplatSettings::default()
+            },
+        )
+        .unwrap();
         let mv = multiview::render(
             &scene,
             &camera,
@@ -283,7 +296,11 @@ fn point_light_becomes_the_aperture_shape_in_splat_and_multiview_as_in_reference
             },
         )
         .unwrap();
-        for (name, image) in [("splat", sp.image), ("multiview", mv.image)] {
+        for (name, image) in [
+            ("splat", sp.image),
+            ("splat --highlights off", sp_blended.image),
+            ("multiview", mv.image),
+        ] {
             let ours = lit(&image, size, coc);
             let both = ours.iter().zip(&truth).filter(|(a, b)| **a && **b).count();
             let either = ours.iter().zip(&truth).filter(|(a, b)| **a || **b).count();
@@ -420,4 +437,115 @@ fn the_inside_of_a_closed_mesh_takes_no_slot() {
         depths.len() == 2 && (depths[1] - 0.52).abs() < 1e-3,
         "{depths:?}"
     );
+}
+
+/// A light far behind focus (CoC +21 px) hidden in the pinhole view behind a near opaque bar
+/// (CoC -14 px) that covers part of the lens from every pixel of the light's bokeh: through the
+/// lens the bar's shadow crosses the disc as a dark stripe (`reference`). `multilayer` and
+/// `splat --layers 4` scatter the light as a highlight, each pixel of its bokeh with the
+/// visibility of its one lens ray past the bar, and draw the stripe; blended as every fragment
+/// (`--highlights off`) the bar only dims the whole disc.
+#[test]
+fn a_near_bar_draws_its_shadow_across_the_bokeh_of_a_light_behind_it() {
+    let size = 96;
+    let (mut scene, camera, coc) = crate::point_light(size, 50.0);
+    let lens = camera.thin_lens().unwrap();
+    let z_bar = 0.6;
+    let c_bar = lens.coc_px(z_bar);
+    assert!(coc > 20.0 && c_bar < -13.0, "setup: C {coc}, bar {c_bar}");
+    let bar = scene.add_material(Material::color("bar", [0.02, 0.02, 0.02]));
+    let c = size as f32 / 2.0;
+    // The bar covers pinhole columns c - 2 to c + 12, the light (at c) among them.
+    let (x0, x1) = (c - 2.0, c + 12.0);
+    add_screen_rect(
+        &mut scene,
+        &camera,
+        (x0, -(size as f32), x1, 2.0 * size as f32),
+        z_bar,
+        bar,
+    );
+    let truth = reference_image(&scene, &camera, &Aperture::Disc, 2048);
+    // The ray of disc pixel p sees the light through lens point u = (p - c) / C and passes the
+    // bar's depth over c + (C - C_bar) u: the shadow is the disc's pixels whose ray falls on the
+    // bar, columns c + C (x0 - c) / (C - C_bar) to c + C (x1 - c) / (C - C_bar).
+    let t = coc - c_bar;
+    let (s0, s1) = (c + coc * (x0 - c) / t, c + coc * (x1 - c) / t);
+    let in_disc = |x: usize, y: usize| {
+        let d = glam::Vec2::new(x as f32 + 0.5 - c, y as f32 + 0.5 - c);
+        d.length() < coc - 2.0
+    };
+    let px = |x: usize| x as f32 + 0.5;
+    let shadow = |x: usize, y: usize| in_disc(x, y) && px(x) > s0 + 1.0 && px(x) < s1 - 1.0;
+    let lit = |x: usize, y: usize| in_disc(x, y) && (px(x) < s0 - 1.0 || px(x) > s1 + 1.0);
+    let mean = |img: &ColorImage, keep: &dyn Fn(usize, usize) -> bool| {
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for y in 0..size {
+            for x in 0..size {
+                if keep(x, y) {
+                    sum += img.get(x, y)[0] as f64;
+                    n += 1;
+                }
+            }
+        }
+        assert!(n > 10, "setup: {n} pixels");
+        sum / n as f64
+    };
+    let (lit_truth, dark_truth) = (mean(&truth, &lit), mean(&truth, &shadow));
+    assert!(
+        dark_truth < 0.05 * lit_truth,
+        "reference: {dark_truth} vs {lit_truth}"
+    );
+    for highlights in [Some(1.0), None] {
+        let ml = multilayer::render(
+            &scene,
+            &camera,
+            &MultilayerSettings {
+                highlights,
+                ..MultilayerSettings::default()
+            },
+        )
+        .unwrap();
+        let (sp, _) = splat::render_scene(
+            &scene,
+            &camera,
+            &SplatSettings {
+                layers: 4,
+                highlights,
+                ..SplatSettings::default()
+            },
+        )
+        .unwrap();
+        for (name, img) in [("multilayer", ml.image), ("splat --layers 4", sp.image)] {
+            let (l, d) = (mean(&img, &lit), mean(&img, &shadow));
+            // Column by column over the disc (`reference`'s pixels are noisy: a few of its
+            // 2048 views light each one), the largest difference of the column means.
+            let error = (0..size)
+                .filter(|&x| (px(x) - c).abs() < coc - 6.0)
+                .map(|x0| {
+                    let column = |x: usize, y: usize| x == x0 && in_disc(x, y);
+                    (mean(&img, &column) - mean(&truth, &column)).abs()
+                })
+                .fold(0.0f64, f64::max);
+            eprintln!(
+                "{name} highlights {highlights:?}: lit {l:.3} shadow {d:.3} (reference {lit_truth:.3} {dark_truth:.3}), columns within {error:.3}"
+            );
+            if highlights.is_some() {
+                // The stripe as dark as in `reference`, the rest of the disc as bright, and
+                // every column of the disc within 15% of the disc's brightness of
+                // `reference`'s (where the stripe's edges fall).
+                assert!(d < 0.05 * l, "{name}: shadow {d} vs lit {l}");
+                assert!(
+                    (l / lit_truth - 1.0).abs() < 0.1,
+                    "{name}: lit {l} vs {lit_truth}"
+                );
+                assert!(error < 0.15 * lit_truth, "{name}: columns within {error}");
+            } else {
+                // Blended, the bar dims the whole disc evenly: no stripe.
+                assert!(
+                    d > 0.5 * l,
+                    "{name}: shadow {d} vs lit {l} without highlights"
+                );
+            }
+        }
+    }
 }

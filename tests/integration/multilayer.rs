@@ -473,7 +473,9 @@ fn analytic_lit(aperture: &Aperture, coc: f32, size: usize) -> Vec<bool> {
 
 /// A point light far behind focus becomes the aperture: disc, hexagon, turned 5-blade polygon,
 /// of `reference`'s size and orientation (IoU of the lit regions and their extent in 12
-/// directions), where the paper's box gives a square.
+/// directions), where the paper's box gives a square: from the filtered levels (the light
+/// filtered as every fragment, `--highlights off`) and scattered as a highlight (the default
+/// for a light brighter than white).
 #[test]
 fn point_light_becomes_the_aperture_shape_of_diameter_two_coc() {
     /// The gather reads the aperture on its level's cells (8 px here: a CoC radius of 21 px is
@@ -500,46 +502,56 @@ fn point_light_becomes_the_aperture_shape_of_diameter_two_coc() {
         let iou = |img: &ColorImage| truth.iou(img);
         let mut settings = MultilayerSettings {
             aperture: aperture.clone(),
+            highlights: None,
             ..MultilayerSettings::default()
         };
         assert_eq!(settings.bokeh, Bokeh::Shape, "the default");
-        let ours = multilayer::render(&scene, &camera, &settings).unwrap();
+        let filtered = multilayer::render(&scene, &camera, &settings).unwrap();
         settings.bokeh = Bokeh::Box;
         let boxed = multilayer::render(&scene, &camera, &settings).unwrap();
-        let e_ours: f64 = ours.image.pixels().iter().map(|p| p[0] as f64).sum();
-        let (iou_shape, iou_box) = (iou(&ours.image), iou(&boxed.image));
-        eprintln!(
-            "{spec}: C = {coc:.1} px, IoU shape {iou_shape:.3}, box {iou_box:.3}, energy {e_ours:.0} vs {energy:.0}"
-        );
-        assert!(
-            (e_ours / energy - 1.0).abs() < 0.02,
-            "{spec}: energy {e_ours} vs {energy}"
-        );
-        assert!(iou_shape >= MIN_IOU, "{spec}: IoU {iou_shape}");
-        assert!(
-            iou_shape > iou_box,
-            "{spec}: shape {iou_shape} vs box {iou_box}"
-        );
-        let got = lit(&ours.image, energy, area);
-        let exact_mask = analytic_lit(&aperture, coc, size);
-        for k in 0..12 {
-            let a = (k as f32 * 30.0 + 5.0).to_radians();
-            let (e_got, e_want) = (
-                extent_along(&got, size, c, a),
-                extent_along(want, size, c, a),
-            );
-            let exact = extent_along(&exact_mask, size, c, a);
-            assert!(
-                (e_got - exact).abs() <= EXTENT_TOLERANCE_PX,
-                "{spec} at {} degrees: extent {e_got} vs |C| {coc} gives {exact}",
-                k * 30 + 5
+        let scattered = MultilayerSettings {
+            aperture: aperture.clone(),
+            ..MultilayerSettings::default()
+        };
+        assert!(scattered.highlights.is_some(), "the default");
+        let scattered = multilayer::render(&scene, &camera, &scattered).unwrap();
+        let iou_box = iou(&boxed.image);
+        for (path, ours) in [("filtered", &filtered), ("scattered", &scattered)] {
+            let e_ours: f64 = ours.image.pixels().iter().map(|p| p[0] as f64).sum();
+            let iou_shape = iou(&ours.image);
+            eprintln!(
+                "{spec} {path}: C = {coc:.1} px, IoU shape {iou_shape:.3}, box {iou_box:.3}, energy {e_ours:.0} vs {energy:.0}"
             );
             assert!(
-                (e_got - e_want).abs() <= REFERENCE_TOLERANCE_PX
-                    && (e_want - exact).abs() <= REFERENCE_TOLERANCE_PX,
-                "{spec} at {} degrees: extent {e_got}, reference {e_want}, |C| gives {exact}",
-                k * 30 + 5
+                (e_ours / energy - 1.0).abs() < 0.02,
+                "{spec} {path}: energy {e_ours} vs {energy}"
             );
+            assert!(iou_shape >= MIN_IOU, "{spec} {path}: IoU {iou_shape}");
+            assert!(
+                iou_shape > iou_box,
+                "{spec} {path}: shape {iou_shape} vs box {iou_box}"
+            );
+            let got = lit(&ours.image, energy, area);
+            let exact_mask = analytic_lit(&aperture, coc, size);
+            for k in 0..12 {
+                let a = (k as f32 * 30.0 + 5.0).to_radians();
+                let (e_got, e_want) = (
+                    extent_along(&got, size, c, a),
+                    extent_along(want, size, c, a),
+                );
+                let exact = extent_along(&exact_mask, size, c, a);
+                assert!(
+                    (e_got - exact).abs() <= EXTENT_TOLERANCE_PX,
+                    "{spec} {path} at {} degrees: extent {e_got} vs |C| {coc} gives {exact}",
+                    k * 30 + 5
+                );
+                assert!(
+                    (e_got - e_want).abs() <= REFERENCE_TOLERANCE_PX
+                        && (e_want - exact).abs() <= REFERENCE_TOLERANCE_PX,
+                    "{spec} {path} at {} degrees: extent {e_got}, reference {e_want}, |C| gives {exact}",
+                    k * 30 + 5
+                );
+            }
         }
     }
 }
@@ -563,9 +575,12 @@ fn full_bokeh_draws_a_small_bokeh_in_the_aperture_shape() {
         let aperture = Aperture::parse(spec).unwrap();
         let truth = LitTruth::new(&scene, &camera, &aperture, coc);
         let (energy, iou) = (truth.energy, |img: &ColorImage| truth.iou(img));
+        // The filtered levels' bokeh (a light brighter than white would be scattered as a
+        // highlight by default).
         let mut settings = MultilayerSettings {
             aperture: aperture.clone(),
             bokeh: Bokeh::Full,
+            highlights: None,
             ..MultilayerSettings::default()
         };
         let full = multilayer::render(&scene, &camera, &settings).unwrap();

@@ -67,6 +67,8 @@ use crate::{Error, Result};
 pub use accumulate::accumulate;
 use filter::{Level, Step};
 
+use super::highlights;
+use super::splat::blend::Shape;
 use super::MethodOutput;
 
 /// `--timings` labels of `multilayer`.
@@ -79,6 +81,8 @@ pub mod pass {
     pub const FILTER: &str = "multilayer/filter";
     /// Blend the levels into the image (section 6.1).
     pub const ACCUMULATE: &str = "multilayer/accumulate";
+    /// Bright fragments scattered with their rays' visibility (`highlights`).
+    pub const HIGHLIGHTS: &str = "multilayer/highlights";
 }
 
 /// The filter configuration: mip-mapping then stack-filtering steps.
@@ -211,6 +215,11 @@ pub struct MultilayerSettings {
     pub bokeh: Bokeh,
     /// The aperture of [`Bokeh::Shape`] (the same value `reference` takes). Default the disc.
     pub aperture: Aperture,
+    /// Fragments brighter than this (linear luminance over coverage) are scattered on their
+    /// own with each lens ray's visibility past the nearer surfaces
+    /// ([`crate::methods::highlights`]); `None`: filtered as every fragment (the paper's).
+    /// Default 1 (brighter than white; measured in the README).
+    pub highlights: Option<f32>,
 }
 
 impl Default for MultilayerSettings {
@@ -224,6 +233,7 @@ impl Default for MultilayerSettings {
             input: LayeredInput::default(),
             bokeh: Bokeh::default(),
             aperture: Aperture::Disc,
+            highlights: Some(1.0),
         }
     }
 }
@@ -257,6 +267,7 @@ impl MultilayerSettings {
             ));
         }
         self.aperture.validate()?;
+        crate::methods::highlights::check_threshold(self.highlights)?;
         self.filter_steps.validate()
     }
 }
@@ -544,7 +555,19 @@ fn render_with(
     let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
     check_memory(&lens, settings)?;
-    let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
+    let mut lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
+    let k = settings.supersample;
+    let fine = ThinLens {
+        width_px: lens.width_px * k,
+        height_px: lens.height_px * k,
+        f_px: lens.f_px * k as f32,
+        ..lens
+    };
+    let highlights = settings.highlights.map(|threshold| {
+        timings.time(pass::HIGHLIGHTS, || {
+            highlights::take(&mut lists, &fine, k as f32, threshold, f32::INFINITY)
+        })
+    });
     let borders = Borders::new(lens);
     let (levels, bytes) = timings.time(pass::FILTER, || {
         filter_with(&lists, &borders, settings, step_fn)
@@ -557,9 +580,23 @@ fn render_with(
         width: w,
         height: h,
     };
-    let image = timings.time(pass::ACCUMULATE, || {
+    let mut image = timings.time(pass::ACCUMULATE, || {
         accumulate_fn(&levels, &borders, settings, region)
     });
+    if let Some(highlights) = highlights {
+        let shape = Shape::new(&settings.aperture);
+        let seen = timings.time(pass::HIGHLIGHTS, || {
+            highlights::scatter(
+                &highlights,
+                &lists,
+                &fine,
+                &shape,
+                k as f32,
+                (guard, guard, w, h),
+            )
+        });
+        highlights::add_into(&mut image, &seen);
+    }
     let depth = pinhole_depth(&levels[0]).crop(guard, guard, w, h);
     Ok(MethodOutput {
         image,

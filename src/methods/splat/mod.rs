@@ -48,6 +48,7 @@ use crate::timing::Timings;
 use crate::{Error, Result};
 
 use super::coc_map;
+use super::highlights;
 use super::MethodOutput;
 
 /// `--timings` labels of `splat`.
@@ -64,6 +65,8 @@ pub mod pass {
     pub const SORT: &str = "splat/sort";
     /// Per-pixel front-to-back blending.
     pub const BLEND: &str = "splat/blend";
+    /// Bright fragments scattered with their rays' visibility (`highlights`).
+    pub const HIGHLIGHTS: &str = "splat/highlights";
 }
 
 /// Settings of `splat`.
@@ -90,6 +93,11 @@ pub struct SplatSettings {
     /// per channel, as `reference` renders a pass per channel). The cat's eye is refused.
     /// Default: the ideal lens.
     pub effects: LensEffects,
+    /// With `layers` > 1: fragments brighter than this (linear luminance over coverage) are
+    /// scattered on their own with each lens ray's visibility past the nearer surfaces
+    /// ([`crate::methods::highlights`]); `None`: blended as every fragment (the poster's).
+    /// Default 1 (brighter than white; measured in the README).
+    pub highlights: Option<f32>,
 }
 
 impl Default for SplatSettings {
@@ -102,6 +110,7 @@ impl Default for SplatSettings {
             max_coc_px: 64.0,
             input: LayeredInput::default(),
             effects: LensEffects::default(),
+            highlights: Some(1.0),
         }
     }
 }
@@ -135,6 +144,7 @@ impl SplatSettings {
             ));
         }
         coc_map::check_max_coc(self.max_coc_px)?;
+        crate::methods::highlights::check_threshold(self.highlights)?;
         self.aperture.validate()
     }
 }
@@ -350,9 +360,28 @@ pub fn render_scene(
     let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
     check(&lens)?;
-    let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
+    let mut lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
     let (w, h) = (frame.width_px, frame.height_px);
-    let (image, stats, bytes) = splat_lists(&lists, lens, guard, settings, &mut timings)?;
+    let highlights = settings.highlights.map(|threshold| {
+        timings.time(pass::HIGHLIGHTS, || {
+            highlights::take(&mut lists, &lens, 1.0, threshold, settings.max_coc_px)
+        })
+    });
+    let (mut image, stats, bytes) = splat_lists(&lists, lens, guard, settings, &mut timings)?;
+    if let Some(highlights) = highlights {
+        let shape = blend::Shape::new(&settings.aperture).with_effects(&settings.effects);
+        let seen = timings.time(pass::HIGHLIGHTS, || {
+            highlights::scatter(
+                &highlights,
+                &lists,
+                &lens,
+                &shape,
+                1.0,
+                (guard, guard, w, h),
+            )
+        });
+        highlights::add_into(&mut image, &seen);
+    }
     let depth = GrayImage::from_vec(lens.width_px, lens.height_px, lists.nearest_depth())?
         .crop(guard, guard, w, h);
     Ok((
