@@ -293,7 +293,7 @@ pub struct PostArgs {
     /// shadow of a near railing across the bokeh of a light behind it), or `off`: blended as
     /// every fragment, as the papers. Default 1.
     #[arg(long, value_name = "LUMINANCE|off", help_heading = "layered methods")]
-    pub highlights: Option<String>,
+    pub highlight_rays: Option<String>,
 
     /// multilayer: fragments kept per pixel, N.
     #[arg(
@@ -419,9 +419,9 @@ pub fn parse_cats_eye(s: &str) -> std::result::Result<(f32, Option<f32>), String
 
 impl PostArgs {
     /// The layered methods' input from `--no-coverage` and `--no-guard-band`.
-    /// `--highlights`, or `default` where not given.
-    fn highlights(&self, default: Option<f32>) -> crate::Result<Option<f32>> {
-        match &self.highlights {
+    /// `--highlight-rays`, or `default` where not given.
+    fn highlight_rays(&self, default: Option<f32>) -> crate::Result<Option<f32>> {
+        match &self.highlight_rays {
             None => Ok(default),
             Some(s) => crate::methods::highlights::parse_threshold(s),
         }
@@ -635,7 +635,7 @@ impl PostArgs {
                     max_coc_px,
                     input: self.layered_input(),
                     effects: self.lens_effects()?,
-                    highlights: self.highlights(SplatSettings::default().highlights)?,
+                    highlights: self.highlight_rays(SplatSettings::default().highlights)?,
                 };
                 sp.validate().context("invalid splat option")?;
                 MethodSettings::Splat(sp)
@@ -680,7 +680,7 @@ impl PostArgs {
                     input: self.layered_input(),
                     bokeh: Bokeh::parse(&self.ml_bokeh).context("invalid --ml-bokeh")?,
                     aperture: aperture.clone(),
-                    highlights: self.highlights(MultilayerSettings::default().highlights)?,
+                    highlights: self.highlight_rays(MultilayerSettings::default().highlights)?,
                 };
                 m.validate().context("invalid multilayer option")?;
                 MethodSettings::Multilayer(m)

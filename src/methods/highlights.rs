@@ -1,5 +1,5 @@
 //! Bright highlights seen past nearer surfaces ray by ray, for the methods that blur per-pixel
-//! fragment lists (`multilayer`, `splat --layers N`; `--highlights`).
+//! fragment lists (`multilayer`, `splat --layers N`; `--highlight-rays`).
 //!
 //! Those methods composite each surface's blur over what lies behind it with the blur's
 //! coverage. Behind a thin near object (a railing whose blur is 48 px wide) a light far behind
@@ -62,18 +62,21 @@ pub fn check_threshold(threshold: Option<f32>) -> crate::Result<()> {
     }
 }
 
-/// `--highlights`: a luminance above zero, or `off` (`None`).
+/// `--highlight-rays`: a luminance above zero, or `off` (`None`).
 pub fn parse_threshold(s: &str) -> crate::Result<Option<f32>> {
     if s.trim().eq_ignore_ascii_case("off") {
         return Ok(None);
     }
-    let t: f32 = s.trim().parse().map_err(|_| {
+    let bad = || {
         crate::Error::invalid(
-            "highlights",
+            "highlight-rays",
             format!("{s:?}: expected a luminance above 0 (1 is white), or off"),
         )
-    })?;
-    check_threshold(Some(t))?;
+    };
+    let t: f32 = s.trim().parse().map_err(|_| bad())?;
+    if !(t.is_finite() && t > 0.0) {
+        return Err(bad());
+    }
     Ok(Some(t))
 }
 
@@ -585,7 +588,10 @@ mod tests {
         assert_eq!(parse_threshold("2.5").unwrap(), Some(2.5));
         for bad in ["0", "-1", "inf", "NaN", "bright", ""] {
             let e = parse_threshold(bad).unwrap_err().to_string();
-            assert!(e.contains("highlights"), "{bad}: {e}");
+            assert!(
+                e.contains("highlight-rays") && e.contains("off"),
+                "{bad}: {e}"
+            );
         }
     }
 

@@ -272,7 +272,7 @@ fn point_light_becomes_the_aperture_shape_in_splat_and_multiview_as_in_reference
         )
         .unwrap();
         // The light is brighter than white: by default a highlight, scattered with its rays'
-        // visibility; `--highlights off` blends it as every fragment.
+        // visibility; `--highlight-rays off` blends it as every fragment.
         let (sp_blended, _) = splat::render_scene(
             &scene,
             &camera,
@@ -298,7 +298,7 @@ fn point_light_becomes_the_aperture_shape_in_splat_and_multiview_as_in_reference
         .unwrap();
         for (name, image) in [
             ("splat", sp.image),
-            ("splat --highlights off", sp_blended.image),
+            ("splat --highlight-rays off", sp_blended.image),
             ("multiview", mv.image),
         ] {
             let ours = lit(&image, size, coc);
@@ -444,7 +444,7 @@ fn the_inside_of_a_closed_mesh_takes_no_slot() {
 /// lens the bar's shadow crosses the disc as a dark stripe (`reference`). `multilayer` and
 /// `splat --layers 4` scatter the light as a highlight, each pixel of its bokeh with the
 /// visibility of its one lens ray past the bar, and draw the stripe; blended as every fragment
-/// (`--highlights off`) the bar only dims the whole disc.
+/// (`--highlight-rays off`) the bar only dims the whole disc.
 #[test]
 fn a_near_bar_draws_its_shadow_across_the_bokeh_of_a_light_behind_it() {
     let size = 96;

@@ -474,7 +474,7 @@ fn analytic_lit(aperture: &Aperture, coc: f32, size: usize) -> Vec<bool> {
 /// A point light far behind focus becomes the aperture: disc, hexagon, turned 5-blade polygon,
 /// of `reference`'s size and orientation (IoU of the lit regions and their extent in 12
 /// directions), where the paper's box gives a square: from the filtered levels (the light
-/// filtered as every fragment, `--highlights off`) and scattered as a highlight (the default
+/// filtered as every fragment, `--highlight-rays off`) and scattered as a highlight (the default
 /// for a light brighter than white).
 #[test]
 fn point_light_becomes_the_aperture_shape_of_diameter_two_coc() {

@@ -23,7 +23,10 @@
 //!
 //! The lists are rasterized with coverage masks and a guard band around the frame
 //! ([`crate::raster::LayeredInput`]; `--no-coverage`, `--no-guard-band`), so in-focus edges are
-//! anti-aliased and fragments just outside the frame splat into it.
+//! anti-aliased and fragments just outside the frame splat into it. Fragments brighter than
+//! white are scattered on their own with each lens ray's visibility past the nearer fragments
+//! ([`crate::methods::highlights`], `--highlight-rays`): the blend's over operator dims a light
+//! behind a near bar evenly, where through the lens the bar's shadow crosses its bokeh.
 //!
 //! # Where we differ from the poster, and why
 //! - Merging is only done where every fragment of the block has a CoC radius of at least the
