@@ -287,11 +287,12 @@ pub struct PostArgs {
     /// whose blur reaches into the frame.
     #[arg(long, help_heading = "layered methods")]
     pub no_guard_band: bool,
-    /// multilayer, splat --layers N: fragments brighter than this linear luminance (over their
-    /// coverage; 1 is white) are scattered on their own, each pixel of a light's bokeh taking
-    /// it through its one lens ray with that ray's visibility past the nearer surfaces (the
-    /// shadow of a near railing across the bokeh of a light behind it), or `off`: blended as
-    /// every fragment, as the papers. Default 1.
+    /// multilayer, splat --layers N, multiview: fragments brighter than this linear luminance
+    /// (over their coverage; 1 is white) are scattered on their own, each pixel of a light's
+    /// bokeh taking it through its one lens ray with that ray's visibility past the nearer
+    /// surfaces (the shadow of a near railing across the bokeh of a light behind it; for
+    /// multiview, without the noise of a few rays meeting a small light), or `off`: blended or
+    /// traced as every fragment, as the papers. Default 1.
     #[arg(long, value_name = "LUMINANCE|off", help_heading = "layered methods")]
     pub highlight_rays: Option<String>,
 
@@ -655,6 +656,7 @@ impl PostArgs {
                     cone: !self.no_cone,
                     graze: !self.paper_cone,
                     paper_refine: self.paper_refine,
+                    highlights: self.highlight_rays(MultiviewSettings::default().highlights)?,
                     mip_filter: match &self.cone_mipmap {
                         Some(name) => MipFilter::parse(name).context("invalid --cone-mipmap")?,
                         None if self.paper_cone => MipFilter::Box,

@@ -82,7 +82,7 @@ pub fn parse_threshold(s: &str) -> crate::Result<Option<f32>> {
 
 /// Luminance of linear Rec. 709 / sRGB primaries.
 #[inline]
-fn luminance(c: [f32; 3]) -> f32 {
+pub(crate) fn luminance(c: [f32; 3]) -> f32 {
     0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
 
@@ -98,6 +98,20 @@ pub fn take(
     threshold: f32,
     max_coc_px: f32,
 ) -> Vec<Highlight> {
+    take_indexed(lists, lens, scale, threshold, max_coc_px)
+        .into_iter()
+        .map(|(_, h)| h)
+        .collect()
+}
+
+/// [`take`], each highlight with the index of its fragment in the lists.
+pub fn take_indexed(
+    lists: &mut FragmentLists,
+    lens: &ThinLens,
+    scale: f32,
+    threshold: f32,
+    max_coc_px: f32,
+) -> Vec<(usize, Highlight)> {
     let width = lists.width();
     let max = max_coc_px * scale;
     let found: Vec<(usize, Highlight)> = {
@@ -132,7 +146,7 @@ pub fn take(
         let alpha = from_half(&colors[f])[3];
         colors[f] = to_half([0.0, 0.0, 0.0, alpha]);
     }
-    found.into_iter().map(|(_, h)| h).collect()
+    found
 }
 
 /// The lists' fragments' CoCs (in the lists' pixels), the nearest of them, and which of 64
@@ -203,6 +217,35 @@ impl Cocs {
             blocks: (bw as i64, bh as i64),
             block_bins,
         }
+    }
+}
+
+impl Cocs {
+    /// Whether nothing nearer than a highlight at `x0` of CoC `c0` (in the lists' pixels) lies
+    /// where its rays pass, those of lens points up to `u_max` from the centre: every block
+    /// within `u_max` times the rays' length of `x0` holds nothing in the bins from the nearest
+    /// CoC to the highlight's own surface. Then every ray sees it whole.
+    fn clear(&self, x0: Vec2, c0: f32, u_max: f32) -> bool {
+        let t_end = c0 - self.nearest + 1.0;
+        if t_end <= 0.0 {
+            return true;
+        }
+        let span = self.bins.span(self.nearest, c0 - OWN_SURFACE_PX);
+        let r = t_end * u_max + 1.0;
+        let b = BLOCK as f32;
+        let (bw, bh) = self.blocks;
+        let (bx0, bx1) = (
+            ((x0.x - r) / b).floor() as i64,
+            ((x0.x + r) / b).floor() as i64,
+        );
+        let (by0, by1) = (
+            ((x0.y - r) / b).floor() as i64,
+            ((x0.y + r) / b).floor() as i64,
+        );
+        (by0.max(0)..=by1.min(bh - 1)).all(|by| {
+            (bx0.max(0)..=bx1.min(bw - 1))
+                .all(|bx| self.block_bins[(by * bw + bx) as usize] & span == 0)
+        })
     }
 }
 
@@ -353,17 +396,11 @@ impl Seen {
         centre: Vec2,
         c: f32,
         reach: f32,
-        (x0, y0, width, height): (usize, usize, usize, usize),
+        region: (usize, usize, usize, usize),
         visibility: impl Fn(Vec2) -> f32,
     ) -> Self {
         let stride = stride_px(c) as usize;
-        let span = |centre: f32, lo: usize, n: usize| {
-            let first = (centre - reach).floor().max(lo as f32);
-            let last = (centre + reach).ceil().min((lo + n) as f32);
-            (first + 0.5, (last - first).max(0.0) as usize)
-        };
-        let ((ox, cols), (oy, rows)) = (span(centre.x, x0, width), span(centre.y, y0, height));
-        let origin = Vec2::new(ox, oy);
+        let (origin, cols, rows) = window(centre, reach, region);
         let mut v = vec![0.0; cols * rows];
         // Pixels farther than a stride and a half outside the footprint's bounding circle are
         // read by no pixel of it: left at 0.
@@ -427,6 +464,17 @@ impl Seen {
         }
     }
 
+    /// Every pixel within `reach` of `centre` in `region` sees the highlight whole.
+    fn clear(centre: Vec2, reach: f32, region: (usize, usize, usize, usize)) -> Self {
+        let (origin, cols, rows) = window(centre, reach, region);
+        Self {
+            origin,
+            cols,
+            rows,
+            v: vec![1.0; cols * rows],
+        }
+    }
+
     /// The visibility at pixel centre `p` where it agrees within [`AGREE`] with its four
     /// neighbours'; `None` where it does not (a shadow's edge passes by), for the caller to
     /// trace over the pixel's area.
@@ -441,6 +489,22 @@ impl Seen {
             .fold((v, v), |(lo, hi), &a| (lo.min(a), hi.max(a)));
         (hi - lo <= AGREE).then_some(v)
     }
+}
+
+/// The pixels within `reach` of `centre` in the output region `(x0, y0, width, height)`: the
+/// first one's centre, and how many columns and rows.
+fn window(
+    centre: Vec2,
+    reach: f32,
+    (x0, y0, width, height): (usize, usize, usize, usize),
+) -> (Vec2, usize, usize) {
+    let span = |centre: f32, lo: usize, n: usize| {
+        let first = (centre - reach).floor().max(lo as f32);
+        let last = (centre + reach).ceil().min((lo + n) as f32);
+        (first + 0.5, (last - first).max(0.0) as usize)
+    };
+    let ((ox, cols), (oy, rows)) = (span(centre.x, x0, width), span(centre.y, y0, height));
+    (Vec2::new(ox, oy), cols, rows)
 }
 
 /// How many visibility samples the grids of the highlights scattered together hold at most
@@ -515,11 +579,15 @@ pub fn scatter(
             .map(|h| {
                 let (centre, c) = (h.centre / scale, h.coc_px / scale);
                 let reach = c.abs() * shape.stretch() + soft;
-                let seen = Seen::new(centre, c, reach, region, |p| {
-                    // The lens point (in the unit aperture, as the footprint maps it) and the
-                    // ray's visibility, in the lists' pixels.
-                    visibility(lists, &cocs, h.centre, h.coc_px, (p - centre) / c)
-                });
+                let seen = if cocs.clear(h.centre, h.coc_px, reach / c.abs()) {
+                    Seen::clear(centre, reach, region)
+                } else {
+                    Seen::new(centre, c, reach, region, |p| {
+                        // The lens point (in the unit aperture, as the footprint maps it) and
+                        // the ray's visibility, in the lists' pixels.
+                        visibility(lists, &cocs, h.centre, h.coc_px, (p - centre) / c)
+                    })
+                };
                 (centre, c, reach, shape.norm(centre, c, soft), seen)
             })
             .collect();
@@ -657,6 +725,25 @@ mod tests {
             }
         }
         assert!(checked.iter().all(|&n| n > 20), "{checked:?}");
+    }
+
+    #[test]
+    fn a_highlight_with_nothing_nearer_in_reach_is_seen_whole() {
+        // In the strips' lists a highlight at CoC +10 at (32.5, 32.5) has the opaque strip at
+        // CoC -20 within reach of its rays (30 px of CoC away, 7.5 px to the side).
+        let (lists, lens) = strips();
+        let cocs = Cocs::new(&lists, &lens, 10.0);
+        assert!(!cocs.clear(Vec2::new(32.5, 32.5), 10.0, 1.0));
+        // Rays of lens points within 0.1 of the centre stay within 3 px of the highlight: no
+        // strip there but its own fitting (not counted) and the wall behind it.
+        assert!(cocs.clear(Vec2::new(32.5, 32.5), 10.0, 0.1));
+        for k in 0..50 {
+            let u = Vec2::new((k as f32 * 0.37).cos(), (k as f32 * 0.37).sin()) * 0.09;
+            let v = visibility(&lists, &cocs, Vec2::new(32.5, 32.5), 10.0, u);
+            assert_eq!(v, 1.0, "u {u}");
+        }
+        // A strip within reach of some of them: not clear.
+        assert!(!cocs.clear(Vec2::new(16.5, 32.5), 10.0, 0.2));
     }
 
     #[test]

@@ -288,6 +288,27 @@ impl FragmentLists {
         self
     }
 
+    /// Lists from their parts: pixel `i` (row-major) owns the fragments `offsets[i]..offsets[i +
+    /// 1]` of `depth` (view-axis metres) and `color` (premultiplied), nearest first (not
+    /// checked). For inputs that do not come from the rasterizer (`multiview`'s layers, read as
+    /// lists by [`crate::methods::highlights`]).
+    pub fn from_parts(
+        width: usize,
+        height: usize,
+        offsets: Vec<u32>,
+        depth: Vec<f32>,
+        color: Vec<HalfRgba>,
+    ) -> Self {
+        debug_assert_eq!(offsets.len(), width * height + 1);
+        debug_assert_eq!(depth.len(), color.len());
+        Self {
+            offsets,
+            depth,
+            color,
+            ..Self::new(width, height, MAX_FRAGMENTS_PER_PIXEL)
+        }
+    }
+
     /// Builds lists directly from per-pixel fragments `(depth_m, premultiplied colour)` in any
     /// order (row-major pixels), sorted and capped as the rasterizer's lists are. For tests and
     /// for inputs that do not come from the rasterizer.

@@ -60,11 +60,15 @@ use rayon::prelude::*;
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, LensEffects, SampleSet, SamplerKind, ThinLens};
 use crate::random::SplitMix64;
-use crate::raster::{DepthLayers, LayerSpacing, LayeredInput, PreparedScene, Reach, View};
+use crate::raster::{
+    DepthLayers, FragmentLists, LayerSpacing, LayeredInput, PreparedScene, Reach, View,
+};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::{Error, Result};
 
+use super::highlights;
+use super::splat::blend::Shape;
 use super::MethodOutput;
 use cull::WindowMin;
 pub use trace::MipFilter;
@@ -82,6 +86,8 @@ pub mod pass {
     pub const CULL: &str = "multiview/cull";
     /// Lens rays through the layers.
     pub const TRACE: &str = "multiview/trace";
+    /// Bright texels taken out and scattered with their rays' visibility (`highlights`).
+    pub const HIGHLIGHTS: &str = "multiview/highlights";
 }
 
 /// How many layers.
@@ -165,6 +171,11 @@ pub struct MultiviewSettings {
     /// model of the surface, whose hit can stall on the neighbouring pixel at an in-focus edge
     /// (measured in the README). Default false.
     pub paper_refine: bool,
+    /// Texels brighter than this (linear luminance over coverage) are scattered with each lens
+    /// ray's visibility through the layers instead of being met by the rays, whose few samples
+    /// of a small light are noisy ([`crate::methods::highlights`]; not with a cat's eye);
+    /// `None`: traced as every texel (the paper's). Default 1 (measured in the README).
+    pub highlights: Option<f32>,
     /// How the cones' mipmaps are filtered: the paper's 2x2 box, or a `[1 3 3 1]` tent whose
     /// footprint does not follow the texels' phase (measured in the README). Default tent.
     pub mip_filter: MipFilter,
@@ -197,6 +208,7 @@ impl Default for MultiviewSettings {
             cone: true,
             graze: true,
             paper_refine: false,
+            highlights: Some(1.0),
             mip_filter: MipFilter::Tent,
             jitter: true,
             culling: true,
@@ -209,6 +221,7 @@ impl Default for MultiviewSettings {
 impl MultiviewSettings {
     /// Checks every field's range.
     pub fn validate(&self) -> Result<()> {
+        highlights::check_threshold(self.highlights)?;
         if !(1..=4096).contains(&self.samples) {
             return Err(Error::invalid(
                 "samples",
@@ -418,6 +431,47 @@ pub fn sample_sets(settings: &MultiviewSettings) -> Result<(Vec<Vec<Vec2>>, Vec<
     Ok((sets, noise))
 }
 
+/// Takes the texels of `layers` (made with `lens`) brighter than `threshold` out of them
+/// (black, their coverage kept: rays still stop at them) as highlights, with the layers read as
+/// fragment lists (a pixel's surfaces layer by layer, nearest first) for their rays'
+/// visibility ([`highlights::take`]).
+fn take_highlights(
+    layers: &mut DepthLayers,
+    lens: &ThinLens,
+    threshold: f32,
+) -> (Vec<highlights::Highlight>, FragmentLists) {
+    let (w, h, m) = (layers.width, layers.height, layers.spacing.layers);
+    let plane = w * h;
+    // Most scenes have none: found first without building the lists.
+    let bright = layers.color.par_iter().any(|c| {
+        let c = crate::raster::from_half(c);
+        c[3] > 0.0 && highlights::luminance([c[0], c[1], c[2]]) > threshold * c[3]
+    });
+    if !bright {
+        return (Vec::new(), FragmentLists::new(w, h, 1));
+    }
+    let mut offsets = Vec::with_capacity(plane + 1);
+    let (mut depth, mut color, mut texel) = (Vec::new(), Vec::new(), Vec::new());
+    offsets.push(0u32);
+    for i in 0..plane {
+        for l in 0..m {
+            let c = layers.coc_px[l * plane + i];
+            if c.is_finite() {
+                depth.push(lens.depth_for_coc_px(c));
+                color.push(layers.color[l * plane + i]);
+                texel.push(l * plane + i);
+            }
+        }
+        offsets.push(depth.len() as u32);
+    }
+    let mut lists = FragmentLists::from_parts(w, h, offsets, depth, color);
+    let found = highlights::take_indexed(&mut lists, lens, 1.0, threshold, f32::INFINITY);
+    for &(f, _) in &found {
+        layers.color[texel[f]] = lists.colors()[f];
+    }
+    (found.into_iter().map(|(_, h)| h).collect(), lists)
+}
+
 /// Orders a pixel's lens samples so that the trace's packets of sixteen hold rays of like
 /// direction: the inner quarter (by distance from the lens centre) then the rest, each by
 /// angle. Rays of like direction read nearby pixels, cross the same surfaces and finish in the
@@ -494,11 +548,22 @@ fn render_with(
         .map(|v| v.length())
         .fold(0.0f32, f32::max);
     let band = trim.then(|| (guard, read_radii(longest, lambda, settings.mip_filter)));
-    let layers = timings.time(pass::DECOMPOSE, || {
+    let mut layers = timings.time(pass::DECOMPOSE, || {
         decompose_with_band(&prepared, lens, settings, band)
     })?;
     let m = layers.spacing.layers;
     let (w, h) = (layers.width, layers.height);
+    // Texels brighter than the threshold are scattered with their rays' visibility through
+    // the layers (read as lists) instead of met by the rays (not with a cat's eye, which the
+    // scatter's footprints do not draw).
+    let highlights = match settings.highlights {
+        Some(threshold) if !settings.effects.has_cats_eye() => {
+            Some(timings.time(pass::HIGHLIGHTS, || {
+                take_highlights(&mut layers, &lens, threshold)
+            }))
+        }
+        _ => None,
+    };
     // The mipmaps and culling skip the empty layers.
     let filled: Vec<bool> = (0..m).map(|l| layers.filled(l)).collect();
     // The layers' mipmaps side by side, a layer to a task.
@@ -556,7 +621,15 @@ fn render_with(
         culls: culls.as_deref(),
         ..input
     };
-    let image = timings.time(pass::TRACE, || trace_fn(&input));
+    let mut image = timings.time(pass::TRACE, || trace_fn(&input));
+    if let Some((found, lists)) = &highlights {
+        let shape = Shape::new(&settings.aperture).with_effects(&settings.effects);
+        let region = (guard, guard, frame.width_px, frame.height_px);
+        let seen = timings.time(pass::HIGHLIGHTS, || {
+            highlights::scatter(found, lists, &lens, &shape, 1.0, region)
+        });
+        highlights::add_into(&mut image, &seen);
+    }
     let bytes = layers.bytes()
         + culls
             .iter()
