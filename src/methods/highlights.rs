@@ -464,14 +464,13 @@ impl Seen {
         }
     }
 
-    /// Every pixel within `reach` of `centre` in `region` sees the highlight whole.
-    fn clear(centre: Vec2, reach: f32, region: (usize, usize, usize, usize)) -> Self {
-        let (origin, cols, rows) = window(centre, reach, region);
+    /// Every pixel sees the highlight whole (no samples held).
+    fn clear() -> Self {
         Self {
-            origin,
-            cols,
-            rows,
-            v: vec![1.0; cols * rows],
+            origin: Vec2::ZERO,
+            cols: 0,
+            rows: 0,
+            v: Vec::new(),
         }
     }
 
@@ -479,6 +478,9 @@ impl Seen {
     /// neighbours'; `None` where it does not (a shadow's edge passes by), for the caller to
     /// trace over the pixel's area.
     fn at(&self, p: Vec2) -> Option<f32> {
+        if self.v.is_empty() {
+            return Some(1.0);
+        }
         let g = p - self.origin;
         let (n, m) = (self.cols as i64, self.rows as i64);
         let at = |i: i64, j: i64| self.v[(j.clamp(0, m - 1) * n + i.clamp(0, n - 1)) as usize];
@@ -580,7 +582,7 @@ pub fn scatter(
                 let (centre, c) = (h.centre / scale, h.coc_px / scale);
                 let reach = c.abs() * shape.stretch() + soft;
                 let seen = if cocs.clear(h.centre, h.coc_px, reach / c.abs()) {
-                    Seen::clear(centre, reach, region)
+                    Seen::clear()
                 } else {
                     Seen::new(centre, c, reach, region, |p| {
                         // The lens point (in the unit aperture, as the footprint maps it) and

@@ -637,7 +637,8 @@ fn render_with(
             .flatten()
             .map(WindowMin::bytes)
             .sum::<usize>()
-        + mips.iter().flatten().map(LayerMip::bytes).sum::<usize>();
+        + mips.iter().flatten().map(LayerMip::bytes).sum::<usize>()
+        + highlights.as_ref().map_or(0, |(_, lists)| lists.bytes());
     // The pinhole depth: the nearest layer's surface at each pixel, back from CoC to depth.
     let depth = GrayImage::from_vec(w, h, pinhole_depth(&layers))?.crop(
         guard,
