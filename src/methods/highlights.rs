@@ -1,5 +1,6 @@
-//! Bright highlights seen past nearer surfaces ray by ray, for the methods that blur per-pixel
-//! fragment lists (`multilayer`, `splat --layers N`; `--highlight-rays`).
+//! Bright highlights seen past nearer surfaces ray by ray, for the layered methods
+//! (`multilayer`, `splat --layers N` on their fragment lists; `multiview` on its layers read as
+//! lists; `--highlight-rays`).
 //!
 //! Those methods composite each surface's blur over what lies behind it with the blur's
 //! coverage. Behind a thin near object (a railing whose blur is 48 px wide) a light far behind
@@ -21,7 +22,14 @@
 //! when less than 1e-3 is left.
 //!
 //! Only a fragment at least [`MIN_COC_PX`] out of focus is a highlight: nearer the focus no lens
-//! point is cut off that the blur of its neighbours does not show as well.
+//! point is cut off that the blur of its neighbours does not show as well. (`multiview` traces
+//! every ray anyway; there the scatter replaces the few of a pixel's rays that meet a small
+//! light, which made its bokeh noisy.)
+//!
+//! What keeps it affordable: a ray skips the blocks of [`BLOCK`] pixels and the pixels that hold
+//! nothing in the 64 bins of CoC it crosses there; a highlight whose rays can pass nothing nearer
+//! is drawn whole; the rest trace their visibility on a grid [`stride_px`] apart, pixel by pixel
+//! only in the cells a shadow's edge crosses, and with four rays over the pixels at the edge.
 
 use glam::Vec2;
 use rayon::prelude::*;
