@@ -1655,14 +1655,7 @@ fn refine(
     lo: f32,
     hi: f32,
 ) -> Option<(f32, usize, f32)> {
-    let (w, h) = (layers.width as f32, layers.height as f32);
-    let pixel = |c: f32| -> Option<(i32, i32)> {
-        let q = p - c * v;
-        if q.x < 0.0 || q.y < 0.0 || q.x >= w || q.y >= h {
-            return None;
-        }
-        Some((q.x as i32, q.y as i32))
-    };
+    let pixel = |c: f32| pixel_under(layers, p, v, c).map(|(x, y)| (x as i32, y as i32));
     let (mut x, mut y) = pixel(lo)?;
     let (bx, by) = pixel(hi)?;
     let at = |x: i32, y: i32| layers.index(l, x as usize, y as usize);
@@ -1702,6 +1695,18 @@ fn refine(
     }
 }
 
+/// The pixel of the layers the ray through `v` landing on `p` is over at CoC `c`; `None`
+/// outside them.
+#[inline(always)]
+fn pixel_under(layers: &DepthLayers, p: Vec2, v: Vec2, c: f32) -> Option<(usize, usize)> {
+    let q = p - c * v;
+    let (w, h) = (layers.width as f32, layers.height as f32);
+    if q.x < 0.0 || q.y < 0.0 || q.x >= w || q.y >= h {
+        return None;
+    }
+    Some((q.x as usize, q.y as usize))
+}
+
 /// [`refine_false_position`] where `paper`, else [`refine`].
 #[inline(always)]
 fn refine_as(
@@ -1733,13 +1738,9 @@ fn refine_false_position(
     mut lo: f32,
     mut hi: f32,
 ) -> Option<(f32, usize, f32)> {
-    let (w, h) = (layers.width as f32, layers.height as f32);
     let at = |c: f32| -> Option<(f32, usize)> {
-        let q = p - c * v;
-        if q.x < 0.0 || q.y < 0.0 || q.x >= w || q.y >= h {
-            return None;
-        }
-        let i = layers.index(l, q.x as usize, q.y as usize);
+        let (x, y) = pixel_under(layers, p, v, c)?;
+        let i = layers.index(l, x, y);
         Some((layers.coc_px[i], i))
     };
     let (mut h_lo, _) = at(lo)?;
