@@ -287,6 +287,11 @@ pub struct PostArgs {
     /// whose blur reaches into the frame.
     #[arg(long, help_heading = "layered methods")]
     pub no_guard_band: bool,
+    /// multilayer, splat --layers N, multiview: with coverage masks, look a texture up once a
+    /// quadrant of the pixel even where it is minified, instead of at every covered sample
+    /// (sharper minified textures, as reference's views average them; shading takes longer).
+    #[arg(long, help_heading = "layered methods", conflicts_with = "no_coverage")]
+    pub quadrant_shading: bool,
     /// multilayer, splat --layers N, multiview: fragments brighter than this linear luminance
     /// (over their coverage; 1 is white) are scattered on their own, each pixel of a light's
     /// bokeh taking it through its one lens ray with that ray's visibility past the nearer
@@ -419,7 +424,6 @@ pub fn parse_cats_eye(s: &str) -> std::result::Result<(f32, Option<f32>), String
 }
 
 impl PostArgs {
-    /// The layered methods' input from `--no-coverage` and `--no-guard-band`.
     /// `--highlight-rays`, or `default` where not given.
     fn highlight_rays(&self, default: Option<f32>) -> crate::Result<Option<f32>> {
         match &self.highlight_rays {
@@ -428,10 +432,13 @@ impl PostArgs {
         }
     }
 
+    /// The layered methods' input from `--no-coverage`, `--no-guard-band` and
+    /// `--quadrant-shading`.
     fn layered_input(&self) -> LayeredInput {
         LayeredInput {
             coverage: !self.no_coverage,
             guard_band: !self.no_guard_band,
+            sample_shading: !self.no_coverage && !self.quadrant_shading,
         }
     }
 

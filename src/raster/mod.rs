@@ -406,6 +406,12 @@ pub struct LayeredInput {
     /// Rasterize a guard band around the frame ([`PreparedScene::guard_band_px`]); false: the
     /// frame only, as the papers.
     pub guard_band: bool,
+    /// With coverage: where a texture is minified past a quadrant of the pixel, every covered
+    /// sample takes its own lookup (sixteen, at a sixteenth of the footprint), so the pixel
+    /// is the texture's mean over its covered area, as `reference`'s many views make it;
+    /// false: one lookup a quadrant, whose mip filter is wider than the quadrant and blurs
+    /// the texture's edges along the less minified axis (measured in the README).
+    pub sample_shading: bool,
 }
 
 impl Default for LayeredInput {
@@ -413,6 +419,7 @@ impl Default for LayeredInput {
         Self {
             coverage: true,
             guard_band: true,
+            sample_shading: true,
         }
     }
 }
@@ -422,6 +429,7 @@ impl LayeredInput {
     pub const PAPER: Self = Self {
         coverage: false,
         guard_band: false,
+        sample_shading: false,
     };
 
     /// The guard band in pixels for `lens` (0 when off).
@@ -435,10 +443,10 @@ impl LayeredInput {
 
     /// The binned pinhole view of `lens`, with coverage masks when on.
     pub fn bin(&self, prepared: &PreparedScene, view: &View) -> BinnedView {
-        if self.coverage {
-            BinnedView::with_coverage(prepared, view)
-        } else {
-            BinnedView::new(prepared, view)
+        match (self.coverage, self.sample_shading) {
+            (true, true) => BinnedView::with_coverage(prepared, view),
+            (true, false) => BinnedView::with_coverage(prepared, view).with_quadrant_shading(),
+            (false, _) => BinnedView::new(prepared, view),
         }
     }
 }
@@ -455,6 +463,9 @@ pub struct BinnedView {
     height: usize,
     lod_bias: f32,
     coverage: bool,
+    /// With coverage: a minified texture is looked up at every covered sample instead of once
+    /// a quadrant ([`BinnedView::with_quadrant_shading`]).
+    sample_shading: bool,
 }
 
 impl BinnedView {
@@ -581,6 +592,17 @@ impl BinnedView {
             height,
             lod_bias: view.lod_bias,
             coverage,
+            sample_shading: coverage,
+        }
+    }
+
+    /// With coverage masks, textures looked up once a quadrant of the pixel only, even where
+    /// they are minified (by default every covered sample then takes its own lookup; see
+    /// [`LayeredInput::sample_shading`]).
+    pub fn with_quadrant_shading(self) -> Self {
+        Self {
+            sample_shading: false,
+            ..self
         }
     }
 
@@ -612,8 +634,11 @@ impl BinnedView {
                 tri,
                 rect,
                 scene,
-                self.lod_bias,
-                self.coverage,
+                setup::Sampling {
+                    lod_bias: self.lod_bias,
+                    coverage: self.coverage,
+                    sample_shading: self.sample_shading,
+                },
                 tile,
                 &mut scratch,
             );
@@ -638,23 +663,20 @@ impl BinnedView {
     }
 }
 
-/// Collects the fragment lists of one view of `prepared`, at most `cap` per pixel, sampled at
-/// pixel centres, or with coverage masks when `coverage` (see [`BinnedView::with_coverage`]);
-/// with `reach`, without the guard band's fragments that cannot reach the frame.
+/// Collects the fragment lists of one view of `prepared`, at most `cap` per pixel, sampled as
+/// `input` says ([`LayeredInput::bin`]: pixel centres, or coverage masks; its guard band is
+/// the caller's, in `view`'s lens); with `reach`, without the guard band's fragments that
+/// cannot reach the frame.
 pub fn render_fragment_lists(
     prepared: &PreparedScene,
     view: &View,
     cap: usize,
-    coverage: bool,
+    input: LayeredInput,
     reach: Option<Reach>,
 ) -> FragmentLists {
-    let binned = if coverage {
-        BinnedView::with_coverage(prepared, view)
-    } else {
-        BinnedView::new(prepared, view)
-    };
+    let binned = input.bin(prepared, view);
     let mut lists = FragmentLists::new(view.lens.width_px, view.lens.height_px, cap);
-    if coverage {
+    if input.coverage {
         lists = lists.with_coincident_surfaces(view.lens).merging_overflow();
     }
     if let Some(reach) = reach {

@@ -815,8 +815,20 @@ fn visible_depth<T: TileSink>(
     }
 }
 
-/// Rasterizes `tri` within `rect` into `tile` (pass `raster`). `lod_bias` is added to the
-/// texture level of detail (negative when each pixel is supersampled).
+/// How [`raster_triangle`] samples and shades a triangle's pixels.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sampling {
+    /// Added to the texture level of detail (negative when each pixel is supersampled).
+    pub(crate) lod_bias: f32,
+    /// A fragment for every pixel the triangle touches, with its coverage mask, instead of
+    /// the pixels whose centre it covers.
+    pub(crate) coverage: bool,
+    /// With coverage: a minified texture is looked up at every covered sample instead of once
+    /// a quadrant (`LayeredInput::sample_shading`).
+    pub(crate) sample_shading: bool,
+}
+
+/// Rasterizes `tri` within `rect` into `tile` (pass `raster`), sampled as `sampling` says.
 ///
 /// Pixels are depth-tested as the rows are walked, and those that pass are shaded [`BATCH`]
 /// at a time: texture coordinates, levels of detail and texture lookups lane by lane
@@ -827,11 +839,15 @@ pub(crate) fn raster_triangle<T: TileSink>(
     tri: &SetupTriangle,
     rect: &TileRect,
     scene: &Scene,
-    lod_bias: f32,
-    coverage: bool,
+    sampling: Sampling,
     tile: &mut T,
     scratch: &mut RasterScratch,
 ) {
+    let Sampling {
+        lod_bias,
+        coverage,
+        sample_shading,
+    } = sampling;
     let RasterScratch {
         pending,
         uv,
@@ -947,12 +963,35 @@ pub(crate) fn raster_triangle<T: TileSink>(
             let fine = a2c.unwrap_or_else(|| {
                 shade::Shader::new(material, &scene.textures, lod_bias + sample_bias)
             });
+            // Where the texture is minified (a pixel spans more than a texel), every sample
+            // takes its own lookup (sample shading, `LayeredInput::sample_shading`).
+            let per_sample = sample_shading && groups == ShadingGroups::Quadrants;
             let mut batch = SampleBatch::new();
             for_each_covered_mask(tri, rect, |x, y, mask, c| {
                 let fy = y as f32 + 0.5 - origin_y;
                 let e = plane(x, fy + c.y) + p1 * c.x;
                 let Some(depth_m) = visible_depth(tile, tri, x, y, e.x) else {
                     return;
+                };
+                // Texture coordinates and their derivatives at the centroid (one set of
+                // divisions a pixel); each group's coordinates are carried from there along
+                // the derivatives (the perspective's second-order term across a fraction of a
+                // pixel is far below a texel).
+                let (q, uq, vq) = (e.x, e.y, e.z);
+                let (u, v) = (uq / q, vq / q);
+                let (qx, qy) = (q + pq[1], q + pq[2]);
+                let (mut du_dx, mut dv_dx) = ((uq + pu[1]) / qx - u, (vq + pv[1]) / qx - v);
+                let (mut du_dy, mut dv_dy) = ((uq + pu[2]) / qy - u, (vq + pv[2]) / qy - v);
+                let groups = if per_sample
+                    && fine.minified(Vec2::new(du_dx, dv_dx), Vec2::new(du_dy, dv_dy))
+                {
+                    // A sample's footprint is a quarter of a quadrant's: half the
+                    // derivatives, one level finer than the shader's bias.
+                    (du_dx, dv_dx, du_dy, dv_dy) =
+                        (du_dx / 2.0, dv_dx / 2.0, du_dy / 2.0, dv_dy / 2.0);
+                    ShadingGroups::Samples
+                } else {
+                    groups
                 };
                 if batch.lanes + groups.count(mask) > BATCH || batch.pixels == BATCH {
                     batch.flush(
@@ -967,20 +1006,17 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 let slot = batch.pixels;
                 batch.pixels += 1;
                 batch.pixel[slot] = (x as u32, y as u32, depth_m);
-                // Texture coordinates and their derivatives at the centroid (one set of
-                // divisions a pixel); each group's coordinates are carried from there along
-                // the derivatives (the perspective's second-order term across a fraction of a
-                // pixel is far below a texel).
-                let (q, uq, vq) = (e.x, e.y, e.z);
-                let (u, v) = (uq / q, vq / q);
-                let (qx, qy) = (q + pq[1], q + pq[2]);
-                let (du_dx, dv_dx) = ((uq + pu[1]) / qx - u, (vq + pv[1]) / qx - v);
-                let (du_dy, dv_dy) = ((uq + pu[2]) / qy - u, (vq + pv[2]) / qy - v);
+                // The groups' offsets go along the whole derivatives.
+                let scale = if groups == ShadingGroups::Samples && per_sample {
+                    2.0
+                } else {
+                    1.0
+                };
                 groups.for_each(mask, c, |bits, g| {
                     let d = g - c;
                     let i = batch.lanes;
-                    sample_uv.u[i] = u + du_dx * d.x + du_dy * d.y;
-                    sample_uv.v[i] = v + dv_dx * d.x + dv_dy * d.y;
+                    sample_uv.u[i] = u + (du_dx * d.x + du_dy * d.y) * scale;
+                    sample_uv.v[i] = v + (dv_dx * d.x + dv_dy * d.y) * scale;
                     sample_uv.du_dx[i] = du_dx;
                     sample_uv.dv_dx[i] = dv_dx;
                     sample_uv.du_dy[i] = du_dy;

@@ -61,6 +61,17 @@ impl<'a> Shader<'a> {
             })
     }
 
+    /// True when screen derivatives `duv_dx`, `duv_dy` (per pixel) span more than a texel of
+    /// one of the shader's textures along either axis: the texture is minified there (the
+    /// shader's level-of-detail bias aside).
+    #[inline]
+    pub(crate) fn minified(&self, duv_dx: Vec2, duv_dy: Vec2) -> bool {
+        [&self.base, &self.emissive]
+            .into_iter()
+            .flatten()
+            .any(|slot| slot.footprint(duv_dx, duv_dy) > 1.0)
+    }
+
     /// True when shading reads texture coordinates.
     #[inline]
     pub(crate) fn needs_uv(&self) -> bool {
@@ -265,6 +276,19 @@ impl<'a> Slot<'a> {
             uv_transform: (!b.uv_transform.is_identity()).then(|| UvAffine::new(&b.uv_transform)),
             size: Vec2::new(w as f32, h as f32),
         }
+    }
+
+    /// The squared length in texels of the longer of the footprint's axes `dx`, `dy` (texture
+    /// coordinates per pixel), as [`Slot::sample`] takes it for the level of detail.
+    #[inline]
+    fn footprint(&self, dx: Vec2, dy: Vec2) -> f32 {
+        let (dx, dy) = match &self.uv_transform {
+            None => (dx, dy),
+            Some(t) => (t.apply(dx) - t.origin, t.apply(dy) - t.origin),
+        };
+        (dx * self.size)
+            .length_squared()
+            .max((dy * self.size).length_squared())
     }
 
     #[inline]

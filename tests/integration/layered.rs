@@ -343,7 +343,7 @@ fn point_light_becomes_the_aperture_shape_in_splat_and_multiview_as_in_reference
 #[test]
 fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_behind() {
     use defocus::raster::{
-        from_half, render_fragment_lists, PreparedScene, View, COINCIDENT_COC_PX,
+        from_half, render_fragment_lists, LayeredInput, PreparedScene, View, COINCIDENT_COC_PX,
     };
     // A long lens, so that the board lies pixels of CoC behind the object.
     let camera = Camera {
@@ -364,7 +364,13 @@ fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_b
     add_screen_rect(&mut scene, &camera, (16.5, 8.0, 48.0, 56.0), 1.51, dark);
     add_screen_rect(&mut scene, &camera, (16.5, 8.0, 48.0, 56.0), 1.50, dark);
     let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-    let lists = render_fragment_lists(&prepared, &View::pinhole(lens), 2, true, None);
+    let lists = render_fragment_lists(
+        &prepared,
+        &View::pinhole(lens),
+        2,
+        LayeredInput::default(),
+        None,
+    );
     // Inside the object: its front, then the board (the back side hidden at every sample).
     let (depths, colors) = lists.pixel(32, 32);
     assert_eq!(depths.len(), 2, "{depths:?}");
@@ -387,7 +393,13 @@ fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_b
         "edge {out}, list {depths:?}"
     );
     // Without coverage masks (the papers' input) the back side is a layer of its own.
-    let plain = render_fragment_lists(&prepared, &View::pinhole(lens), 2, false, None);
+    let plain = render_fragment_lists(
+        &prepared,
+        &View::pinhole(lens),
+        2,
+        LayeredInput::PAPER,
+        None,
+    );
     let (depths, _) = plain.pixel(32, 32);
     assert!((depths[1] - 1.51).abs() < 1e-3, "{depths:?}");
 }
@@ -399,7 +411,9 @@ fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_b
 /// its front at the same distance is a surface a blur can show, and keeps its slot.
 #[test]
 fn the_inside_of_a_closed_mesh_takes_no_slot() {
-    use defocus::raster::{render_fragment_lists, PreparedScene, View, COINCIDENT_COC_PX};
+    use defocus::raster::{
+        render_fragment_lists, LayeredInput, PreparedScene, View, COINCIDENT_COC_PX,
+    };
     let camera = Camera {
         focal_length_mm: 200.0,
         ..test_camera(64, 64, 3.0, 1.4)
@@ -423,7 +437,13 @@ fn the_inside_of_a_closed_mesh_takes_no_slot() {
             }
         }
         let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-        render_fragment_lists(&prepared, &View::pinhole(lens), 2, true, None)
+        render_fragment_lists(
+            &prepared,
+            &View::pinhole(lens),
+            2,
+            LayeredInput::default(),
+            None,
+        )
     };
     let inside = lists_with(true);
     let (depths, _) = inside.pixel(32, 32);
@@ -562,4 +582,81 @@ fn a_near_bar_draws_its_shadow_across_the_bokeh_of_a_light_behind_it() {
             }
         }
     }
+}
+
+/// A texture minified four times along one screen axis and magnified twice along the other
+/// (stripes across the magnified axis, half a texel a pixel there, four texel rows a pixel
+/// down), in focus: each pixel of the layered input is the mean of the texture's bilinear
+/// reconstruction over the pixel, as `reference`'s many views average it. One lookup a quadrant
+/// (the `--quadrant-shading` input) takes its level from the pixel's longer axis, whose texels
+/// are two of the stripes' texels wide across, and smears the stripes' edges over the pixels
+/// beside them.
+#[test]
+fn a_minified_texture_keeps_its_edges_in_the_layered_input() {
+    use defocus::raster::{from_half, render_fragment_lists, LayeredInput, PreparedScene, View};
+    use defocus::scene::{Texture, TextureBinding};
+    let (columns, rows) = (32usize, 256usize);
+    let stripe = |c: usize| ((c / 5) % 2) as f32;
+    let texels = (0..columns * rows)
+        .map(|i| {
+            let v = stripe(i % columns);
+            [v, v, v, 1.0]
+        })
+        .collect();
+    let camera = test_camera(64, 64, 2.0, 2.8);
+    let mut scene = Scene::default();
+    let t = scene.add_texture(Texture::new(
+        ColorImage::from_vec(columns, rows, texels).unwrap(),
+    ));
+    let striped = scene.add_material(Material {
+        name: "stripes".into(),
+        base_color_texture: Some(TextureBinding {
+            texture: t,
+            sampler: Default::default(),
+            uv_transform: Default::default(),
+        }),
+        ..Default::default()
+    });
+    add_screen_rect(&mut scene, &camera, (0.0, 0.0, 64.0, 64.0), 2.0, striped);
+    // The bilinear reconstruction across the stripes at `u` texels (texel centres at c + 0.5),
+    // and its mean over pixel x (half a texel), from 64 points.
+    let bilinear = |u: f32| {
+        let f = u - 0.5;
+        let c = f.floor();
+        let t = f - c;
+        let at = |c: f32| stripe(c.clamp(0.0, columns as f32 - 1.0) as usize);
+        at(c) * (1.0 - t) + at(c + 1.0) * t
+    };
+    let truth = |x: usize| {
+        (0..64)
+            .map(|k| bilinear((x as f32 + (k as f32 + 0.5) / 64.0) / 2.0))
+            .sum::<f32>()
+            / 64.0
+    };
+    let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
+    let lens = camera.thin_lens().unwrap();
+    let worst = |input: LayeredInput| {
+        let lists = render_fragment_lists(&prepared, &View::pinhole(lens), 2, input, None);
+        let mut worst = (0.0f32, 0, 0);
+        for y in 2..62 {
+            for x in 8..56 {
+                let (_, colors) = lists.pixel(x, y);
+                let error = (from_half(&colors[0])[0] - truth(x)).abs();
+                if error > worst.0 {
+                    worst = (error, x, y);
+                }
+            }
+        }
+        worst
+    };
+    let sampled = worst(LayeredInput::default());
+    assert!(sampled.0 < 0.05, "per-sample lookups: worst {sampled:?}");
+    let quadrants = worst(LayeredInput {
+        sample_shading: false,
+        ..LayeredInput::default()
+    });
+    assert!(
+        quadrants.0 > 0.1,
+        "one lookup a quadrant blurs the edges (the case the default is for): {quadrants:?}"
+    );
 }

@@ -7,7 +7,7 @@ use defocus::methods::multilayer::{self, Bokeh, Borders, FilterSteps, Multilayer
 use defocus::methods::reference::{self, ReferenceSettings};
 use defocus::methods::registry::{self, Frame, MethodSettings, PinholeSettings, SceneOptions};
 use defocus::metrics;
-use defocus::raster::{from_half, render_fragment_lists, PreparedScene, View};
+use defocus::raster::{from_half, render_fragment_lists, LayeredInput, PreparedScene, View};
 use defocus::scene::{AlphaMode, Material, Scene};
 
 use crate::{add_screen_rect, ground_truth, test_camera};
@@ -21,7 +21,7 @@ fn lists_of(scene: &Scene, camera: &Camera, cap: usize) -> defocus::raster::Frag
         &prepared,
         &View::pinhole(camera.thin_lens().unwrap()),
         cap,
-        false,
+        LayeredInput::PAPER,
         None,
     )
 }

@@ -402,7 +402,7 @@ pub fn collect(
         prepared,
         &View::pinhole(big),
         settings.fragments,
-        settings.input.coverage,
+        settings.input,
         reach,
     )
 }
@@ -657,7 +657,7 @@ mod tests {
                 &prepared,
                 &View::pinhole(lens),
                 settings.fragments,
-                settings.input.coverage,
+                settings.input,
                 None,
             );
             assert!(

@@ -463,7 +463,7 @@ fn collect(
         prepared,
         &View::pinhole(lens),
         settings.layers,
-        settings.input.coverage,
+        settings.input,
         reach,
     )
 }
@@ -529,7 +529,7 @@ mod tests {
                 &prepared,
                 &View::pinhole(lens),
                 settings.layers,
-                settings.input.coverage,
+                settings.input,
                 None,
             );
             assert!(
