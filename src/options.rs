@@ -287,11 +287,17 @@ pub struct PostArgs {
     /// whose blur reaches into the frame.
     #[arg(long, help_heading = "layered methods")]
     pub no_guard_band: bool,
-    /// multilayer, splat --layers N, multiview: with coverage masks, look a texture up once a
-    /// quadrant of the pixel even where it is minified, instead of at every covered sample
-    /// (sharper minified textures, as reference's views average them; shading takes longer).
-    #[arg(long, help_heading = "layered methods", conflicts_with = "no_coverage")]
-    pub quadrant_shading: bool,
+    /// multilayer, splat --layers N, multiview: how a minified texture is looked up with
+    /// coverage masks: once a `quadrant` of the pixel, or at every covered `sample` (sharper
+    /// minified textures, the pixel's mean as reference's views make it; the rasterization
+    /// takes about twice as long). Default sample for multiview, quadrant for the others.
+    #[arg(
+        long,
+        value_name = "quadrant|sample",
+        help_heading = "layered methods",
+        conflicts_with = "no_coverage"
+    )]
+    pub texture_lookups: Option<String>,
     /// multilayer, splat --layers N, multiview: fragments brighter than this linear luminance
     /// (over their coverage; 1 is white) are scattered on their own, each pixel of a light's
     /// bokeh taking it through its one lens ray with that ray's visibility past the nearer
@@ -433,13 +439,21 @@ impl PostArgs {
     }
 
     /// The layered methods' input from `--no-coverage`, `--no-guard-band` and
-    /// `--quadrant-shading`.
-    fn layered_input(&self) -> LayeredInput {
-        LayeredInput {
+    /// `--texture-lookups`, over the method's default `default`.
+    fn layered_input(&self, default: LayeredInput) -> Result<LayeredInput> {
+        let sample_shading = match self.texture_lookups.as_deref() {
+            None => default.sample_shading,
+            Some("sample") => true,
+            Some("quadrant") => false,
+            Some(other) => {
+                bail!("invalid --texture-lookups: {other:?}: expected one of quadrant, sample")
+            }
+        };
+        Ok(LayeredInput {
             coverage: !self.no_coverage,
             guard_band: !self.no_guard_band,
-            sample_shading: !self.no_coverage && !self.quadrant_shading,
-        }
+            sample_shading: !self.no_coverage && sample_shading,
+        })
     }
 
     /// The lens effects of `--lens`, then `--anamorphic`, `--cats-eye` and `--chromatic`
@@ -641,7 +655,7 @@ impl PostArgs {
                     layers,
                     group_px: self.group,
                     max_coc_px,
-                    input: self.layered_input(),
+                    input: self.layered_input(SplatSettings::default().input)?,
                     effects: self.lens_effects()?,
                     highlights: self.highlight_rays(SplatSettings::default().highlights)?,
                 };
@@ -671,7 +685,7 @@ impl PostArgs {
                     },
                     jitter: !self.no_jitter,
                     culling: !self.no_culling,
-                    input: self.layered_input(),
+                    input: self.layered_input(MultiviewSettings::default().input)?,
                     effects: self.lens_effects()?,
                     ..MultiviewSettings::default()
                 };
@@ -686,7 +700,7 @@ impl PostArgs {
                         .context("invalid --filter-steps")?,
                     truncation: !self.no_truncation,
                     supersample: self.ml_supersample,
-                    input: self.layered_input(),
+                    input: self.layered_input(MultilayerSettings::default().input)?,
                     bokeh: Bokeh::parse(&self.ml_bokeh).context("invalid --ml-bokeh")?,
                     aperture: aperture.clone(),
                     highlights: self.highlight_rays(MultilayerSettings::default().highlights)?,

@@ -406,11 +406,13 @@ pub struct LayeredInput {
     /// Rasterize a guard band around the frame ([`PreparedScene::guard_band_px`]); false: the
     /// frame only, as the papers.
     pub guard_band: bool,
-    /// With coverage: where a texture is minified past a quadrant of the pixel, every covered
-    /// sample takes its own lookup (sixteen, at a sixteenth of the footprint), so the pixel
-    /// is the texture's mean over its covered area, as `reference`'s many views make it;
-    /// false: one lookup a quadrant, whose mip filter is wider than the quadrant and blurs
-    /// the texture's edges along the less minified axis (measured in the README).
+    /// With coverage: where a texture is minified (a pixel spans more than a texel), every
+    /// covered sample takes its own lookup (sixteen, each at a sixteenth of the footprint),
+    /// so the pixel is the texture's mean over its covered area, as `reference`'s many views
+    /// make it; false: one lookup a quadrant, whose mip filter is wider than the quadrant and
+    /// blurs the texture's edges along the less minified axis. Sharper, at about twice the
+    /// rasterization's time (measured in the README). Default false; `multiview` takes true
+    /// ([`LayeredInput::SAMPLE_SHADED`]).
     pub sample_shading: bool,
 }
 
@@ -419,12 +421,20 @@ impl Default for LayeredInput {
         Self {
             coverage: true,
             guard_band: true,
-            sample_shading: true,
+            sample_shading: false,
         }
     }
 }
 
 impl LayeredInput {
+    /// The default input with minified textures looked up at every covered sample
+    /// ([`LayeredInput::sample_shading`]): `multiview`'s default.
+    pub const SAMPLE_SHADED: Self = Self {
+        coverage: true,
+        guard_band: true,
+        sample_shading: true,
+    };
+
     /// The papers' input: pixel centres, the frame only.
     pub const PAPER: Self = Self {
         coverage: false,

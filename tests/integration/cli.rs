@@ -297,6 +297,54 @@ fn multiview_takes_a_cone_mipmap_and_refuses_an_unknown_one() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// `--texture-lookups`: `multiview` looks minified textures up at every covered sample by
+/// default and `multilayer` once a quadrant (each flag value gives the other's image), and an
+/// unknown value is refused, naming the flag and the choices.
+#[test]
+fn the_layered_methods_take_texture_lookups_and_refuse_an_unknown_one() {
+    let dir = temp_dir("texture-lookups");
+    for (method, default) in [("multiview", "sample"), ("multilayer", "quadrant")] {
+        let size = [
+            "--width",
+            "96",
+            "--height",
+            "54",
+            "--method",
+            method,
+            "--samples",
+            "8",
+        ];
+        let run = |extra: &[&str], name: &str| {
+            render_image(
+                &[&size[..], extra].concat(),
+                &dir.join(format!("{method}-{name}")),
+            )
+        };
+        let other = if default == "sample" {
+            "quadrant"
+        } else {
+            "sample"
+        };
+        let plain = run(&[], "default.exr");
+        assert!(
+            plain == run(&["--texture-lookups", default], "same.exr"),
+            "{method}"
+        );
+        assert!(
+            plain != run(&["--texture-lookups", other], "other.exr"),
+            "{method}"
+        );
+        render_refuses(
+            &size,
+            "--texture-lookups",
+            "trilinear",
+            "quadrant, sample",
+            &dir,
+        );
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 /// `render --method multiview --layer-origin focus` takes the focus-centred layers (another
 /// image than the default `near`, which is the paper's), and an unknown origin is refused,
 /// naming the flag and the choices.

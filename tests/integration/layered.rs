@@ -587,8 +587,8 @@ fn a_near_bar_draws_its_shadow_across_the_bokeh_of_a_light_behind_it() {
 /// A texture minified four times along one screen axis and magnified twice along the other
 /// (stripes across the magnified axis, half a texel a pixel there, four texel rows a pixel
 /// down), in focus: each pixel of the layered input is the mean of the texture's bilinear
-/// reconstruction over the pixel, as `reference`'s many views average it. One lookup a quadrant
-/// (the `--quadrant-shading` input) takes its level from the pixel's longer axis, whose texels
+/// reconstruction over the pixel, as `reference`'s many views average it (`multiview`'s
+/// input). One lookup a quadrant (`--texture-lookups quadrant`, `multilayer`'s and `splat`'s) takes its level from the pixel's longer axis, whose texels
 /// are two of the stripes' texels wide across, and smears the stripes' edges over the pixels
 /// beside them.
 #[test]
@@ -649,12 +649,9 @@ fn a_minified_texture_keeps_its_edges_in_the_layered_input() {
         }
         worst
     };
-    let sampled = worst(LayeredInput::default());
+    let sampled = worst(LayeredInput::SAMPLE_SHADED);
     assert!(sampled.0 < 0.05, "per-sample lookups: worst {sampled:?}");
-    let quadrants = worst(LayeredInput {
-        sample_shading: false,
-        ..LayeredInput::default()
-    });
+    let quadrants = worst(LayeredInput::default());
     assert!(
         quadrants.0 > 0.1,
         "one lookup a quadrant blurs the edges (the case the default is for): {quadrants:?}"

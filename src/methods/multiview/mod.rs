@@ -212,7 +212,7 @@ impl Default for MultiviewSettings {
             mip_filter: MipFilter::Tent,
             jitter: true,
             culling: true,
-            input: LayeredInput::default(),
+            input: LayeredInput::SAMPLE_SHADED,
             effects: LensEffects::default(),
         }
     }
