@@ -1006,17 +1006,19 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 let slot = batch.pixels;
                 batch.pixels += 1;
                 batch.pixel[slot] = (x as u32, y as u32, depth_m);
-                // The groups' offsets go along the whole derivatives.
+                // The groups' offsets go along the whole derivatives (twice the halved ones:
+                // exact, so a quadrant's coordinates are those of the quadrant lookups).
                 let scale = if groups == ShadingGroups::Samples && per_sample {
                     2.0
                 } else {
                     1.0
                 };
+                let (ux, vx, uy, vy) = (du_dx * scale, dv_dx * scale, du_dy * scale, dv_dy * scale);
                 groups.for_each(mask, c, |bits, g| {
                     let d = g - c;
                     let i = batch.lanes;
-                    sample_uv.u[i] = u + (du_dx * d.x + du_dy * d.y) * scale;
-                    sample_uv.v[i] = v + (dv_dx * d.x + dv_dy * d.y) * scale;
+                    sample_uv.u[i] = u + ux * d.x + uy * d.y;
+                    sample_uv.v[i] = v + vx * d.x + vy * d.y;
                     sample_uv.du_dx[i] = du_dx;
                     sample_uv.dv_dx[i] = dv_dx;
                     sample_uv.du_dy[i] = du_dy;
