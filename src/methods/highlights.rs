@@ -546,7 +546,8 @@ fn stride_px(c: f32) -> f32 {
 
 /// The highlights scattered with their rays' visibility through `lists` (made with `lens`,
 /// `scale` list pixels to an output pixel), over the output region `(x0, y0, width, height)`
-/// (in output pixels of the lists' grid): their footprints in `shape`, weighed to sum to one.
+/// (in output pixels of the lists' grid): their footprints in `shape`, each weighed to sum to
+/// its list pixel's share of an output pixel.
 pub fn scatter(
     highlights: &[Highlight],
     lists: &FragmentLists,
@@ -633,7 +634,8 @@ pub fn scatter(
                                 .sum::<f32>()
                                 / EDGE_RAYS.len() as f32
                         });
-                        let wt = cover * norm * seen;
+                        // A list pixel is `1 / scale^2` of an output pixel.
+                        let wt = cover * norm * seen / (scale * scale);
                         for (o, k) in out[x - x0].iter_mut().zip(h.color) {
                             *o += wt * k;
                         }

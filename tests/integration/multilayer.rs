@@ -259,6 +259,32 @@ fn point_light_behind_focus_spreads_over_the_coc_diameter_with_its_energy() {
     }
 }
 
+/// The point light scattered as a highlight (the default: it is brighter than white) keeps its
+/// energy whatever the lists' supersampling: at `--ml-supersample 2` or 4 each list pixel is a
+/// quarter or a sixteenth of an output pixel, and the light's fragments carry that share, not
+/// the whole pixel's (which would make it 4 or 16 times as bright).
+#[test]
+fn a_scattered_light_keeps_its_energy_when_the_lists_are_supersampled() {
+    let size = 96;
+    let (scene, camera, _) = crate::point_light(size, 50.0);
+    let energy = |supersample: usize| {
+        let s = MultilayerSettings {
+            supersample,
+            ..MultilayerSettings::default()
+        };
+        let out = multilayer::render(&scene, &camera, &s).unwrap();
+        out.image.pixels().iter().map(|p| p[0] as f64).sum::<f64>()
+    };
+    let one = energy(1);
+    for k in [2, 4] {
+        let e = energy(k);
+        assert!(
+            (e / one - 1.0).abs() < 0.03,
+            "supersample {k}: {e} vs {one}"
+        );
+    }
+}
+
 /// The whole-frame comparison of the issue: on `railing` at 640x360, the text behind the
 /// blurred bars is seen, so `multilayer` is far closer to `reference` than any single-image
 /// method on the same view.
