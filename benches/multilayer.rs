@@ -1,6 +1,8 @@
 //! `multilayer` benchmarks at 1280x720 on the built-in `railing` and `grass` scenes: the grid of
 //! the paper's Tables 1 and 3. Ids:
 //! - `multilayer/collect/N<n>/<scene>/1280x720`: the fragment lists with N per pixel;
+//!   `multilayer/collect/N4/sample-lookups/<scene>/1280x720`: the same with minified textures
+//!   looked up at every covered sample (`--texture-lookups sample`, `multiview`'s default);
 //! - `multilayer/filter/<m>-<s>/N<n>/<trunc|full>/<scene>/1280x720`: the Y-map of m mip and s
 //!   stack steps, with or without list truncation;
 //! - `multilayer/accumulate/<m>-<s>/N<n>/<scene>/1280x720`;
@@ -19,7 +21,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use defocus::methods::multilayer::{
     self, accumulate, collect, Bokeh, Borders, FilterSteps, MultilayerSettings,
 };
-use defocus::raster::PreparedScene;
+use defocus::raster::{LayeredInput, PreparedScene};
 use defocus::scene::builtin;
 
 fn bench(c: &mut Criterion) {
@@ -40,6 +42,16 @@ fn bench(c: &mut Criterion) {
             g.bench_function(format!("collect/N{n}/{name}/{res}"), |b| {
                 b.iter(|| collect(&prepared, lens, 0, &base))
             });
+            if n == 4 {
+                // Minified textures looked up at every covered sample (`multiview`'s input).
+                let sampled = MultilayerSettings {
+                    input: LayeredInput::SAMPLE_SHADED,
+                    ..base.clone()
+                };
+                g.bench_function(format!("collect/N{n}/sample-lookups/{name}/{res}"), |b| {
+                    b.iter(|| collect(&prepared, lens, 0, &sampled))
+                });
+            }
             let lists = collect(&prepared, lens, 0, &base);
             for (mip, stack) in [(1usize, 3usize), (2, 2), (4, 0)] {
                 for truncation in [true, false] {
