@@ -980,18 +980,17 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 let (q, uq, vq) = (e.x, e.y, e.z);
                 let (u, v) = (uq / q, vq / q);
                 let (qx, qy) = (q + pq[1], q + pq[2]);
-                let (mut du_dx, mut dv_dx) = ((uq + pu[1]) / qx - u, (vq + pv[1]) / qx - v);
-                let (mut du_dy, mut dv_dy) = ((uq + pu[2]) / qy - u, (vq + pv[2]) / qy - v);
-                let groups = if per_sample
+                let (du_dx, dv_dx) = ((uq + pu[1]) / qx - u, (vq + pv[1]) / qx - v);
+                let (du_dy, dv_dy) = ((uq + pu[2]) / qy - u, (vq + pv[2]) / qy - v);
+                // `lod_scale`: of the derivatives the lookups' level of detail is taken from.
+                let (groups, lod_scale) = if per_sample
                     && fine.minified(Vec2::new(du_dx, dv_dx), Vec2::new(du_dy, dv_dy))
                 {
                     // A sample's footprint is a quarter of a quadrant's: half the
                     // derivatives, one level finer than the shader's bias.
-                    (du_dx, dv_dx, du_dy, dv_dy) =
-                        (du_dx / 2.0, dv_dx / 2.0, du_dy / 2.0, dv_dy / 2.0);
-                    ShadingGroups::Samples
+                    (ShadingGroups::Samples, 0.5)
                 } else {
-                    groups
+                    (groups, 1.0)
                 };
                 if batch.lanes + groups.count(mask) > BATCH || batch.pixels == BATCH {
                     batch.flush(
@@ -1006,23 +1005,15 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 let slot = batch.pixels;
                 batch.pixels += 1;
                 batch.pixel[slot] = (x as u32, y as u32, depth_m);
-                // The groups' offsets go along the whole derivatives (twice the halved ones:
-                // exact, so a quadrant's coordinates are those of the quadrant lookups).
-                let scale = if groups == ShadingGroups::Samples && per_sample {
-                    2.0
-                } else {
-                    1.0
-                };
-                let (ux, vx, uy, vy) = (du_dx * scale, dv_dx * scale, du_dy * scale, dv_dy * scale);
                 groups.for_each(mask, c, |bits, g| {
                     let d = g - c;
                     let i = batch.lanes;
-                    sample_uv.u[i] = u + ux * d.x + uy * d.y;
-                    sample_uv.v[i] = v + vx * d.x + vy * d.y;
-                    sample_uv.du_dx[i] = du_dx;
-                    sample_uv.dv_dx[i] = dv_dx;
-                    sample_uv.du_dy[i] = du_dy;
-                    sample_uv.dv_dy[i] = dv_dy;
+                    sample_uv.u[i] = u + du_dx * d.x + du_dy * d.y;
+                    sample_uv.v[i] = v + dv_dx * d.x + dv_dy * d.y;
+                    sample_uv.du_dx[i] = du_dx * lod_scale;
+                    sample_uv.dv_dx[i] = dv_dx * lod_scale;
+                    sample_uv.du_dy[i] = du_dy * lod_scale;
+                    sample_uv.dv_dy[i] = dv_dy * lod_scale;
                     batch.lane[i] = (slot as u8, bits);
                     batch.lanes += 1;
                 });

@@ -17,22 +17,31 @@ use crate::{add_screen_rect, test_camera};
 
 /// The three layered methods at the settings the issue measures (multiview with 64 rays).
 fn layered(scene: &Scene, camera: &Camera, aperture: &Aperture) -> Vec<(&'static str, ColorImage)> {
+    layered_with(
+        scene,
+        camera,
+        aperture,
+        MultilayerSettings::default().highlights,
+        64,
+    )
+}
+
+/// The three layered methods at their defaults but for `aperture`, the highlight threshold
+/// `highlights` and `multiview`'s `rays` (`splat` with 4 layers).
+fn layered_with(
+    scene: &Scene,
+    camera: &Camera,
+    aperture: &Aperture,
+    highlights: Option<f32>,
+    rays: usize,
+) -> Vec<(&'static str, ColorImage)> {
     let ml = multilayer::render(
         scene,
         camera,
         &MultilayerSettings {
             aperture: aperture.clone(),
+            highlights,
             ..MultilayerSettings::default()
-        },
-    )
-    .unwrap();
-    let (sp, _) = splat::render_scene(
-        scene,
-        camera,
-        &SplatSettings {
-            aperture: aperture.clone(),
-            layers: 4,
-            ..SplatSettings::default()
         },
     )
     .unwrap();
@@ -41,16 +50,38 @@ fn layered(scene: &Scene, camera: &Camera, aperture: &Aperture) -> Vec<(&'static
         camera,
         &MultiviewSettings {
             aperture: aperture.clone(),
-            samples: 64,
+            samples: rays,
+            highlights,
             ..MultiviewSettings::default()
         },
     )
     .unwrap();
     vec![
         ("multilayer", ml.image),
-        ("splat", sp.image),
+        ("splat", splat4(scene, camera, aperture, highlights)),
         ("multiview", mv.image),
     ]
+}
+
+/// `splat --layers 4` with `aperture` and the highlight threshold `highlights`.
+fn splat4(
+    scene: &Scene,
+    camera: &Camera,
+    aperture: &Aperture,
+    highlights: Option<f32>,
+) -> ColorImage {
+    let (sp, _) = splat::render_scene(
+        scene,
+        camera,
+        &SplatSettings {
+            aperture: aperture.clone(),
+            layers: 4,
+            highlights,
+            ..SplatSettings::default()
+        },
+    )
+    .unwrap();
+    sp.image
 }
 
 fn reference_image(
@@ -261,29 +292,15 @@ fn point_light_becomes_the_aperture_shape_in_splat_and_multiview_as_in_reference
             size,
             coc,
         );
-        let (sp, _) = splat::render_scene(
-            &scene,
-            &camera,
-            &SplatSettings {
-                aperture: aperture.clone(),
-                layers: 4,
-                ..SplatSettings::default()
-            },
-        )
-        .unwrap();
         // The light is brighter than white: by default a highlight, scattered with its rays'
         // visibility; `--highlight-rays off` blends it as every fragment.
-        let (sp_blended, _) = splat::render_scene(
+        let sp = splat4(
             &scene,
             &camera,
-            &SplatSettings {
-                aperture: aperture.clone(),
-                layers: 4,
-                highlights: None,
-                ..SplatSettings::default()
-            },
-        )
-        .unwrap();
+            &aperture,
+            SplatSettings::default().highlights,
+        );
+        let sp_blended = splat4(&scene, &camera, &aperture, None);
         let mv = multiview::render(
             &scene,
             &camera,
@@ -297,8 +314,8 @@ fn point_light_becomes_the_aperture_shape_in_splat_and_multiview_as_in_reference
         )
         .unwrap();
         for (name, image) in [
-            ("splat", sp.image),
-            ("splat --highlight-rays off", sp_blended.image),
+            ("splat", sp),
+            ("splat --highlight-rays off", sp_blended),
             ("multiview", mv.image),
         ] {
             let ours = lit(&image, size, coc);
@@ -516,38 +533,10 @@ fn a_near_bar_draws_its_shadow_across_the_bokeh_of_a_light_behind_it() {
         "reference: {dark_truth} vs {lit_truth}"
     );
     for highlights in [Some(1.0), None] {
-        let ml = multilayer::render(
-            &scene,
-            &camera,
-            &MultilayerSettings {
-                highlights,
-                ..MultilayerSettings::default()
-            },
-        )
-        .unwrap();
-        let (sp, _) = splat::render_scene(
-            &scene,
-            &camera,
-            &SplatSettings {
-                layers: 4,
-                highlights,
-                ..SplatSettings::default()
-            },
-        )
-        .unwrap();
-        let mv = multiview::render(
-            &scene,
-            &camera,
-            &MultiviewSettings {
-                highlights,
-                ..MultiviewSettings::default()
-            },
-        )
-        .unwrap();
-        let mut images = vec![("multilayer", ml.image), ("splat --layers 4", sp.image)];
-        if highlights.is_some() {
+        let mut images = layered_with(&scene, &camera, &Aperture::Disc, highlights, 32);
+        if highlights.is_none() {
             // Traced, its 32 rays meet the small light too seldom for the columns to compare.
-            images.push(("multiview", mv.image));
+            images.retain(|(name, _)| *name != "multiview");
         }
         for (name, img) in images {
             let (l, d) = (mean(&img, &lit), mean(&img, &shadow));
