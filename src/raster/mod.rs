@@ -406,13 +406,14 @@ pub struct LayeredInput {
     /// Rasterize a guard band around the frame ([`PreparedScene::guard_band_px`]); false: the
     /// frame only, as the papers.
     pub guard_band: bool,
-    /// With coverage: where a texture is minified (a pixel spans more than a texel), every
+    /// With coverage: where a texture is minified (a pixel spans more than a texel) on a
+    /// surface nearly in focus (CoC radius at most [`SAMPLE_SHADING_MAX_COC_PX`]), every
     /// covered sample takes its own lookup (sixteen, each at a sixteenth of the footprint),
     /// so the pixel is the texture's mean over its covered area, as `reference`'s many views
     /// make it; false: one lookup a quadrant, whose mip filter is wider than the quadrant and
-    /// blurs the texture's edges along the less minified axis. Sharper, at about twice the
-    /// rasterization's time (measured in the README). Default false; `multiview` takes true
-    /// ([`LayeredInput::SAMPLE_SHADED`]).
+    /// blurs the texture's edges along the less minified axis. Sharper in focus, at up to
+    /// twice the rasterization's time where much of the frame is such a texture (measured in
+    /// the README). Default false; `multiview` takes true ([`LayeredInput::SAMPLE_SHADED`]).
     pub sample_shading: bool,
 }
 
@@ -461,6 +462,20 @@ impl LayeredInput {
     }
 }
 
+/// The CoC radius in pixels up to which [`LayeredInput::sample_shading`] looks a minified
+/// texture up at every sample. Beyond it the defocus blur hides the difference: a quadrant's
+/// lookup widens the pixel's filter by a fraction of a pixel, and a disc of radius 2 px has
+/// already cut the frequencies where the two filters differ (its transfer function's first
+/// zero is at 0.3 cycles a pixel); the blurred image changes by under 5% of the blur's width.
+pub const SAMPLE_SHADING_MAX_COC_PX: f32 = 2.0;
+
+/// The view depths in metres (nearest, farthest) whose CoC radius under `lens` is at most
+/// [`SAMPLE_SHADING_MAX_COC_PX`].
+fn sample_shading_depths(lens: &ThinLens) -> (f32, f32) {
+    let c = SAMPLE_SHADING_MAX_COC_PX;
+    (lens.depth_for_coc_px(-c), lens.depth_for_coc_px(c))
+}
+
 /// Largest guard band as a fraction of the frame's longer side: at 1/8 the frame grows to at
 /// most 1.25 x 1.44 (16:9) of its pixels.
 pub const GUARD_BAND_MAX_FRACTION: f32 = 0.125;
@@ -473,9 +488,10 @@ pub struct BinnedView {
     height: usize,
     lod_bias: f32,
     coverage: bool,
-    /// With coverage: a minified texture is looked up at every covered sample instead of once
-    /// a quadrant ([`BinnedView::with_quadrant_shading`]).
-    sample_shading: bool,
+    /// With coverage: the view depths in metres (nearest, farthest) within which a minified
+    /// texture is looked up at every covered sample instead of once a quadrant
+    /// ([`sample_shading_depths`]; `None`: [`BinnedView::with_quadrant_shading`]).
+    sample_shading: Option<(f32, f32)>,
 }
 
 impl BinnedView {
@@ -602,7 +618,7 @@ impl BinnedView {
             height,
             lod_bias: view.lod_bias,
             coverage,
-            sample_shading: coverage,
+            sample_shading: coverage.then(|| sample_shading_depths(&view.lens)),
         }
     }
 
@@ -611,7 +627,7 @@ impl BinnedView {
     /// [`LayeredInput::sample_shading`]).
     pub fn with_quadrant_shading(self) -> Self {
         Self {
-            sample_shading: false,
+            sample_shading: None,
             ..self
         }
     }

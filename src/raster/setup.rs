@@ -823,9 +823,10 @@ pub(crate) struct Sampling {
     /// A fragment for every pixel the triangle touches, with its coverage mask, instead of
     /// the pixels whose centre it covers.
     pub(crate) coverage: bool,
-    /// With coverage: a minified texture is looked up at every covered sample instead of once
-    /// a quadrant (`LayeredInput::sample_shading`).
-    pub(crate) sample_shading: bool,
+    /// With coverage: the view depths in metres (nearest, farthest) within which a minified
+    /// texture is looked up at every covered sample instead of once a quadrant
+    /// (`LayeredInput::sample_shading`).
+    pub(crate) sample_shading: Option<(f32, f32)>,
 }
 
 /// Rasterizes `tri` within `rect` into `tile` (pass `raster`), sampled as `sampling` says.
@@ -963,9 +964,12 @@ pub(crate) fn raster_triangle<T: TileSink>(
             let fine = a2c.unwrap_or_else(|| {
                 shade::Shader::new(material, &scene.textures, lod_bias + sample_bias)
             });
-            // Where the texture is minified (a pixel spans more than a texel), every sample
-            // takes its own lookup (sample shading, `LayeredInput::sample_shading`).
-            let per_sample = sample_shading && groups == ShadingGroups::Quadrants;
+            // Where the texture is minified (a pixel spans more than a texel) and the surface
+            // is nearly in focus, every sample takes its own lookup (sample shading,
+            // `LayeredInput::sample_shading`).
+            let per_sample = sample_shading.filter(|&(near, far)| {
+                groups == ShadingGroups::Quadrants && tri.farthest_m >= near && tri.nearest_m <= far
+            });
             let mut batch = SampleBatch::new();
             for_each_covered_mask(tri, rect, |x, y, mask, c| {
                 let fy = y as f32 + 0.5 - origin_y;
@@ -984,6 +988,7 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 let (du_dy, dv_dy) = ((uq + pu[2]) / qy - u, (vq + pv[2]) / qy - v);
                 // `lod_scale`: of the derivatives the lookups' level of detail is taken from.
                 let (groups, lod_scale) = if per_sample
+                    .is_some_and(|(near, far)| depth_m >= near && depth_m <= far)
                     && fine.minified(Vec2::new(du_dx, dv_dx), Vec2::new(du_dy, dv_dy))
                 {
                     // A sample's footprint is a quarter of a quadrant's: half the

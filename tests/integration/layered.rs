@@ -573,15 +573,13 @@ fn a_near_bar_draws_its_shadow_across_the_bokeh_of_a_light_behind_it() {
     }
 }
 
-/// A texture minified four times along one screen axis and magnified twice along the other
-/// (stripes across the magnified axis, half a texel a pixel there, four texel rows a pixel
-/// down), in focus: each pixel of the layered input is the mean of the texture's bilinear
-/// reconstruction over the pixel, as `reference`'s many views average it (`multiview`'s
-/// input). One lookup a quadrant (`--texture-lookups quadrant`, `multilayer`'s and `splat`'s) takes its level from the pixel's longer axis, whose texels
-/// are two of the stripes' texels wide across, and smears the stripes' edges over the pixels
-/// beside them.
-#[test]
-fn a_minified_texture_keeps_its_edges_in_the_layered_input() {
+/// A screen-filling texture minified four times along one screen axis and magnified twice
+/// along the other (stripes across the magnified axis, half a texel a pixel there, four texel
+/// rows a pixel down), at `z_m` metres with the focus at `focus_m` (f/1, 64x64): the worst
+/// error of the layered input's colours against the texture's bilinear reconstruction averaged
+/// over each pixel, with per-sample lookups (`LayeredInput::SAMPLE_SHADED`) and with one lookup
+/// a quadrant (the default), and whether the two inputs are the same bit for bit.
+fn minified_stripes(focus_m: f32, z_m: f32) -> (f32, f32, bool) {
     use defocus::raster::{from_half, render_fragment_lists, LayeredInput, PreparedScene, View};
     use defocus::scene::{Texture, TextureBinding};
     let (columns, rows) = (32usize, 256usize);
@@ -592,7 +590,7 @@ fn a_minified_texture_keeps_its_edges_in_the_layered_input() {
             [v, v, v, 1.0]
         })
         .collect();
-    let camera = test_camera(64, 64, 2.0, 2.8);
+    let camera = test_camera(64, 64, focus_m, 1.0);
     let mut scene = Scene::default();
     let t = scene.add_texture(Texture::new(
         ColorImage::from_vec(columns, rows, texels).unwrap(),
@@ -606,7 +604,7 @@ fn a_minified_texture_keeps_its_edges_in_the_layered_input() {
         }),
         ..Default::default()
     });
-    add_screen_rect(&mut scene, &camera, (0.0, 0.0, 64.0, 64.0), 2.0, striped);
+    add_screen_rect(&mut scene, &camera, (0.0, 0.0, 64.0, 64.0), z_m, striped);
     // The bilinear reconstruction across the stripes at `u` texels (texel centres at c + 0.5),
     // and its mean over pixel x (half a texel), from 64 points.
     let bilinear = |u: f32| {
@@ -624,25 +622,71 @@ fn a_minified_texture_keeps_its_edges_in_the_layered_input() {
     };
     let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
     let lens = camera.thin_lens().unwrap();
-    let worst = |input: LayeredInput| {
+    let lists = |input: LayeredInput| {
         let lists = render_fragment_lists(&prepared, &View::pinhole(lens), 2, input, None);
-        let mut worst = (0.0f32, 0, 0);
+        let colors: Vec<f32> = (0..64 * 64)
+            .map(|i| from_half(&lists.pixel(i % 64, i / 64).1[0])[0])
+            .collect();
+        colors
+    };
+    let worst = |colors: &[f32]| {
+        let mut worst = 0.0f32;
         for y in 2..62 {
             for x in 8..56 {
-                let (_, colors) = lists.pixel(x, y);
-                let error = (from_half(&colors[0])[0] - truth(x)).abs();
-                if error > worst.0 {
-                    worst = (error, x, y);
-                }
+                worst = worst.max((colors[y * 64 + x] - truth(x)).abs());
             }
         }
         worst
     };
-    let sampled = worst(LayeredInput::SAMPLE_SHADED);
-    assert!(sampled.0 < 0.05, "per-sample lookups: worst {sampled:?}");
-    let quadrants = worst(LayeredInput::default());
-    assert!(
-        quadrants.0 > 0.1,
-        "one lookup a quadrant blurs the edges (the case the default is for): {quadrants:?}"
+    let (sampled, quadrants) = (
+        lists(LayeredInput::SAMPLE_SHADED),
+        lists(LayeredInput::default()),
     );
+    let same = sampled
+        .iter()
+        .zip(&quadrants)
+        .all(|(a, b)| a.to_bits() == b.to_bits());
+    (worst(&sampled), worst(&quadrants), same)
+}
+
+/// In focus, each pixel of the layered input is the mean of the texture over the pixel, as
+/// `reference`'s many views average it (`multiview`'s input, [`minified_stripes`]). One lookup
+/// a quadrant (`--texture-lookups quadrant`, `multilayer`'s and `splat`'s) takes its level from
+/// the pixel's longer axis, whose texels are two of the stripes' texels wide across, and
+/// smears the stripes' edges over the pixels beside them.
+#[test]
+fn a_minified_texture_keeps_its_edges_in_the_layered_input() {
+    let (sampled, quadrants, _) = minified_stripes(2.0, 2.0);
+    assert!(sampled < 0.05, "per-sample lookups: worst {sampled}");
+    assert!(
+        quadrants > 0.1,
+        "one lookup a quadrant blurs the edges (the case the default is for): {quadrants}"
+    );
+}
+
+/// Per-sample lookups stop where the defocus blur hides what they add: on a surface whose CoC
+/// radius is beyond `SAMPLE_SHADING_MAX_COC_PX` (2 px), in front of the focus or behind it,
+/// the input is the quadrant lookups' bit for bit; within it, it is the per-sample one.
+#[test]
+fn per_sample_lookups_stop_where_the_blur_hides_them() {
+    use defocus::raster::SAMPLE_SHADING_MAX_COC_PX;
+    let z_m = 0.5;
+    // The focus that puts the surface at `z_m` at a signed CoC radius of `coc_px`.
+    let lens = test_camera(64, 64, 1.0, 1.0).thin_lens().unwrap();
+    let focus_for = |coc_px: f32| 1.0 / (1.0 / z_m + coc_px / (lens.f_px * lens.lens_radius_m));
+    for coc_px in [-1.5f32, 1.5] {
+        assert!(coc_px.abs() < SAMPLE_SHADING_MAX_COC_PX);
+        let (sampled, quadrants, same) = minified_stripes(focus_for(coc_px), z_m);
+        assert!(
+            sampled < 0.05 && quadrants > 0.1 && !same,
+            "CoC {coc_px} px: per-sample {sampled}, quadrants {quadrants}"
+        );
+    }
+    for coc_px in [-2.5, 2.5] {
+        let (_, quadrants, same) = minified_stripes(focus_for(coc_px), z_m);
+        assert!(
+            same && quadrants > 0.1,
+            "CoC {coc_px} px: the input should be the quadrants' ({quadrants})"
+        );
+    }
 }
