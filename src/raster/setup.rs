@@ -611,8 +611,7 @@ impl ShadingGroups {
                 while rest != 0 {
                     let s = rest.trailing_zeros() as usize;
                     rest &= rest - 1;
-                    let (sx, sy) = COVERAGE_PATTERN[s];
-                    f(1 << s, Vec2::new(f32::from(sx), f32::from(sy)) / 32.0);
+                    f(1 << s, SAMPLE_OFFSETS[s]);
                 }
             }
         }
@@ -662,6 +661,18 @@ const QUADRANT_MASKS: [u16; 4] = {
         s += 1;
     }
     masks
+};
+
+/// The [`COVERAGE_PATTERN`] samples' offsets from the pixel centre in pixels.
+const SAMPLE_OFFSETS: [Vec2; COVERAGE_SAMPLES as usize] = {
+    let mut offsets = [Vec2::ZERO; COVERAGE_SAMPLES as usize];
+    let mut s = 0;
+    while s < COVERAGE_PATTERN.len() {
+        let (sx, sy) = COVERAGE_PATTERN[s];
+        offsets[s] = Vec2::new(sx as f32 / 32.0, sy as f32 / 32.0);
+        s += 1;
+    }
+    offsets
 };
 
 /// Per byte of a mask (low, high) and per value of that byte: the summed sample offsets
@@ -986,17 +997,66 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 let (qx, qy) = (q + pq[1], q + pq[2]);
                 let (du_dx, dv_dx) = ((uq + pu[1]) / qx - u, (vq + pv[1]) / qx - v);
                 let (du_dy, dv_dy) = ((uq + pu[2]) / qy - u, (vq + pv[2]) / qy - v);
-                // `lod_scale`: of the derivatives the lookups' level of detail is taken from.
-                let (groups, lod_scale) = if per_sample
-                    .is_some_and(|(near, far)| depth_m >= near && depth_m <= far)
-                    && fine.minified(Vec2::new(du_dx, dv_dx), Vec2::new(du_dy, dv_dy))
+                let (du, dv) = (Vec2::new(du_dx, dv_dx), Vec2::new(du_dy, dv_dy));
+                if per_sample.is_some_and(|(near, far)| depth_m >= near && depth_m <= far)
+                    && fine.minified(du, dv)
                 {
-                    // A sample's footprint is a quarter of a quadrant's: half the
-                    // derivatives, one level finer than the shader's bias.
-                    (ShadingGroups::Samples, 0.5)
-                } else {
-                    (groups, 1.0)
-                };
+                    // Every covered sample its own lookup, all at one level of detail: a
+                    // sample's footprint is a quarter of a quadrant's (half the derivatives,
+                    // one level finer than the shader's bias). The pending lanes go first, so
+                    // fragments leave in pixel order.
+                    batch.flush(
+                        &fine,
+                        alpha_to_coverage,
+                        sample_uv,
+                        sample_colors,
+                        (tri.blend, tri.back_facing),
+                        tile,
+                    );
+                    let mut lanes = [0u8; BATCH];
+                    let mut n = 0;
+                    let mut rest = mask;
+                    while rest != 0 {
+                        let s = rest.trailing_zeros() as usize;
+                        rest &= rest - 1;
+                        let d = SAMPLE_OFFSETS[s] - c;
+                        sample_uv.u[n] = u + du_dx * d.x + du_dy * d.y;
+                        sample_uv.v[n] = v + dv_dx * d.x + dv_dy * d.y;
+                        lanes[n] = s as u8;
+                        n += 1;
+                    }
+                    fine.shade_shared(
+                        n,
+                        &sample_uv.u,
+                        &sample_uv.v,
+                        (du * 0.5, dv * 0.5),
+                        sample_colors,
+                    );
+                    let mut sum = [0.0f32; 4];
+                    let mut kept = 0u16;
+                    for (color, &s) in sample_colors[..n].iter().zip(&lanes) {
+                        if let Some(color) = color {
+                            for (a, b) in sum.iter_mut().zip(color) {
+                                *a += b;
+                            }
+                            kept |= 1 << s;
+                        }
+                    }
+                    if kept != 0 {
+                        let inv = 1.0 / kept.count_ones() as f32;
+                        tile.fragment(&Fragment {
+                            x: x as u32,
+                            y: y as u32,
+                            depth_m,
+                            color: sum.map(|v| v * inv),
+                            blend: tri.blend,
+                            coverage: kept,
+                            dithered: false,
+                            back_facing: tri.back_facing,
+                        });
+                    }
+                    return;
+                }
                 if batch.lanes + groups.count(mask) > BATCH || batch.pixels == BATCH {
                     batch.flush(
                         &fine,
@@ -1015,10 +1075,10 @@ pub(crate) fn raster_triangle<T: TileSink>(
                     let i = batch.lanes;
                     sample_uv.u[i] = u + du_dx * d.x + du_dy * d.y;
                     sample_uv.v[i] = v + dv_dx * d.x + dv_dy * d.y;
-                    sample_uv.du_dx[i] = du_dx * lod_scale;
-                    sample_uv.dv_dx[i] = dv_dx * lod_scale;
-                    sample_uv.du_dy[i] = du_dy * lod_scale;
-                    sample_uv.dv_dy[i] = dv_dy * lod_scale;
+                    sample_uv.du_dx[i] = du_dx;
+                    sample_uv.dv_dx[i] = dv_dx;
+                    sample_uv.du_dy[i] = du_dy;
+                    sample_uv.dv_dy[i] = dv_dy;
                     batch.lane[i] = (slot as u8, bits);
                     batch.lanes += 1;
                 });

@@ -140,7 +140,11 @@ impl<'a> Shader<'a> {
                     }
                 }
                 let mut shaded = [None; BATCH];
-                self.shade_lanes(m, &sub_uv, Some(&sub_c), &mut shaded);
+                let emissive = self
+                    .emissive
+                    .as_ref()
+                    .map(|e| e.coords_batch(&sub_uv, self.lod_bias));
+                self.shade_lanes(m, Some(&sub_c), emissive.as_ref(), &mut shaded);
                 out[..n].fill(None);
                 for (&i, c) in kept[..m].iter().zip(shaded) {
                     out[i] = c;
@@ -148,17 +152,38 @@ impl<'a> Shader<'a> {
                 return;
             }
         }
-        self.shade_lanes(n, uv, base_coords.as_ref(), out);
+        let emissive = self
+            .emissive
+            .as_ref()
+            .map(|e| e.coords_batch(uv, self.lod_bias));
+        self.shade_lanes(n, base_coords.as_ref(), emissive.as_ref(), out);
     }
 
-    /// [`Shader::shade_batch`] without the early alpha test, with the base slot's coordinates
+    /// [`Shader::shade_batch`] for lanes that share their screen derivatives `duv_dx`,
+    /// `duv_dy` (one pixel's samples), bit for bit: each texture's level of detail is worked
+    /// out once. `out[i]` is `None` where the fragment is discarded.
+    pub(crate) fn shade_shared(
+        &self,
+        n: usize,
+        u: &[f32; BATCH],
+        v: &[f32; BATCH],
+        (duv_dx, duv_dy): (Vec2, Vec2),
+        out: &mut [Option<Rgba>; BATCH],
+    ) {
+        let coords = |slot: &Slot| slot.coords_shared(u, v, duv_dx, duv_dy, self.lod_bias);
+        let base = self.base.as_ref().map(coords);
+        let emissive = self.emissive.as_ref().map(coords);
+        self.shade_lanes(n, base.as_ref(), emissive.as_ref(), out);
+    }
+
+    /// [`Shader::shade_batch`] without the early alpha test, with the slots' coordinates
     /// worked out.
     #[inline(always)]
     fn shade_lanes(
         &self,
         n: usize,
-        uv: &UvBatch,
         base_coords: Option<&Coords>,
+        emissive_coords: Option<&Coords>,
         out: &mut [Option<Rgba>; BATCH],
     ) {
         let mut base = [Vec4::ONE; BATCH];
@@ -166,8 +191,7 @@ impl<'a> Shader<'a> {
         if let (Some(slot), Some(c)) = (&self.base, base_coords) {
             slot.texture.sample_batch(n, &c.u, &c.v, &c.lod, &mut base);
         }
-        if let Some(slot) = &self.emissive {
-            let c = slot.coords_batch(uv, self.lod_bias);
+        if let (Some(slot), Some(c)) = (&self.emissive, emissive_coords) {
             slot.texture
                 .sample_batch(n, &c.u, &c.v, &c.lod, &mut emissive);
         }
@@ -303,6 +327,43 @@ impl<'a> Slot<'a> {
         self.texture.sample(uv, lod)
     }
 
+    /// [`Slot::coords_batch`] for lanes that share their derivatives `dx`, `dy`, bit for bit:
+    /// the level of detail worked out once.
+    #[inline]
+    fn coords_shared(
+        &self,
+        u: &[f32; BATCH],
+        v: &[f32; BATCH],
+        dx: Vec2,
+        dy: Vec2,
+        lod_bias: f32,
+    ) -> Coords {
+        let (dx, dy) = match &self.uv_transform {
+            None => (dx, dy),
+            Some(t) => (t.apply(dx) - t.origin, t.apply(dy) - t.origin),
+        };
+        let fx = (dx * self.size).length_squared();
+        let fy = (dy * self.size).length_squared();
+        let mut c = Coords {
+            lod: [0.5 * fast_log2(fx.max(fy).max(1e-12)) + lod_bias; BATCH],
+            ..Coords::default()
+        };
+        match &self.uv_transform {
+            None => {
+                c.u = *u;
+                c.v = *v;
+            }
+            Some(t) => {
+                for i in 0..BATCH {
+                    let uv = t.apply(Vec2::new(u[i], v[i]));
+                    c.u[i] = uv.x;
+                    c.v[i] = uv.y;
+                }
+            }
+        }
+        c
+    }
+
     /// The texture coordinates and levels of detail that [`Slot::sample`] looks up, for every
     /// lane of a batch, bit for bit.
     #[inline]
@@ -369,6 +430,97 @@ impl UvAffine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::image::ColorImage;
+
+    /// `shade_shared` (one level of detail for lanes sharing their derivatives) gives
+    /// `shade_batch`'s colours and discards bit for bit: base and emissive textures of
+    /// different sizes, a turned and scaled texture transform, and an alpha-mask cut-out
+    /// mostly cut away (the early alpha test's path in `shade_batch`).
+    #[test]
+    fn shared_derivatives_shade_as_the_batch_does() {
+        let mut rng = crate::random::SplitMix64::new(0x51_7cc1);
+        let mut next = move || rng.range(0.0, 1.0);
+        let texture = |w: usize, h: usize, holes: bool, next: &mut dyn FnMut() -> f32| {
+            let texels = (0..w * h)
+                .map(|i| {
+                    let alpha = if holes && i % 7 != 0 { 0.0 } else { next() };
+                    [next(), next(), next(), alpha]
+                })
+                .collect();
+            Texture::new(ColorImage::from_vec(w, h, texels).expect("size"))
+        };
+        let textures = vec![
+            texture(64, 32, false, &mut next),
+            texture(16, 16, false, &mut next),
+            texture(32, 32, true, &mut next),
+        ];
+        let bind = |texture: usize, turned: bool| {
+            Some(TextureBinding {
+                texture,
+                sampler: Default::default(),
+                uv_transform: if turned {
+                    UvTransform {
+                        offset: Vec2::new(0.25, -0.5),
+                        rotation_rad: 0.7,
+                        scale: Vec2::new(2.0, 0.5),
+                    }
+                } else {
+                    Default::default()
+                },
+            })
+        };
+        let materials = [
+            Material {
+                base_color_texture: bind(0, false),
+                ..Default::default()
+            },
+            Material {
+                base_color_texture: bind(0, true),
+                emissive: [0.5, 1.0, 2.0],
+                emissive_texture: bind(1, false),
+                ..Default::default()
+            },
+            Material {
+                base_color_texture: bind(2, false),
+                alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
+                ..Default::default()
+            },
+        ];
+        assert!(early_alpha_cutoff(&materials[2], &textures).is_some());
+        let mut compared = 0;
+        for material in &materials {
+            for bias in [-2.0, -1.0, 0.0] {
+                let shader = Shader::new(material, &textures, bias);
+                for round in 0..300 {
+                    let n = 1 + round % BATCH;
+                    // Footprints from a fraction of a texel to several.
+                    let scale = [0.002, 0.02, 0.2][round % 3];
+                    let dx = Vec2::new(next() - 0.5, next() - 0.5) * scale;
+                    let dy = Vec2::new(next() - 0.5, next() - 0.5) * scale;
+                    let mut uv = UvBatch::default();
+                    for i in 0..BATCH {
+                        uv.u[i] = next() * 3.0 - 1.0;
+                        uv.v[i] = next() * 3.0 - 1.0;
+                        (uv.du_dx[i], uv.dv_dx[i]) = (dx.x, dx.y);
+                        (uv.du_dy[i], uv.dv_dy[i]) = (dy.x, dy.y);
+                    }
+                    let (mut want, mut got) = ([None; BATCH], [None; BATCH]);
+                    shader.shade_batch(n, &uv, &mut want);
+                    shader.shade_shared(n, &uv.u, &uv.v, (dx, dy), &mut got);
+                    for i in 0..n {
+                        assert_eq!(
+                            got[i].map(|c| c.map(f32::to_bits)),
+                            want[i].map(|c| c.map(f32::to_bits)),
+                            "{} lane {i}",
+                            material.name
+                        );
+                        compared += usize::from(want[i].is_some());
+                    }
+                }
+            }
+        }
+        assert!(compared > 5000, "{compared}");
+    }
 
     #[test]
     fn hoisted_uv_transform_matches_uv_transform_apply_bit_for_bit() {
