@@ -35,7 +35,7 @@ pub fn parse_aperture(spec: &str) -> crate::Result<Aperture> {
                 io @ crate::Error::Io { .. } => io,
                 other => invalid(&other),
             })?;
-        let grey = img.map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]);
+        let grey = img.map(|p| crate::image::luminance([p[0], p[1], p[2]]));
         let grey = crate::image::GrayImage::from_vec(grey.width(), grey.height(), grey.into_vec())?;
         let density = ApertureImage::new(grey)
             .map_err(|e| crate::Error::Option(format!("aperture image {path}: {e}")))?;

@@ -217,6 +217,12 @@ impl<P: Copy + Send + Sync> Image<P> {
     }
 }
 
+/// Luminance of a linear colour with Rec. 709 / sRGB primaries.
+#[inline]
+pub fn luminance(c: [f32; 3]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
 /// sRGB transfer function: linear light to encoded, input clamped to [0, 1].
 #[inline]
 pub fn srgb_encode(linear: f32) -> f32 {

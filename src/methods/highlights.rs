@@ -34,6 +34,7 @@
 use glam::Vec2;
 use rayon::prelude::*;
 
+use crate::image::luminance;
 use crate::image::ColorImage;
 use crate::lens::ThinLens;
 use crate::raster::{from_half, to_half, FragmentLists};
@@ -86,12 +87,6 @@ pub fn parse_threshold(s: &str) -> crate::Result<Option<f32>> {
         return Err(bad());
     }
     Ok(Some(t))
-}
-
-/// Luminance of linear Rec. 709 / sRGB primaries.
-#[inline]
-pub(crate) fn luminance(c: [f32; 3]) -> f32 {
-    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
 
 /// Takes out of `lists` (made with `lens`, whose pixels are `scale` times finer than the

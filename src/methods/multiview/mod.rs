@@ -445,7 +445,7 @@ fn take_highlights(
     // Most scenes have none: found first without building the lists.
     let bright = layers.color.par_iter().any(|c| {
         let c = crate::raster::from_half(c);
-        c[3] > 0.0 && highlights::luminance([c[0], c[1], c[2]]) > threshold * c[3]
+        c[3] > 0.0 && crate::image::luminance([c[0], c[1], c[2]]) > threshold * c[3]
     });
     if !bright {
         return (Vec::new(), FragmentLists::new(w, h, 1));
