@@ -140,11 +140,12 @@ impl<'a> Shader<'a> {
                     }
                 }
                 let mut shaded = [None; BATCH];
-                let emissive = self
-                    .emissive
-                    .as_ref()
-                    .map(|e| e.coords_batch(&sub_uv, self.lod_bias));
-                self.shade_lanes(m, Some(&sub_c), emissive.as_ref(), &mut shaded);
+                self.shade_lanes(
+                    m,
+                    Some(&sub_c),
+                    |e| e.coords_batch(&sub_uv, self.lod_bias),
+                    &mut shaded,
+                );
                 out[..n].fill(None);
                 for (&i, c) in kept[..m].iter().zip(shaded) {
                     out[i] = c;
@@ -152,11 +153,12 @@ impl<'a> Shader<'a> {
                 return;
             }
         }
-        let emissive = self
-            .emissive
-            .as_ref()
-            .map(|e| e.coords_batch(uv, self.lod_bias));
-        self.shade_lanes(n, base_coords.as_ref(), emissive.as_ref(), out);
+        self.shade_lanes(
+            n,
+            base_coords.as_ref(),
+            |e| e.coords_batch(uv, self.lod_bias),
+            out,
+        );
     }
 
     /// [`Shader::shade_batch`] for lanes that share their screen derivatives `duv_dx`,
@@ -172,18 +174,17 @@ impl<'a> Shader<'a> {
     ) {
         let coords = |slot: &Slot| slot.coords_shared(u, v, duv_dx, duv_dy, self.lod_bias);
         let base = self.base.as_ref().map(coords);
-        let emissive = self.emissive.as_ref().map(coords);
-        self.shade_lanes(n, base.as_ref(), emissive.as_ref(), out);
+        self.shade_lanes(n, base.as_ref(), coords, out);
     }
 
-    /// [`Shader::shade_batch`] without the early alpha test, with the slots' coordinates
-    /// worked out.
+    /// [`Shader::shade_batch`] without the early alpha test, with the base slot's coordinates
+    /// worked out and the emissive slot's from `emissive_coords`.
     #[inline(always)]
     fn shade_lanes(
         &self,
         n: usize,
         base_coords: Option<&Coords>,
-        emissive_coords: Option<&Coords>,
+        emissive_coords: impl Fn(&Slot) -> Coords,
         out: &mut [Option<Rgba>; BATCH],
     ) {
         let mut base = [Vec4::ONE; BATCH];
@@ -191,7 +192,8 @@ impl<'a> Shader<'a> {
         if let (Some(slot), Some(c)) = (&self.base, base_coords) {
             slot.texture.sample_batch(n, &c.u, &c.v, &c.lod, &mut base);
         }
-        if let (Some(slot), Some(c)) = (&self.emissive, emissive_coords) {
+        if let Some(slot) = &self.emissive {
+            let c = emissive_coords(slot);
             slot.texture
                 .sample_batch(n, &c.u, &c.v, &c.lod, &mut emissive);
         }

@@ -627,46 +627,28 @@ fn trilinear_batch<const CLAMP: bool>(
 ) {
     let levels = &bound.texture.levels;
     let mut plan = TrilinearPlan::EMPTY;
-    // Every lane magnified (level 0, no blend: many lookups of a minified texture at a
-    // fraction of the pixel's footprint are): the second level's footprints go unread.
-    let both = !lod[..n].iter().all(|&l| l <= 0.0);
     if CLAMP {
-        plan_clamp(levels, u, v, lod, both, &mut plan);
+        plan_clamp(levels, u, v, lod, &mut plan);
     } else {
-        plan_repeat(levels, u, v, lod, both, &mut plan);
+        plan_repeat(levels, u, v, lod, &mut plan);
     }
     let sampler = if CLAMP {
         BoundTexture::CLAMP
     } else {
         BoundTexture::REPEAT
     };
-    let per_lookup = |i: usize| {
-        Vec4::from_array(
-            bound
-                .texture
-                .sample_with(&sampler, Vec2::new(u[i], v[i]), lod[i], false),
-        )
-    };
-    if !both {
-        // Level 0 alone: its texels once for all lanes, and no blend.
-        let texels = levels[0].pixels();
-        let f = &plan.feet[0];
-        for (i, out) in out[..n].iter_mut().enumerate() {
-            *out = if plan.small[i] {
-                bilinear_in(texels, f, i)
-            } else {
-                per_lookup(i)
-            };
-        }
-        return;
-    }
-    for (i, out) in out[..n].iter_mut().enumerate() {
+    for i in 0..n {
         if !plan.small[i] {
-            *out = per_lookup(i);
+            out[i] = Vec4::from_array(bound.texture.sample_with(
+                &sampler,
+                Vec2::new(u[i], v[i]),
+                lod[i],
+                false,
+            ));
             continue;
         }
         let a = bilinear(levels, &plan, 0, i);
-        *out = if plan.t[i] <= 0.0 {
+        out[i] = if plan.t[i] <= 0.0 {
             a
         } else {
             let b = bilinear(levels, &plan, 1, i);
@@ -678,12 +660,8 @@ fn trilinear_batch<const CLAMP: bool>(
 /// Lane `i`'s bilinear lookup in the `k`th level of `plan`.
 #[inline(always)]
 fn bilinear(levels: &[ColorImage], plan: &TrilinearPlan, k: usize, i: usize) -> Vec4 {
-    bilinear_in(levels[plan.level[k][i] as usize].pixels(), &plan.feet[k], i)
-}
-
-/// Lane `i`'s bilinear lookup in `texels` with footprints `f`.
-#[inline(always)]
-fn bilinear_in(texels: &[[f32; 4]], f: &Footprints, i: usize) -> Vec4 {
+    let texels = levels[plan.level[k][i] as usize].pixels();
+    let f = &plan.feet[k];
     let texel = |c: usize| Vec4::from_array(texels[f.index[c][i] as usize]);
     let (p00, p10, p01, p11) = (texel(0), texel(1), texel(2), texel(3));
     let top = p00 + (p10 - p00) * f.tx[i];
@@ -704,10 +682,9 @@ fn plan_clamp(
     u: &[f32; BATCH],
     v: &[f32; BATCH],
     lod: &[f32; BATCH],
-    both: bool,
     plan: &mut TrilinearPlan,
 ) {
-    plan_trilinear::<true>(levels, u, v, lod, both, plan);
+    plan_trilinear::<true>(levels, u, v, lod, plan);
 }
 
 /// [`plan_trilinear`] for a sampler repeating a power-of-two texture, as [`plan_clamp`].
@@ -721,22 +698,19 @@ fn plan_repeat(
     u: &[f32; BATCH],
     v: &[f32; BATCH],
     lod: &[f32; BATCH],
-    both: bool,
     plan: &mut TrilinearPlan,
 ) {
-    plan_trilinear::<false>(levels, u, v, lod, both, plan);
+    plan_trilinear::<false>(levels, u, v, lod, plan);
 }
 
 /// `sample_with`'s branches as selects, lane by lane, in loops the compiler vectorises: the
-/// two levels and their weight, then each level's footprint (the first level's only unless
-/// `both`: a caller whose lanes are all magnified, which read the first level alone).
+/// two levels and their weight, then each level's footprint.
 #[inline(always)]
 fn plan_trilinear<const CLAMP: bool>(
     levels: &[ColorImage],
     u: &[f32; BATCH],
     v: &[f32; BATCH],
     lod: &[f32; BATCH],
-    both: bool,
     plan: &mut TrilinearPlan,
 ) {
     let last = levels.len() - 1;
@@ -752,8 +726,7 @@ fn plan_trilinear<const CLAMP: bool>(
         plan.level[0][i] = l0.min(last as u32);
         plan.t[i] = if magnify { 0.0 } else { l - l0 as f32 };
     }
-    let used = if both { 2 } else { 1 };
-    for (foot, level) in plan.feet.iter_mut().zip(&plan.level).take(used) {
+    for (foot, level) in plan.feet.iter_mut().zip(&plan.level) {
         // Each lane's level size: the chain halves (rounding down, at least 1), so level `l`
         // is `max(size >> l, 1)`, a shift in every lane rather than a lookup.
         let mut w = [1i32; BATCH];
@@ -1172,7 +1145,7 @@ mod tests {
                         u[i] = (next() - 0.5) * scale;
                         v[i] = (next() - 0.5) * scale;
                         // Whole levels, negative ones and NaN too; every third batch all
-                        // magnified (at or below level 0: the first level's path alone).
+                        // magnified (at or below level 0, as sample lookups mostly are).
                         lod[i] = match i % 5 {
                             _ if round % 3 == 1 => -(next() * 3.0).floor() * next(),
                             0 => (next() * 8.0).floor(),
