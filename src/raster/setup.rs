@@ -744,6 +744,18 @@ impl SampleBatch {
             return;
         }
         shader.shade_batch(self.lanes, uv, colors);
+        self.resolve(alpha_to_coverage, colors, (blend, back_facing), tile);
+    }
+
+    /// Emits the pixels' fragments from their lanes' `colors` (`None`: discarded) and empties
+    /// the batch, as [`SampleBatch::flush`] after shading.
+    fn resolve<T: TileSink>(
+        &mut self,
+        alpha_to_coverage: bool,
+        colors: &[Option<crate::image::Rgba>; BATCH],
+        (blend, back_facing): (bool, bool),
+        tile: &mut T,
+    ) {
         let mut sum = [[0.0f32; 4]; BATCH];
         let mut kept = [0u16; BATCH];
         for (color, &(p, bits)) in colors[..self.lanes].iter().zip(&self.lane) {
@@ -998,66 +1010,17 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 let (du_dx, dv_dx) = ((uq + pu[1]) / qx - u, (vq + pv[1]) / qx - v);
                 let (du_dy, dv_dy) = ((uq + pu[2]) / qy - u, (vq + pv[2]) / qy - v);
                 let (du, dv) = (Vec2::new(du_dx, dv_dx), Vec2::new(du_dy, dv_dy));
-                if per_sample.is_some_and(|(near, far)| depth_m >= near && depth_m <= far)
-                    && fine.minified(du, dv)
+                // Every covered sample its own lookup, all at one level of detail: a sample's
+                // footprint is a quarter of a quadrant's (half the derivatives, one level
+                // finer than the shader's bias). The pixel is shaded alone, after the pending
+                // lanes, so fragments leave in pixel order.
+                let sample_lookups = per_sample
+                    .is_some_and(|(near, far)| depth_m >= near && depth_m <= far)
+                    && fine.minified(du, dv);
+                if sample_lookups
+                    || batch.lanes + groups.count(mask) > BATCH
+                    || batch.pixels == BATCH
                 {
-                    // Every covered sample its own lookup, all at one level of detail: a
-                    // sample's footprint is a quarter of a quadrant's (half the derivatives,
-                    // one level finer than the shader's bias). The pending lanes go first, so
-                    // fragments leave in pixel order.
-                    batch.flush(
-                        &fine,
-                        alpha_to_coverage,
-                        sample_uv,
-                        sample_colors,
-                        (tri.blend, tri.back_facing),
-                        tile,
-                    );
-                    let mut lanes = [0u8; BATCH];
-                    let mut n = 0;
-                    let mut rest = mask;
-                    while rest != 0 {
-                        let s = rest.trailing_zeros() as usize;
-                        rest &= rest - 1;
-                        let d = SAMPLE_OFFSETS[s] - c;
-                        sample_uv.u[n] = u + du_dx * d.x + du_dy * d.y;
-                        sample_uv.v[n] = v + dv_dx * d.x + dv_dy * d.y;
-                        lanes[n] = s as u8;
-                        n += 1;
-                    }
-                    fine.shade_shared(
-                        n,
-                        &sample_uv.u,
-                        &sample_uv.v,
-                        (du * 0.5, dv * 0.5),
-                        sample_colors,
-                    );
-                    let mut sum = [0.0f32; 4];
-                    let mut kept = 0u16;
-                    for (color, &s) in sample_colors[..n].iter().zip(&lanes) {
-                        if let Some(color) = color {
-                            for (a, b) in sum.iter_mut().zip(color) {
-                                *a += b;
-                            }
-                            kept |= 1 << s;
-                        }
-                    }
-                    if kept != 0 {
-                        let inv = 1.0 / kept.count_ones() as f32;
-                        tile.fragment(&Fragment {
-                            x: x as u32,
-                            y: y as u32,
-                            depth_m,
-                            color: sum.map(|v| v * inv),
-                            blend: tri.blend,
-                            coverage: kept,
-                            dithered: false,
-                            back_facing: tri.back_facing,
-                        });
-                    }
-                    return;
-                }
-                if batch.lanes + groups.count(mask) > BATCH || batch.pixels == BATCH {
                     batch.flush(
                         &fine,
                         alpha_to_coverage,
@@ -1070,6 +1033,34 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 let slot = batch.pixels;
                 batch.pixels += 1;
                 batch.pixel[slot] = (x as u32, y as u32, depth_m);
+                if sample_lookups {
+                    // One lane a sample; the lanes share their derivatives.
+                    let mut rest = mask;
+                    while rest != 0 {
+                        let s = rest.trailing_zeros() as usize;
+                        rest &= rest - 1;
+                        let d = SAMPLE_OFFSETS[s] - c;
+                        let i = batch.lanes;
+                        sample_uv.u[i] = u + du_dx * d.x + du_dy * d.y;
+                        sample_uv.v[i] = v + dv_dx * d.x + dv_dy * d.y;
+                        batch.lane[i] = (slot as u8, 1 << s);
+                        batch.lanes += 1;
+                    }
+                    fine.shade_shared(
+                        batch.lanes,
+                        &sample_uv.u,
+                        &sample_uv.v,
+                        (du * 0.5, dv * 0.5),
+                        sample_colors,
+                    );
+                    batch.resolve(
+                        alpha_to_coverage,
+                        sample_colors,
+                        (tri.blend, tri.back_facing),
+                        tile,
+                    );
+                    return;
+                }
                 groups.for_each(mask, c, |bits, g| {
                     let d = g - c;
                     let i = batch.lanes;
