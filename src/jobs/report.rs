@@ -91,7 +91,9 @@ pub struct CompareArgs {
     pub reference_samples: usize,
     /// Report: run each method that has this setting once per value, e.g. `samples=8,16,32`,
     /// `merge=1,2,4`, `layers=1,4`, `fragments=4,16`, `rank=1,3,5`, `taps=16,64`,
-    /// `filter-steps=1/3,2/2,4/0`, `layer-spacing=2,4,8` (repeatable).
+    /// `filter-steps=1/3,2/2,4/0`, `layer-spacing=2,4,8` (repeatable). `METHOD.KEY=...` sweeps
+    /// that method alone, e.g. `splat.layers=4` runs `splat --layers 4` beside `multiview` at
+    /// its own layer count.
     #[arg(long, value_name = "KEY=V1,V2,...", help_heading = "Report")]
     pub sweep: Vec<String>,
     /// Report: let a scene file read files outside its own folder (glTF URIs, OBJ mtllib, MTL maps
@@ -276,19 +278,62 @@ fn parse_methods(spec: &str) -> Result<Vec<&'static MethodInfo>> {
     Ok(out)
 }
 
-fn parse_sweeps(specs: &[String]) -> Result<Vec<(String, Vec<String>)>> {
+/// One `--sweep`: its key, its values, and the one method it is limited to (`METHOD.KEY=...`).
+struct Sweep {
+    method: Option<&'static str>,
+    key: String,
+    values: Vec<String>,
+}
+
+impl Sweep {
+    /// Whether the sweep changes the settings of method `id`.
+    fn applies_to(&self, id: &str) -> bool {
+        self.method.map_or(true, |m| m == id)
+            && SWEEPS
+                .iter()
+                .any(|(k, ids)| *k == self.key && ids.contains(&id))
+    }
+}
+
+fn parse_sweeps(specs: &[String], methods: &[&'static MethodInfo]) -> Result<Vec<Sweep>> {
     let mut out = Vec::new();
     for spec in specs {
         let (k, v) = spec.split_once('=').with_context(|| {
-            format!("invalid --sweep '{spec}': expected KEY=V1,V2,... (e.g. samples=8,16,32)")
+            format!(
+                "invalid --sweep '{spec}': expected KEY=V1,V2,... or METHOD.KEY=V1,V2,... \
+                 (e.g. samples=8,16,32, splat.layers=4)"
+            )
         })?;
-        let k = k.trim().to_string();
-        if !SWEEPS.iter().any(|(key, _)| *key == k) {
+        let (method, k) = match k.trim().split_once('.') {
+            Some((m, k)) => (Some(m.trim()), k.trim().to_string()),
+            None => (None, k.trim().to_string()),
+        };
+        let Some((_, ids)) = SWEEPS.iter().find(|(key, _)| *key == k) else {
             bail!(
                 "invalid --sweep '{spec}': unknown key '{k}' (expected one of: {})",
                 SWEEPS.iter().map(|s| s.0).collect::<Vec<_>>().join(", ")
             );
-        }
+        };
+        let method = match method {
+            None => None,
+            Some(m) => {
+                let Some(&id) = ids.iter().find(|id| **id == m) else {
+                    bail!(
+                        "invalid --sweep '{spec}': '{k}' is not a setting of method '{m}' \
+                         (it is one of: {})",
+                        ids.join(", ")
+                    );
+                };
+                if !methods.iter().any(|info| info.id == id) {
+                    bail!(
+                        "invalid --sweep '{spec}': method '{id}' is not among --methods \
+                         ({})",
+                        methods.iter().map(|i| i.id).collect::<Vec<_>>().join(",")
+                    );
+                }
+                Some(id)
+            }
+        };
         let values: Vec<String> = v
             .split(',')
             .map(|s| s.trim().to_string())
@@ -297,27 +342,26 @@ fn parse_sweeps(specs: &[String]) -> Result<Vec<(String, Vec<String>)>> {
         if values.is_empty() {
             bail!("invalid --sweep '{spec}': no values");
         }
-        out.push((k, values));
+        out.push(Sweep {
+            method,
+            key: k,
+            values,
+        });
     }
     Ok(out)
 }
 
-fn runs(methods: &[&'static MethodInfo], sweeps: &[(String, Vec<String>)]) -> Vec<Run> {
+fn runs(methods: &[&'static MethodInfo], sweeps: &[Sweep]) -> Vec<Run> {
     let mut out = Vec::new();
     for &info in methods {
         let mut swept = false;
-        for (key, values) in sweeps {
-            let applies = SWEEPS
-                .iter()
-                .any(|(k, ids)| k == key && ids.contains(&info.id));
-            if applies {
-                swept = true;
-                for v in values {
-                    out.push(Run {
-                        info,
-                        setting: Some((key.clone(), v.clone())),
-                    });
-                }
+        for sweep in sweeps.iter().filter(|s| s.applies_to(info.id)) {
+            swept = true;
+            for v in &sweep.values {
+                out.push(Run {
+                    info,
+                    setting: Some((sweep.key.clone(), v.clone())),
+                });
             }
         }
         if !swept {
@@ -529,7 +573,7 @@ pub fn write(
         );
     }
     let methods = parse_methods(&a.methods)?;
-    let sweeps = parse_sweeps(&a.sweep)?;
+    let sweeps = parse_sweeps(&a.sweep, &methods)?;
     let runs = runs(&methods, &sweeps);
     // Every run's flags, sweep values included, are checked before anything is rendered.
     for run in &runs {

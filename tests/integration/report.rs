@@ -5,6 +5,30 @@ use std::process::Command;
 
 use crate::cli::{defocus, s, stderr, temp_dir};
 
+/// A small report of `poisson` and `splat` on `lights` (96x54, `reference` at 16 samples) into
+/// `out`, with these `--sweep`s.
+fn small_sweep_report(out: &Path, sweeps: &[&str]) -> std::process::Output {
+    let mut a = vec![
+        "compare",
+        "--scene",
+        "lights",
+        "--methods",
+        "poisson,splat",
+        "--width",
+        "96",
+        "--height",
+        "54",
+        "--reference-samples",
+        "16",
+        "--out",
+        s(out),
+    ];
+    for sw in sweeps {
+        a.extend(["--sweep", sw]);
+    }
+    defocus(&a)
+}
+
 fn results(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("results.json")).unwrap();
     serde_json::from_str(&text).unwrap()
@@ -61,27 +85,7 @@ fn report_numbers_equal_compare_of_the_written_images() {
 fn report_sweeps_settings_and_refuses_a_bad_sweep_value_before_rendering() {
     let dir = temp_dir("report-sweep");
     let out = dir.join("report");
-    let run = |sweeps: &[&str]| {
-        let mut a = vec![
-            "compare",
-            "--scene",
-            "lights",
-            "--methods",
-            "poisson,splat",
-            "--width",
-            "96",
-            "--height",
-            "54",
-            "--reference-samples",
-            "16",
-            "--out",
-            s(&out),
-        ];
-        for sw in sweeps {
-            a.extend(["--sweep", sw]);
-        }
-        defocus(&a)
-    };
+    let run = |sweeps: &[&str]| small_sweep_report(&out, sweeps);
     // Every sweep value is checked before the first render: nothing is written.
     for (sweep, named) in [
         ("taps=0,8", "--sweep taps=0"),
@@ -117,6 +121,48 @@ fn report_sweeps_settings_and_refuses_a_bad_sweep_value_before_rendering() {
     );
     for run in runs {
         assert_eq!(run["status"], "ok", "{run}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_sweep_named_for_one_method_leaves_the_others_at_their_defaults() {
+    let dir = temp_dir("report-sweep-scoped");
+    let out = dir.join("report");
+    let run = |sweep: &str| small_sweep_report(&out, &[sweep]);
+    // `samples` is a setting of both; named for splat, poisson runs once at its own.
+    let o = run("splat.samples=8,16");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = results(&out);
+    let labels: Vec<&str> = r["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["label"].as_str().unwrap())
+        .collect();
+    assert_eq!(labels, ["poisson", "splat-samples8", "splat-samples16"]);
+    std::fs::remove_dir_all(&out).unwrap();
+    // A method the key does not belong to, or one the report does not run, is refused before
+    // anything is rendered, naming the sweep, the method and what was expected.
+    for (sweep, named) in [
+        (
+            "poisson.merge=2",
+            "'merge' is not a setting of method 'poisson' (it is one of: splat)",
+        ),
+        (
+            "nope.samples=4",
+            "'samples' is not a setting of method 'nope'",
+        ),
+        (
+            "multiview.layers=4",
+            "method 'multiview' is not among --methods (poisson,splat)",
+        ),
+    ] {
+        let o = run(sweep);
+        assert_eq!(o.status.code(), Some(1), "{sweep}: {}", stderr(&o));
+        assert!(stderr(&o).contains(named), "{sweep}: {}", stderr(&o));
+        assert!(stderr(&o).contains(sweep), "{sweep}: {}", stderr(&o));
+        assert!(!out.join("reference.exr").exists(), "{sweep}: rendered");
     }
     std::fs::remove_dir_all(dir).unwrap();
 }

@@ -276,7 +276,8 @@ def report(
         methods: ``"all"`` or method ids.
         reference_samples: lens samples of the reference.
         sweep: run each method that has the setting once per value:
-            ``{"samples": [8, 16, 32]}``, or strings ``"samples=8,16,32"``.
+            ``{"samples": [8, 16, 32]}``, or strings ``"samples=8,16,32"``; a key
+            ``"splat.layers"`` sweeps that method alone.
         frontier: also run ``reference`` at 4 to 128 samples and mark each method as on the
             time-quality frontier or behind it (needs ``scene``).
         focus: metres or ``"auto"`` [default: the scene's; ``"auto"`` for frames].
