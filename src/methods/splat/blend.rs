@@ -588,6 +588,60 @@ fn floor_r<const ROUND: bool>(v: f32) -> f32 {
     }
 }
 
+/// Row offsets 0, 1, ... of a tile, as floats.
+const ROW_OFFSETS: [f32; TILE_PX] = {
+    let mut r = [0.0; TILE_PX];
+    let mut k = 0;
+    while k < TILE_PX {
+        r[k] = k as f32;
+        k += 1;
+    }
+    r
+};
+
+/// A disc footprint's spans on every row of a tile, worked out in one pass over the rows
+/// that the compiler turns into vector lanes (the square roots and roundings of sixteen rows
+/// side by side) instead of row by row: per row, whether the disc meets it, whether its inner
+/// disc does, and the pixels `[outer.0, outer.1)` and `[inner.0, inner.1)` as floats, each
+/// the value [`Footprint::spans`] and the rounding to pixels give for that row, bit for bit.
+struct DiscRows {
+    outer: [bool; TILE_PX],
+    inner: [bool; TILE_PX],
+    spans: [[f32; 4]; TILE_PX],
+}
+
+impl DiscRows {
+    #[inline(always)]
+    fn new<const ROUND: bool>(fp: &Footprint, centre: Vec2, y0: usize, bx: (f32, f32)) -> Self {
+        let (sx, inv_sy) = (fp.squeeze.x, fp.inv_squeeze.y);
+        let (outer2, inner2) = (fp.outer2, fp.inner2);
+        let first = |lo: f32| ceil_r::<ROUND>(centre.x + lo - 0.5).clamp(bx.0, bx.1);
+        let last = |hi: f32| (floor_r::<ROUND>(centre.x + hi - 0.5) + 1.0).clamp(bx.0, bx.1);
+        let mut rows = Self {
+            outer: [false; TILE_PX],
+            inner: [false; TILE_PX],
+            spans: [[0.0; 4]; TILE_PX],
+        };
+        let y0 = y0 as f32;
+        for (k, &dk) in ROW_OFFSETS.iter().enumerate() {
+            // `Footprint::spans_unsqueezed` of the row's offset, and the squeeze across.
+            let dy = (y0 + dk + 0.5 - centre.y) * inv_sy;
+            let d2 = dy * dy;
+            let (o, i) = (outer2 - d2, inner2 - d2);
+            let (ho, hi) = (o.max(0.0).sqrt(), i.max(0.0).sqrt());
+            rows.outer[k] = o >= 0.0;
+            rows.inner[k] = inner2 >= 0.0 && i >= 0.0;
+            rows.spans[k] = [
+                first(-ho * sx),
+                last(ho * sx),
+                first(-hi * sx),
+                last(hi * sx),
+            ];
+        }
+        rows
+    }
+}
+
 #[inline(always)]
 fn blend_tile_inner<const ROUND: bool>(
     input: &BlendInput,
@@ -657,22 +711,41 @@ fn blend_tile_inner<const ROUND: bool>(
                 continue;
             }
         }
+        // The disc's spans of every row of the tile at once (see `DiscRows`); other shapes
+        // row by row.
+        let disc = matches!(shape.kind, ShapeKind::Disc)
+            .then(|| DiscRows::new::<ROUND>(&fp, centre, y0, (bx0f, bx1f)));
         for py in py0..py1 {
             let dy = py as f32 + 0.5 - centre.y;
             let row = py - y0;
-            let Some((outer, inner)) = fp.spans(dy) else {
-                continue;
+            let (outer, inner) = match &disc {
+                Some(d) => {
+                    if !d.outer[row] {
+                        continue;
+                    }
+                    let [a, b, c, e] = d.spans[row];
+                    (
+                        (a as usize, b as usize),
+                        d.inner[row].then_some((c as usize, e as usize)),
+                    )
+                }
+                None => {
+                    let Some((outer, inner)) = fp.spans(dy) else {
+                        continue;
+                    };
+                    (
+                        outer.map_or((bx0, bx1), |(lo, hi)| (first(lo), last(hi))),
+                        inner.map(|(lo, hi)| (first(lo), last(hi))),
+                    )
+                }
             };
-            let (ox0, ox1) = match outer {
-                Some((lo, hi)) => (first(lo), last(hi)),
-                None => (bx0, bx1),
-            };
+            let (ox0, ox1) = outer;
             if ox0 >= ox1 {
                 continue;
             }
             let (ix0, ix1) = match inner {
-                Some((lo, hi)) => {
-                    let (a, b) = (first(lo).max(ox0), last(hi).min(ox1));
+                Some((a, b)) => {
+                    let (a, b) = (a.max(ox0), b.min(ox1));
                     if a < b {
                         (a, b)
                     } else {
@@ -710,4 +783,73 @@ fn blend_tile_inner<const ROUND: bool>(
     }
     st.flush();
     st.out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lens::LensEffects;
+    use crate::random::SplitMix64;
+
+    /// The spans of one row as the blend worked them out before `DiscRows`: `Footprint::spans`,
+    /// then rounded to the pixels inside, clamped to the fragment's box.
+    fn row_by_row<const ROUND: bool>(
+        fp: &Footprint,
+        centre: Vec2,
+        py: usize,
+        (b0, b1): (f32, f32),
+    ) -> Option<([f32; 2], Option<[f32; 2]>)> {
+        let dy = py as f32 + 0.5 - centre.y;
+        let (outer, inner) = fp.spans(dy)?;
+        let first = |lo: f32| ceil_r::<ROUND>(centre.x + lo - 0.5).clamp(b0, b1);
+        let last = |hi: f32| (floor_r::<ROUND>(centre.x + hi - 0.5) + 1.0).clamp(b0, b1);
+        let (lo, hi) = outer.expect("a disc has an outer span");
+        Some((
+            [first(lo), last(hi)],
+            inner.map(|(a, b)| [first(a), last(b)]),
+        ))
+    }
+
+    fn check<const ROUND: bool>() {
+        let mut rng = SplitMix64::new(7);
+        for aspect in [1.0, 0.5, 1.7] {
+            let effects = LensEffects {
+                aspect,
+                ..LensEffects::default()
+            };
+            let shape = Shape::new(&Aperture::Disc).with_effects(&effects);
+            for _ in 0..400 {
+                // Radii from in focus to a wide blur, soft edges of one pixel or a merged block,
+                // centres on pixel centres and corners near and across the tile.
+                let c = draw_radius((rng.next_f32() - 0.5) * 80.0);
+                let soft = [1.0, 2.0, 4.0][(rng.next_u64() % 3) as usize];
+                let y0 = 16 * (rng.next_u64() % 8) as usize;
+                let half = |v: f32| (v * 2.0).round() * 0.5;
+                let centre = Vec2::new(
+                    half(64.0 + (rng.next_f32() - 0.5) * 90.0),
+                    half(y0 as f32 + 8.0 + (rng.next_f32() - 0.5) * 90.0),
+                );
+                let b = (48.0, 64.0);
+                let fp = Footprint::new(&shape, c, soft);
+                let rows = DiscRows::new::<ROUND>(&fp, centre, y0, b);
+                for k in 0..TILE_PX {
+                    let want = row_by_row::<ROUND>(&fp, centre, y0 + k, b);
+                    assert_eq!(rows.outer[k], want.is_some(), "c {c} soft {soft} row {k}");
+                    let Some((outer, inner)) = want else { continue };
+                    let s = rows.spans[k];
+                    assert_eq!([s[0], s[1]], outer, "c {c} soft {soft} row {k}");
+                    assert_eq!(rows.inner[k], inner.is_some(), "c {c} soft {soft} row {k}");
+                    if let Some(inner) = inner {
+                        assert_eq!([s[2], s[3]], inner, "c {c} soft {soft} row {k}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn disc_rows_give_each_rows_spans_bit_for_bit() {
+        check::<true>();
+        check::<false>();
+    }
 }
