@@ -152,7 +152,8 @@ pub fn to_half(c: Rgba) -> HalfRgba {
 
 /// Converts a stored colour back to f32 (exactly: every half is a float). The four channels
 /// in one conversion, which asks whether the CPU has half-float instructions once, not once a
-/// channel (`grass` at 640x360, `multilayer`: 1.2% fewer instructions in all).
+/// channel (with [`to_half`]'s the same way: `grass` at 640x360, `multilayer`, 1.9% fewer
+/// instructions in all).
 #[inline]
 pub fn from_half(c: &HalfRgba) -> Rgba {
     use half::slice::HalfFloatSliceExt;

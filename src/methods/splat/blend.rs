@@ -588,6 +588,20 @@ fn floor_r<const ROUND: bool>(v: f32) -> f32 {
     }
 }
 
+/// The first pixel of a row inside the footprint from offset `lo` across (pixel x is inside
+/// offsets `[lo, hi]` when `lo <= x + 0.5 - cx <= hi`), clamped to the pixels `bx`. One
+/// expression for every build and caller (the order of the additions decides the rounding).
+#[inline(always)]
+fn first_px<const ROUND: bool>(cx: f32, lo: f32, bx: (f32, f32)) -> f32 {
+    ceil_r::<ROUND>(cx + lo - 0.5).clamp(bx.0, bx.1)
+}
+
+/// One past the last pixel of a row inside the footprint up to offset `hi` (see [`first_px`]).
+#[inline(always)]
+fn end_px<const ROUND: bool>(cx: f32, hi: f32, bx: (f32, f32)) -> f32 {
+    (floor_r::<ROUND>(cx + hi - 0.5) + 1.0).clamp(bx.0, bx.1)
+}
+
 /// Row offsets 0, 1, ... of a tile, as floats.
 const ROW_OFFSETS: [f32; TILE_PX] = {
     let mut r = [0.0; TILE_PX];
@@ -615,8 +629,8 @@ impl DiscRows {
     fn new<const ROUND: bool>(fp: &Footprint, centre: Vec2, y0: usize, bx: (f32, f32)) -> Self {
         let (sx, inv_sy) = (fp.squeeze.x, fp.inv_squeeze.y);
         let (outer2, inner2) = (fp.outer2, fp.inner2);
-        let first = |lo: f32| ceil_r::<ROUND>(centre.x + lo - 0.5).clamp(bx.0, bx.1);
-        let last = |hi: f32| (floor_r::<ROUND>(centre.x + hi - 0.5) + 1.0).clamp(bx.0, bx.1);
+        let first = |lo: f32| first_px::<ROUND>(centre.x, lo, bx);
+        let last = |hi: f32| end_px::<ROUND>(centre.x, hi, bx);
         let mut rows = Self {
             outer: [false; TILE_PX],
             inner: [false; TILE_PX],
@@ -691,12 +705,9 @@ fn blend_tile_inner<const ROUND: bool>(
         let col = f.rgba();
         let norm = norms[idx as usize];
         let wcol = col.map(|v| v * norm);
-        // Pixel x is inside offsets [lo, hi] when lo <= x + 0.5 - cx <= hi.
-        // One expression for every build (the order of the additions decides the rounding).
         let (bx0f, bx1f) = (bx0 as f32, bx1 as f32);
-        let first = |lo: f32| ceil_r::<ROUND>(centre.x + lo - 0.5).clamp(bx0f, bx1f) as usize;
-        let last =
-            |hi: f32| (floor_r::<ROUND>(centre.x + hi - 0.5) + 1.0).clamp(bx0f, bx1f) as usize;
+        let first = |lo: f32| first_px::<ROUND>(centre.x, lo, (bx0f, bx1f)) as usize;
+        let last = |hi: f32| end_px::<ROUND>(centre.x, hi, (bx0f, bx1f)) as usize;
         let fp = Footprint::new(shape, c, soft);
         // A footprint that covers the tile's four corner pixels at full coverage covers all its
         // pixels so (the disc and the polygons are convex): added once, not row by row.
@@ -801,8 +812,8 @@ mod tests {
     ) -> Option<([f32; 2], Option<[f32; 2]>)> {
         let dy = py as f32 + 0.5 - centre.y;
         let (outer, inner) = fp.spans(dy)?;
-        let first = |lo: f32| ceil_r::<ROUND>(centre.x + lo - 0.5).clamp(b0, b1);
-        let last = |hi: f32| (floor_r::<ROUND>(centre.x + hi - 0.5) + 1.0).clamp(b0, b1);
+        let first = |lo: f32| first_px::<ROUND>(centre.x, lo, (b0, b1));
+        let last = |hi: f32| end_px::<ROUND>(centre.x, hi, (b0, b1));
         let (lo, hi) = outer.expect("a disc has an outer span");
         Some((
             [first(lo), last(hi)],
