@@ -613,20 +613,22 @@ const ROW_OFFSETS: [f32; TILE_PX] = {
     r
 };
 
-/// A disc footprint's spans on every row of a tile, worked out in one pass over the rows
-/// that the compiler turns into vector lanes (the square roots and roundings of sixteen rows
-/// side by side) instead of row by row: per row, whether the disc meets it, whether its inner
-/// disc does, and the pixels `[outer.0, outer.1)` and `[inner.0, inner.1)` as floats, each
-/// the value [`Footprint::spans`] and the rounding to pixels give for that row, bit for bit.
-struct DiscRows {
+/// A disc's or a straight-bladed polygon's spans on every row of a tile, worked out in one
+/// pass over the rows that the compiler turns into vector lanes (the square roots or edge
+/// crossings and the roundings of sixteen rows side by side) instead of row by row: per row,
+/// whether the footprint meets it, whether its inner part (full coverage) does, and the pixels
+/// `[outer.0, outer.1)` and `[inner.0, inner.1)` as floats, each the value
+/// [`Footprint::spans`] and the rounding to pixels give for that row, bit for bit.
+struct RowSpans {
     outer: [bool; TILE_PX],
     inner: [bool; TILE_PX],
     spans: [[f32; 4]; TILE_PX],
 }
 
-impl DiscRows {
+impl RowSpans {
+    /// The disc's spans (`Footprint::spans_unsqueezed` of each row, squeezed across).
     #[inline(always)]
-    fn new<const ROUND: bool>(fp: &Footprint, centre: Vec2, y0: usize, bx: (f32, f32)) -> Self {
+    fn disc<const ROUND: bool>(fp: &Footprint, centre: Vec2, y0: usize, bx: (f32, f32)) -> Self {
         let (sx, inv_sy) = (fp.squeeze.x, fp.inv_squeeze.y);
         let (outer2, inner2) = (fp.outer2, fp.inner2);
         let first = |lo: f32| first_px::<ROUND>(centre.x, lo, bx);
@@ -650,6 +652,65 @@ impl DiscRows {
                 last(ho * sx),
                 first(-hi * sx),
                 last(hi * sx),
+            ];
+        }
+        rows
+    }
+
+    /// The same for a straight-bladed polygon (`Footprint::spans` edge by edge), every row of
+    /// the tile at once: each edge moves the rows' bounds in one loop of lanes.
+    #[inline(always)]
+    fn polygon<const ROUND: bool>(fp: &Footprint, centre: Vec2, y0: usize, bx: (f32, f32)) -> Self {
+        let (sx, inv_sy) = (fp.squeeze.x, fp.inv_squeeze.y);
+        let first = |lo: f32| first_px::<ROUND>(centre.x, lo, bx);
+        let last = |hi: f32| end_px::<ROUND>(centre.x, hi, bx);
+        let y0 = y0 as f32;
+        let dy = ROW_OFFSETS.map(|dk| (y0 + dk + 0.5 - centre.y) * inv_sy);
+        // Edge k keeps nx dx <= dist + grow - ny dy.
+        let g = 0.5 * fp.soft;
+        let mut miss = [false; TILE_PX];
+        let (mut olo, mut ohi) = ([f32::NEG_INFINITY; TILE_PX], [f32::INFINITY; TILE_PX]);
+        let (mut ilo, mut ihi) = ([f32::NEG_INFINITY; TILE_PX], [f32::INFINITY; TILE_PX]);
+        for b in 0..fp.blades.min(MAX_BLADES) {
+            let (ny, inv) = (fp.ny[b], fp.inv_nx[b]);
+            if inv == 0.0 {
+                for k in 0..TILE_PX {
+                    let base = fp.dist - ny * dy[k];
+                    let (to, ti) = (base + g, base - g);
+                    miss[k] |= to < 0.0;
+                    ilo[k] = if ti < 0.0 { f32::INFINITY } else { ilo[k] };
+                }
+            } else if inv > 0.0 {
+                for k in 0..TILE_PX {
+                    let base = fp.dist - ny * dy[k];
+                    let (a, c) = ((base + g) * inv, (base - g) * inv);
+                    ohi[k] = if a < ohi[k] { a } else { ohi[k] };
+                    ihi[k] = if c < ihi[k] { c } else { ihi[k] };
+                }
+            } else {
+                for k in 0..TILE_PX {
+                    let base = fp.dist - ny * dy[k];
+                    let (a, c) = ((base + g) * inv, (base - g) * inv);
+                    olo[k] = if a > olo[k] { a } else { olo[k] };
+                    ilo[k] = if c > ilo[k] { c } else { ilo[k] };
+                }
+            }
+        }
+        let mut rows = Self {
+            outer: [false; TILE_PX],
+            inner: [false; TILE_PX],
+            spans: [[0.0; 4]; TILE_PX],
+        };
+        for k in 0..TILE_PX {
+            // Missed where the bounds cross (as `spans`: a NaN bound is not a miss).
+            let crossed = olo[k] > ohi[k];
+            rows.outer[k] = !miss[k] && !crossed;
+            rows.inner[k] = ilo[k] <= ihi[k];
+            rows.spans[k] = [
+                first(olo[k] * sx),
+                last(ohi[k] * sx),
+                first(ilo[k] * sx),
+                last(ihi[k] * sx),
             ];
         }
         rows
@@ -722,10 +783,15 @@ fn blend_tile_inner<const ROUND: bool>(
                 continue;
             }
         }
-        // The disc's spans of every row of the tile at once (see `DiscRows`); other shapes
-        // row by row.
-        let disc = matches!(shape.kind, ShapeKind::Disc)
-            .then(|| DiscRows::new::<ROUND>(&fp, centre, y0, (bx0f, bx1f)));
+        // The spans of every row of the tile at once (see `RowSpans`); curved blades and image
+        // apertures row by row.
+        let disc = match shape.kind {
+            ShapeKind::Disc => Some(RowSpans::disc::<ROUND>(&fp, centre, y0, (bx0f, bx1f))),
+            ShapeKind::Polygon { .. } if fp.blades > 0 => {
+                Some(RowSpans::polygon::<ROUND>(&fp, centre, y0, (bx0f, bx1f)))
+            }
+            _ => None,
+        };
         for py in py0..py1 {
             let dy = py as f32 + 0.5 - centre.y;
             let row = py - y0;
@@ -802,7 +868,7 @@ mod tests {
     use crate::lens::LensEffects;
     use crate::random::SplitMix64;
 
-    /// The spans of one row as the blend worked them out before `DiscRows`: `Footprint::spans`,
+    /// The spans of one row as the blend worked them out before `RowSpans`: `Footprint::spans`,
     /// then rounded to the pixels inside, clamped to the fragment's box.
     fn row_by_row<const ROUND: bool>(
         fp: &Footprint,
@@ -814,7 +880,7 @@ mod tests {
         let (outer, inner) = fp.spans(dy)?;
         let first = |lo: f32| first_px::<ROUND>(centre.x, lo, (b0, b1));
         let last = |hi: f32| end_px::<ROUND>(centre.x, hi, (b0, b1));
-        let (lo, hi) = outer.expect("a disc has an outer span");
+        let (lo, hi) = outer.expect("a disc or polygon has an outer span");
         Some((
             [first(lo), last(hi)],
             inner.map(|(a, b)| [first(a), last(b)]),
@@ -823,12 +889,27 @@ mod tests {
 
     fn check<const ROUND: bool>() {
         let mut rng = SplitMix64::new(7);
-        for aspect in [1.0, 0.5, 1.7] {
+        let polygon = |blades, rotation_rad| Aperture::Polygon {
+            blades,
+            rotation_rad,
+            blade_radius: None,
+        };
+        let apertures = [
+            Aperture::Disc,
+            polygon(5, 0.3),
+            polygon(6, 0.0),
+            polygon(4, 0.0),
+            polygon(4, std::f32::consts::FRAC_PI_4),
+        ];
+        for (aperture, aspect) in apertures
+            .iter()
+            .flat_map(|a| [1.0, 0.5, 1.7].map(|s| (a, s)))
+        {
             let effects = LensEffects {
                 aspect,
                 ..LensEffects::default()
             };
-            let shape = Shape::new(&Aperture::Disc).with_effects(&effects);
+            let shape = Shape::new(aperture).with_effects(&effects);
             for _ in 0..400 {
                 // Radii from in focus to a wide blur, soft edges of one pixel or a merged block,
                 // centres on pixel centres and corners near and across the tile.
@@ -842,16 +923,20 @@ mod tests {
                 );
                 let b = (48.0, 64.0);
                 let fp = Footprint::new(&shape, c, soft);
-                let rows = DiscRows::new::<ROUND>(&fp, centre, y0, b);
+                let rows = match aperture {
+                    Aperture::Disc => RowSpans::disc::<ROUND>(&fp, centre, y0, b),
+                    _ => RowSpans::polygon::<ROUND>(&fp, centre, y0, b),
+                };
                 for k in 0..TILE_PX {
                     let want = row_by_row::<ROUND>(&fp, centre, y0 + k, b);
-                    assert_eq!(rows.outer[k], want.is_some(), "c {c} soft {soft} row {k}");
+                    let at = format!("{aperture:?} aspect {aspect} c {c} soft {soft} row {k}");
+                    assert_eq!(rows.outer[k], want.is_some(), "{at}");
                     let Some((outer, inner)) = want else { continue };
                     let s = rows.spans[k];
-                    assert_eq!([s[0], s[1]], outer, "c {c} soft {soft} row {k}");
-                    assert_eq!(rows.inner[k], inner.is_some(), "c {c} soft {soft} row {k}");
+                    assert_eq!([s[0], s[1]], outer, "{at}");
+                    assert_eq!(rows.inner[k], inner.is_some(), "{at}");
                     if let Some(inner) = inner {
-                        assert_eq!([s[2], s[3]], inner, "c {c} soft {soft} row {k}");
+                        assert_eq!([s[2], s[3]], inner, "{at}");
                     }
                 }
             }
@@ -859,7 +944,7 @@ mod tests {
     }
 
     #[test]
-    fn disc_rows_give_each_rows_spans_bit_for_bit() {
+    fn row_spans_give_each_rows_spans_bit_for_bit() {
         check::<true>();
         check::<false>();
     }
