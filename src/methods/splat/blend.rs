@@ -785,7 +785,7 @@ fn blend_tile_inner<const ROUND: bool>(
         }
         // The spans of every row of the tile at once (see `RowSpans`); curved blades and image
         // apertures row by row.
-        let disc = match shape.kind {
+        let rows = match shape.kind {
             ShapeKind::Disc => Some(RowSpans::disc::<ROUND>(&fp, centre, y0, (bx0f, bx1f))),
             ShapeKind::Polygon { .. } if fp.blades > 0 => {
                 Some(RowSpans::polygon::<ROUND>(&fp, centre, y0, (bx0f, bx1f)))
@@ -795,7 +795,7 @@ fn blend_tile_inner<const ROUND: bool>(
         for py in py0..py1 {
             let dy = py as f32 + 0.5 - centre.y;
             let row = py - y0;
-            let (outer, inner) = match &disc {
+            let (outer, inner) = match &rows {
                 Some(d) => {
                     if !d.outer[row] {
                         continue;
