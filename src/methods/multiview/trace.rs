@@ -708,7 +708,7 @@ fn trace_packet(
         for j in 0..LANES {
             // A ray meets the surface where it crosses it (refined to within THICKNESS_PX), or
             // where it steps onto it from a continuation of the same surface (see `layer`).
-            let hit = hi[j] - h_hi[j] <= THICKNESS_PX || (h_lo[j] - h_hi[j]).abs() <= CONTINUITY_PX;
+            let hit = meets(hi[j], h_hi[j], h_lo[j]);
             let d = width * hi[j].abs();
             let f = log2(d);
             // `ConeLevel::with_log2`: where `d > 1`, `f > 0`, so the floor is its whole part.
@@ -829,19 +829,26 @@ fn crossings(seg: &Segment, lanes: &Lanes) -> Crossings {
     let mut hi = [0.0f32; LANES];
     let mut prev = [seg.enter; LANES];
     let mut prev_front = [true; LANES];
+    let mut h_prev = [f32::INFINITY; LANES];
     for k in 0..=seg.most {
         for j in 0..LANES {
             let kk = k.min(steps[j]);
             let c = seg.ca + dc[j] * kk as f32;
             let q = p - c * v(j);
-            let behind = layers.coc_px[layers.index(l, q.x as usize, q.y as usize)] <= c;
-            let cross = lane(live, j) && !found[j] && k <= steps[j] && behind && prev_front[j];
+            let h = layers.coc_px[layers.index(l, q.x as usize, q.y as usize)];
+            let behind = h <= c;
+            let cross = lane(live, j)
+                && !found[j]
+                && k <= steps[j]
+                && prev_front[j]
+                && bracketed(h, h_prev[j], c);
             if cross {
                 (lo[j], hi[j]) = (prev[j], c);
             }
             found[j] |= cross;
             prev_front[j] = !behind;
             prev[j] = c;
+            h_prev[j] = h;
         }
     }
     let mut out = Crossings {
@@ -1159,7 +1166,7 @@ mod avx2 {
                 hi: _mm256_setzero_ps(),
                 prev: _mm256_set1_ps(enter),
                 prev_front: _mm256_castsi256_ps(_mm256_set1_epi32(-1)),
-                h_prev: _mm256_setzero_ps(),
+                h_prev: _mm256_set1_ps(f32::INFINITY),
                 h_lo: _mm256_setzero_ps(),
                 h_hi: _mm256_setzero_ps(),
                 i_hi: _mm256_setzero_si256(),
@@ -1178,9 +1185,11 @@ mod avx2 {
             let i = walk.index(c, self.vx, self.vy);
             let h = walk.gather(i);
             let behind = _mm256_cmp_ps::<_CMP_LE_OQ>(h, c);
+            // `super::bracketed`: behind the surface now, or past the previous one's CoC.
+            let bracket = _mm256_or_ps(behind, _mm256_cmp_ps::<_CMP_LE_OQ>(self.h_prev, c));
             let cross = _mm256_and_ps(
                 _mm256_and_ps(self.seeking, in_layer),
-                _mm256_and_ps(behind, self.prev_front),
+                _mm256_and_ps(bracket, self.prev_front),
             );
             self.lo = _mm256_blendv_ps(self.lo, self.prev, cross);
             self.hi = _mm256_blendv_ps(self.hi, c, cross);
@@ -1386,33 +1395,61 @@ fn layer(input: &TraceInput, l: usize, p: Vec2, v: Vec2, speed: f32, state: &mut
     // layer holds: the overlap margin before its front bound.
     let mut prev = ca - spacing.overlap * spacing.delta_px;
     let mut prev_front = true;
+    // The surface under the previous sample (none at the entry point, which no step sampled).
+    let mut h_prev = f32::INFINITY;
     let mut hit = None;
     for k in 0..=steps {
         let c = ca + dc * k as f32;
         let q = p - c * v;
         let i = layers.index(l, q.x as usize, q.y as usize);
-        let behind = layers.coc_px[i] <= c;
-        if behind && prev_front {
+        let h = layers.coc_px[i];
+        let behind = h <= c;
+        // A bracket: the ray is behind the surface under it now, or may have passed behind
+        // the previous sample's surface before leaving its pixel ([`bracketed`]).
+        if prev_front && bracketed(h, h_prev, c) {
             let (c_hit, i_hit, h_front) = refine_as(input.paper_refine, layers, l, p, v, prev, c)
                 .unwrap_or((c, i, f32::INFINITY));
             // A ray meets the surface where it crosses it (refined to within
             // THICKNESS_PX), or where it steps onto it from a continuation of the same
             // surface (a slanted surface sampled pixel by pixel); one that comes in from
             // the side of a thin object, from empty space or from a surface far in
-            // front, passes behind it.
+            // front, passes behind it. A ray still in front of the surface at the
+            // bracket's far end crossed nothing.
             let h_hit = layers.coc_px[i_hit];
-            if c_hit - h_hit <= THICKNESS_PX || (h_front - h_hit).abs() <= CONTINUITY_PX {
+            if meets(c_hit, h_hit, h_front) {
                 hit = Some((c_hit, i_hit));
                 break;
             }
         }
         prev_front = !behind;
         prev = c;
+        h_prev = h;
     }
     let Some((c_hit, i)) = hit else {
         return graze(input, l, p, v, state);
     };
     shade(input, p, v, Hit { l, c: c_hit, i }, state, false)
+}
+
+/// Whether the step to a sample at CoC `c` over a surface at `h`, from one over a surface at
+/// `h_prev` where the ray was in front, may hold the ray's first crossing: it is behind the
+/// surface under it now, or it reached the previous surface's CoC within the step, so it may
+/// have met that surface before leaving its pixel (a step moves about a pixel; at a surface's
+/// edge the samples either side can both lie in front, and the blur's edge came out as if the
+/// surface lay at the next sample's CoC: an alpha-cut sprig 0.12 px of CoC behind a layer's
+/// front bound stayed sharp). [`refine`] walks the pixels between and tells which.
+#[inline(always)]
+fn bracketed(h: f32, h_prev: f32, c: f32) -> bool {
+    h <= c || h_prev <= c
+}
+
+/// Whether a refined crossing at ray CoC `c_hit` onto a surface at `h_hit`, from a pixel whose
+/// surface lay at `h_front`, is a hit: the ray is at or behind the surface (it is not where
+/// the bracket held no crossing), within [`THICKNESS_PX`] of it or stepping onto it from a
+/// continuation of the same surface.
+#[inline(always)]
+fn meets(c_hit: f32, h_hit: f32, h_front: f32) -> bool {
+    h_hit <= c_hit && (c_hit - h_hit <= THICKNESS_PX || (h_front - h_hit).abs() <= CONTINUITY_PX)
 }
 
 /// Whether rays that pass layer `l` take the coverage their cones meet there ([`graze`]): with
@@ -2192,6 +2229,121 @@ mod tests {
             }
         }
         assert!(checked > 5000, "only {checked} brackets checked");
+    }
+
+    #[test]
+    fn a_crossing_over_a_samples_pixel_between_two_samples_is_found() {
+        // Random height fields in the layer's range and random rays in front of the surface at
+        // the walk's first sample. Where a ray first comes at or behind the surface under it
+        // (the segment sampled 20000 times in f64) over the pixel of the sample before or after
+        // that point, the walk's first bracket is that crossing, refined to it; or a bracket
+        // that crossed nothing (the ray left the previous sample's pixel in front of its
+        // surface), which the packet hands to `layer` to walk on. Sampled alone, a ray that
+        // met a surface over one sample's pixel and was in front of the next sample's surface
+        // missed it: a surface's edge was traced as if it lay a step of CoC later.
+        let (w, h) = (40, 40);
+        let mut rng = SplitMix64::new(29);
+        let (mut checked, mut before) = (0, 0);
+        for round in 0..300 {
+            let levels: Vec<f32> = (0..4).map(|_| rng.range(-8.0, -4.0)).collect();
+            let layers = height_field(w, h, |_, _| {
+                if rng.below(5) == 0 {
+                    f32::INFINITY
+                } else {
+                    levels[rng.below(4)]
+                }
+            });
+            let spacing = layers.spacing;
+            let (ca, cb) = spacing.bounds(0);
+            let p = Vec2::new(20.5, 20.5);
+            let mut vx = [0.0f32; LANES];
+            let mut vy = [0.0f32; LANES];
+            let mut dc = [0.0f32; LANES];
+            let mut steps = [0usize; LANES];
+            let mut stepsf = [0.0f32; LANES];
+            for j in 0..LANES {
+                let a = rng.range(0.0, std::f32::consts::TAU);
+                let v = Vec2::new(a.cos(), a.sin()) * rng.range(0.3, 1.0);
+                (vx[j], vy[j]) = (v.x, v.y);
+                let n = ((cb - ca) * v.length()).ceil().max(1.0) as usize;
+                (steps[j], stepsf[j], dc[j]) = (n, n as f32, (cb - ca) / n as f32);
+            }
+            let live = (1u32 << LANES) - 1;
+            let seg = Segment {
+                layers: &layers,
+                l: 0,
+                p,
+                ca,
+                enter: ca - spacing.overlap * spacing.delta_px,
+                most: *steps.iter().max().unwrap(),
+                paper_refine: false,
+            };
+            let lanes = Lanes {
+                vx: &vx,
+                vy: &vy,
+                dc: &dc,
+                steps: &steps,
+                stepsf: &stepsf,
+                live,
+            };
+            let out = crossings(&seg, &lanes);
+            for j in 0..LANES {
+                let v = Vec2::new(vx[j], vy[j]);
+                let hf = |c: f64| {
+                    let (qx, qy) = (p.x as f64 - c * v.x as f64, p.y as f64 - c * v.y as f64);
+                    let i = qy.floor() as usize * w + qx.floor() as usize;
+                    (layers.coc_px[i] as f64, i, qx, qy)
+                };
+                // The samples as the walk takes them, and the pixel under each.
+                let c_at = |k: usize| ca + dc[j] * k as f32;
+                let pixel_at = |k: usize| {
+                    let q = p - c_at(k) * v;
+                    q.y as usize * w + q.x as usize
+                };
+                if hf(ca as f64).0 <= ca as f64 {
+                    continue;
+                }
+                let end = c_at(steps[j]) as f64;
+                let n = 20_000;
+                let Some(want) = (0..=n)
+                    .map(|k| ca as f64 + (end - ca as f64) * k as f64 / n as f64)
+                    .find(|&c| hf(c).0 <= c)
+                else {
+                    continue;
+                };
+                let (_, i_want, qx, qy) = hf(want);
+                let near_boundary = |q: f64| (q - q.round()).abs() < 1e-4;
+                let k = (0..steps[j])
+                    .find(|&k| c_at(k + 1) as f64 >= want)
+                    .unwrap_or(steps[j] - 1);
+                if near_boundary(qx)
+                    || near_boundary(qy)
+                    || (i_want != pixel_at(k) && i_want != pixel_at(k + 1))
+                {
+                    continue;
+                }
+                assert!(lane(out.found, j), "round {round}, lane {j}: no bracket");
+                if out.h_hi[j] > out.hi[j] {
+                    // A bracket that crossed nothing, before the crossing: walked on by `layer`.
+                    assert!((out.hi[j] as f64) <= want + 1e-4, "round {round}, lane {j}");
+                    continue;
+                }
+                assert_eq!(out.i_hi[j], i_want, "round {round}, lane {j}");
+                let tolerance = (end - ca as f64) / n as f64 + 1e-5;
+                assert!(
+                    (out.hi[j] as f64 - want).abs() <= tolerance,
+                    "round {round}, lane {j}: hit at {}, want {want}",
+                    out.hi[j]
+                );
+                checked += 1;
+                before += usize::from(i_want != pixel_at(k + 1));
+            }
+        }
+        assert!(checked > 2000, "only {checked} crossings checked");
+        assert!(
+            before > 100,
+            "only {before} crossings over the earlier sample's pixel"
+        );
     }
 
     #[test]
