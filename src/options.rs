@@ -276,6 +276,11 @@ pub struct PostArgs {
     /// multiview: no early layer culling (same image, slower).
     #[arg(long, help_heading = "multiview")]
     pub no_culling: bool,
+    /// multiview: drop a surface hidden behind a nearer one of its layer, as the paper's layers
+    /// do; by default one more than 2 px of CoC behind it is also written to the next layer,
+    /// where a ray that passes behind the nearer surface finds it (not in the paper).
+    #[arg(long, help_heading = "multiview")]
+    pub no_see_behind: bool,
 
     /// multilayer, splat --layers N, multiview: sample the fragments and layers at pixel
     /// centres, as the papers, instead of with 16-sample coverage masks (anti-aliased edges,
@@ -685,6 +690,7 @@ impl PostArgs {
                     },
                     jitter: !self.no_jitter,
                     culling: !self.no_culling,
+                    see_behind: !self.no_see_behind,
                     input: self.layered_input(MultiviewSettings::default().input)?,
                     effects: self.lens_effects()?,
                     ..MultiviewSettings::default()

@@ -21,6 +21,14 @@
 //! the layer, and the trace goes on behind it into the next layers with the rest of its weight.
 //! Only surfaces that cover their pixel opaquely are also written to the overlapping
 //! neighbour layer: a partly transparent one written twice would be met twice by one ray.
+//!
+//! A surface hidden in the pinhole view behind a nearer one of the same layer, more than
+//! [`CONTINUITY_PX`] of CoC behind it, is also written to the next layer (not in the paper):
+//! a ray that passes behind the nearer surface (the trace takes a step onto a surface that far
+//! nearer for its side, not its top) finds it there instead of what lies behind both. Without
+//! it, a layer 4 px of CoC deep showed an in-focus chart's next layer (a dark wall) through the
+//! blurred edge of an alpha-cut sprig 2.8 px of CoC in front of the chart in the same layer,
+//! and the sprig came out dark-rimmed and sharp.
 
 use half::f16;
 use rayon::prelude::*;
@@ -28,6 +36,12 @@ use rayon::prelude::*;
 use super::fragments::CocScale;
 use super::{to_half, Fragment, HalfRgba, HeldFragment, Reach, Sink, TileRect, TileSink};
 use crate::lens::ThinLens;
+
+/// Neighbouring surfaces whose CoCs differ by at most this many pixels are one continuous
+/// surface: a ray of `multiview`'s trace stepping from one onto the other meets it; one
+/// stepping onto a surface farther in front comes in from its side and passes behind it, and a
+/// surface hidden that far behind another of its layer is written to the next layer for it.
+pub const CONTINUITY_PX: f32 = 2.0;
 
 /// How depths are cut into layers.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -99,6 +113,9 @@ pub struct DepthLayers {
     written: Vec<bool>,
     /// Which surfaces of a guard band can be read from the frame ([`DepthLayers::with_reach`]).
     reach: Option<Reach>,
+    /// Surfaces hidden far behind another of their layer go to the next layer too (see the
+    /// module; [`DepthLayers::seeing_behind`]). Default on.
+    see_behind: bool,
 }
 
 /// Scratch buffers of [`LayersTile`]s, shared by the tiles of a pass. Scratch, not content:
@@ -144,6 +161,7 @@ impl DepthLayers {
             pool: Pool::default(),
             written: vec![false; spacing.layers],
             reach: None,
+            see_behind: true,
         }
     }
 
@@ -163,6 +181,7 @@ impl DepthLayers {
             pool: Pool::default(),
             written: vec![false; spacing.layers],
             reach: None,
+            see_behind: true,
         }
     }
 
@@ -171,6 +190,14 @@ impl DepthLayers {
     /// in CoC radii and pixels).
     pub fn with_reach(mut self, reach: Reach) -> Self {
         self.reach = Some(reach);
+        self
+    }
+
+    /// Whether a surface hidden in the pinhole view more than [`CONTINUITY_PX`] of CoC behind
+    /// another of its layer is written to the next layer too (true, the default), or dropped
+    /// as hidden (false: the layers of the paper, made see-through).
+    pub fn seeing_behind(mut self, on: bool) -> Self {
+        self.see_behind = on;
         self
     }
 
@@ -222,6 +249,8 @@ pub struct LayersTile {
     pool: Pool,
     /// The lens's CoC scale, for the surfaces of a layer no blur separates.
     scale: CocScale,
+    /// [`DepthLayers::seeing_behind`].
+    see_behind: bool,
 }
 
 impl LayersTile {
@@ -241,14 +270,27 @@ impl LayersTile {
         self.used[s / 64] & (1 << (s % 64)) != 0
     }
 
-    /// Whether an opaque fragment at `z` in layer `l` is hidden by what the layer holds.
+    /// Whether an opaque fragment at `z` in layer `l` is hidden by what the layer holds: behind
+    /// an opaque surface, and not so far behind it that it goes to the next layer too
+    /// ([`LayersTile::seen_behind`]).
     #[inline]
     fn hidden(&self, l: usize, i: usize, z: f32) -> bool {
         let s = self.slot(l, i);
         self.is_used(s)
             && self.held[s]
                 .iter()
-                .any(|h| h.hides_behind() && z >= h.depth_m)
+                .any(|h| h.hides_behind() && z >= h.depth_m && !self.seen_behind(l, h.depth_m, z))
+    }
+
+    /// Whether a surface at `z`, behind one at `front_m` in layer `l`, is written to the next
+    /// layer when hidden: seeing behind is on, there is a next layer, and the two lie more
+    /// than [`CONTINUITY_PX`] of CoC apart.
+    #[inline]
+    fn seen_behind(&self, l: usize, front_m: f32, z: f32) -> bool {
+        let lens = &self.spacing.lens;
+        self.see_behind
+            && l + 1 < self.spacing.layers
+            && lens.coc_px(z) - lens.coc_px(front_m) > CONTINUITY_PX
     }
 
     /// Slot `s` of layer `l` takes `f`: merged into its surface, or in depth order among the
@@ -345,15 +387,36 @@ impl TileSink for LayersTile {
     /// separates by their masks, then the nearer surface over the farther, premultiplied.
     fn finish(&mut self) {
         let lens = self.spacing.lens;
-        for (w, &bits) in self.used.iter().enumerate() {
-            let mut bits = bits;
-            while bits != 0 {
-                let s = w * 64 + bits.trailing_zeros() as usize;
-                bits &= bits - 1;
+        let area = self.rect.width() * self.rect.height();
+        // Slot by slot in order. A slot's hidden surface goes to the same pixel of the next
+        // layer, a later slot: the words of `used` are read again as they may gain bits.
+        for w in 0..self.used.len() {
+            let mut done = 0u64;
+            loop {
+                let bits = self.used[w] & !done;
+                if bits == 0 {
+                    break;
+                }
+                let b = bits.trailing_zeros();
+                done |= 1 << b;
+                let s = w * 64 + b as usize;
                 let mut surfaces = self.held[s];
                 super::fragments::hide_coincident(&mut surfaces, self.scale);
                 let [front, behind @ ..] = &mut surfaces;
                 if front.depth_m.is_finite() {
+                    let (l, i) = (s / area, s % area);
+                    // The nearest surface far enough behind the front for a ray to pass
+                    // behind the front and reach it, with what lies behind it, to the next
+                    // layer as well.
+                    if let Some(k) = behind.iter().position(|h| {
+                        h.depth_m.is_finite() && self.seen_behind(l, front.depth_m, h.depth_m)
+                    }) {
+                        let mut hidden = behind[k];
+                        for h in behind[k + 1..].iter().filter(|h| h.depth_m.is_finite()) {
+                            hidden.absorb(h);
+                        }
+                        self.write(l + 1, i, &hidden);
+                    }
                     // Front to back, premultiplied.
                     for h in behind.iter().filter(|h| h.depth_m.is_finite()) {
                         front.absorb(h);
@@ -392,6 +455,7 @@ impl Sink for DepthLayers {
             kept: Vec::new(),
             pool: self.pool.clone(),
             scale: CocScale::of(&self.spacing.lens),
+            see_behind: self.see_behind,
         }
     }
 
@@ -558,6 +622,80 @@ mod tests {
         let mut none = make(spacing, 0, 0);
         none.end_tiles(Vec::new());
         assert!(!none.filled(0));
+    }
+
+    /// An opaque surface hides, in the pinhole view, a surface of its layer 2.8 px of CoC behind
+    /// it: that one is shaded and written to the next layer too, where a ray that passes behind
+    /// the front finds it. One 1.3 px behind a front (within [`CONTINUITY_PX`]) stays hidden,
+    /// as before.
+    #[test]
+    fn a_surface_hidden_far_behind_another_of_its_layer_goes_to_the_next_layer_too() {
+        use crate::raster::fragments::tests::reach;
+        use crate::raster::FULL_COVERAGE;
+        let lens = reach().lens;
+        let spacing = LayerSpacing {
+            lens,
+            coc_near_px: -2.92,
+            delta_px: 4.0,
+            layers: 3,
+            overlap: 0.0,
+        };
+        let (w, h) = (16, 16);
+        let mut layers = DepthLayers::for_raster(spacing, w, h);
+        let rect = TileRect {
+            x0: 0,
+            y0: 0,
+            x1: w,
+            y1: h,
+        };
+        let fragment = |x: u32, c: f32, red: f32| Fragment {
+            x,
+            y: 5,
+            depth_m: lens.depth_for_coc_px(c),
+            color: [red, 0.5, 0.25, 1.0],
+            blend: false,
+            coverage: FULL_COVERAGE,
+            dithered: false,
+            back_facing: false,
+        };
+        let mut tile = layers.begin_tile(rect);
+        // Pixels 3 and 9: a front at -2.8 px first, then a surface behind it in the same layer.
+        tile.fragment(&fragment(3, -2.8, 0.1));
+        tile.fragment(&fragment(9, -2.8, 0.1));
+        for (f, hidden) in [
+            (fragment(3, 0.0, 0.7), false),
+            (fragment(9, -1.5, 0.7), true),
+        ] {
+            assert_eq!(tile.occluded(f.x, f.y, f.depth_m), hidden, "pixel {}", f.x);
+            if !hidden {
+                tile.fragment(&f);
+            }
+        }
+        tile.finish();
+        layers.end_tiles(vec![(rect, tile)]);
+        for x in [3, 9] {
+            let i = layers.index(0, x, 5);
+            assert!(
+                (layers.coc_px[i] + 2.8).abs() < 1e-3,
+                "{}",
+                layers.coc_px[i]
+            );
+            assert_eq!(layers.color[i][0], to_half([0.1; 4])[0]);
+        }
+        let behind = layers.index(1, 3, 5);
+        assert!(
+            layers.coc_px[behind].abs() < 1e-3,
+            "{}",
+            layers.coc_px[behind]
+        );
+        assert_eq!(layers.color[behind][0], to_half([0.7; 4])[0]);
+        assert_eq!(layers.coc_px[layers.index(1, 9, 5)], f32::INFINITY);
+        assert!(!layers.filled(2));
+        // Off: the far one is hidden too, and the next layer stays empty.
+        let layers = DepthLayers::for_raster(spacing, w, h).seeing_behind(false);
+        let mut tile = layers.begin_tile(rect);
+        tile.fragment(&fragment(3, -2.8, 0.1));
+        assert!(tile.occluded(3, 5, lens.depth_for_coc_px(0.0)));
     }
 
     /// A tile of the guard band drops, as if hidden, the fragments at or behind its pixels'

@@ -41,7 +41,7 @@ pub use fragments::{
     COINCIDENT_COC_PX, MAX_FRAGMENTS_PER_PIXEL, SAME_SURFACE,
 };
 pub use gbuffer::{GBuffer, GBufferTile};
-pub use layers::{DepthLayers, LayerSpacing, LayersTile};
+pub use layers::{DepthLayers, LayerSpacing, LayersTile, CONTINUITY_PX};
 pub use setup::{SetupTriangle, COVERAGE_PATTERN, COVERAGE_SAMPLES, FULL_COVERAGE};
 pub use views::{
     accumulate_views, accumulate_views_clipped, render_view, sample_view, ViewPassLabels,

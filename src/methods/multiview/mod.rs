@@ -187,6 +187,11 @@ pub struct MultiviewSettings {
     /// Coverage masks and guard band of the layers (default both on; off: pixel centres over
     /// the frame, as the paper).
     pub input: LayeredInput,
+    /// A surface hidden in the pinhole view more than [`crate::raster::CONTINUITY_PX`] of CoC
+    /// behind another of its layer is written to the next layer too, where a ray that passes
+    /// behind the nearer one finds it ([`DepthLayers::seeing_behind`]; not in the paper).
+    /// Default on (measured in the README).
+    pub see_behind: bool,
     /// The real lens's departures from the ideal one: the anamorphic squeeze stretches every
     /// lens sample, as in `reference`; with a cat's eye each pixel keeps only the rays whose
     /// lens point passes its view of the barrel (per ray, as `reference` per view); with
@@ -213,6 +218,7 @@ impl Default for MultiviewSettings {
             jitter: true,
             culling: true,
             input: LayeredInput::SAMPLE_SHADED,
+            see_behind: true,
             effects: LensEffects::default(),
         }
     }
@@ -365,7 +371,8 @@ fn decompose_with_band(
     )?;
     let view = View::pinhole(lens);
     let binned = settings.input.bin(prepared, &view);
-    let mut layers = DepthLayers::for_raster(spacing, lens.width_px, lens.height_px);
+    let mut layers = DepthLayers::for_raster(spacing, lens.width_px, lens.height_px)
+        .seeing_behind(settings.see_behind);
     if let Some((guard, radii)) = band.filter(|b| b.0 > 0) {
         // A surface of CoC C is traced in its layer, at CoCs up to a layer and the entry
         // margin beyond C, or in the layer it overlaps (within the margin of the boundary), a

@@ -44,8 +44,9 @@ use crate::raster::{from_half, DepthLayers};
 pub const THICKNESS_PX: f32 = 0.1;
 
 /// Neighbouring height-field pixels whose CoCs differ by at most this many pixels are one
-/// continuous surface: a ray stepping from one onto the other meets it.
-pub const CONTINUITY_PX: f32 = 2.0;
+/// continuous surface: a ray stepping from one onto the other meets it (the layers write a
+/// surface hidden farther behind another to the next layer by the same bound).
+pub use crate::raster::CONTINUITY_PX;
 
 /// Side of the jitter noise tile in pixels.
 pub const NOISE_TILE: usize = 16;
