@@ -251,6 +251,9 @@ pub struct LayersTile {
     scale: CocScale,
     /// [`DepthLayers::seeing_behind`].
     see_behind: bool,
+    /// The lens's `1 / z_f` and `1 / (f_px E)`, for the depth of a CoC.
+    inv_focus: f32,
+    inv_k: f32,
 }
 
 impl LayersTile {
@@ -270,27 +273,44 @@ impl LayersTile {
         self.used[s / 64] & (1 << (s % 64)) != 0
     }
 
-    /// Whether an opaque fragment at `z` in layer `l` is hidden by what the layer holds: behind
-    /// an opaque surface, and not so far behind it that it goes to the next layer too
-    /// ([`LayersTile::seen_behind`]).
+    /// Whether an opaque fragment at `z` (CoC `c`) in layer `l` is hidden by what the layer
+    /// holds: behind an opaque surface, and not so far behind it that it goes to the next layer
+    /// too ([`LayersTile::seen_behind_from`]).
     #[inline]
-    fn hidden(&self, l: usize, i: usize, z: f32) -> bool {
+    fn hidden(&self, l: usize, i: usize, z: f32, c: f32) -> bool {
         let s = self.slot(l, i);
-        self.is_used(s)
-            && self.held[s]
-                .iter()
-                .any(|h| h.hides_behind() && z >= h.depth_m && !self.seen_behind(l, h.depth_m, z))
+        if !self.is_used(s) {
+            return false;
+        }
+        // The farthest opaque surface at or in front of it; the limit only where there is
+        // one (most calls find none).
+        let mut farthest = f32::NEG_INFINITY;
+        for h in &self.held[s] {
+            if h.hides_behind() && z >= h.depth_m {
+                farthest = farthest.max(h.depth_m);
+            }
+        }
+        farthest > f32::NEG_INFINITY && farthest >= self.seen_behind_from(l, c)
     }
 
-    /// Whether a surface at `z`, behind one at `front_m` in layer `l`, is written to the next
-    /// layer when hidden: seeing behind is on, there is a next layer, and the two lie more
-    /// than [`CONTINUITY_PX`] of CoC apart.
+    /// The depth nearer than which a surface in front of one of CoC `c` in layer `l` lets it be
+    /// seen behind it, so that it is written to the next layer when hidden: more than
+    /// [`CONTINUITY_PX`] of CoC nearer, where seeing behind is on and there is a next layer;
+    /// else 0 (no surface is nearer). One depth per hidden surface, so that the test of each
+    /// surface in front is a comparison.
     #[inline]
-    fn seen_behind(&self, l: usize, front_m: f32, z: f32) -> bool {
-        let lens = &self.spacing.lens;
-        self.see_behind
-            && l + 1 < self.spacing.layers
-            && lens.coc_px(z) - lens.coc_px(front_m) > CONTINUITY_PX
+    fn seen_behind_from(&self, l: usize, c: f32) -> f32 {
+        if self.see_behind && l + 1 < self.spacing.layers {
+            // `ThinLens::depth_for_coc_px` with its two constant quotients kept.
+            let inv_z = self.inv_focus - (c - CONTINUITY_PX) * self.inv_k;
+            if inv_z > 0.0 {
+                1.0 / inv_z
+            } else {
+                f32::INFINITY
+            }
+        } else {
+            0.0
+        }
     }
 
     /// Slot `s` of layer `l` takes `f`: merged into its surface, or in depth order among the
@@ -362,8 +382,9 @@ impl TileSink for LayersTile {
         if self.unread(i, depth_m) {
             return true;
         }
-        let (l, other) = self.spacing.targets(self.spacing.lens.coc_px(depth_m));
-        self.hidden(l, i, depth_m) && other.map_or(true, |o| self.hidden(o, i, depth_m))
+        let c = self.spacing.lens.coc_px(depth_m);
+        let (l, other) = self.spacing.targets(c);
+        self.hidden(l, i, depth_m, c) && other.map_or(true, |o| self.hidden(o, i, depth_m, c))
     }
 
     #[inline]
@@ -409,7 +430,8 @@ impl TileSink for LayersTile {
                     // behind the front and reach it, with what lies behind it, to the next
                     // layer as well.
                     if let Some(k) = behind.iter().position(|h| {
-                        h.depth_m.is_finite() && self.seen_behind(l, front.depth_m, h.depth_m)
+                        h.depth_m.is_finite()
+                            && front.depth_m < self.seen_behind_from(l, lens.coc_px(h.depth_m))
                     }) {
                         let mut hidden = behind[k];
                         for h in behind[k + 1..].iter().filter(|h| h.depth_m.is_finite()) {
@@ -456,6 +478,8 @@ impl Sink for DepthLayers {
             pool: self.pool.clone(),
             scale: CocScale::of(&self.spacing.lens),
             see_behind: self.see_behind,
+            inv_focus: 1.0 / self.spacing.lens.focus_m,
+            inv_k: 1.0 / (self.spacing.lens.f_px * self.spacing.lens.lens_radius_m),
         }
     }
 
