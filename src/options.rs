@@ -9,7 +9,7 @@ use crate::methods::coc_map;
 use crate::methods::gaussian::GaussianSettings;
 use crate::methods::hammon::{CocMode, HammonSettings, LerpDistances};
 use crate::methods::lowrank::LowRankSettings;
-use crate::methods::multilayer::{Bokeh, FilterSteps, MultilayerSettings};
+use crate::methods::multilayer::{Bokeh, BoxRead, FilterSteps, MultilayerSettings};
 use crate::methods::multiview::{LayerCount, LayerOrigin, MipFilter, MultiviewSettings};
 use crate::methods::poisson::{self, PoissonSettings};
 use crate::methods::reference::ReferenceSettings;
@@ -366,6 +366,17 @@ pub struct PostArgs {
         help_heading = "multilayer"
     )]
     pub ml_bokeh: String,
+    /// multilayer: how a pixel reads the box-filtered levels coarser than a pixel (CoCs below
+    /// the shape's threshold): `nearest`, the cell whose centre is nearest (the paper's; the
+    /// blur comes in blocks of the level's cells), or `bilinear`, the four cells around the
+    /// pixel's centre (not in the paper). `--ml-bokeh box` reads as the paper.
+    #[arg(
+        long,
+        default_value = "bilinear",
+        value_name = "nearest|bilinear",
+        help_heading = "multilayer"
+    )]
+    pub ml_box_read: String,
 
     /// A lens preset: `vintage-swirl` (strong cat's eye), `anamorphic-2x` (tall oval bokeh),
     /// `apochromat` (nearly ideal), or a JSON file of your own with `description` and any of
@@ -710,6 +721,7 @@ impl PostArgs {
                     bokeh: Bokeh::parse(&self.ml_bokeh).context("invalid --ml-bokeh")?,
                     aperture: aperture.clone(),
                     highlights: self.highlight_rays(MultilayerSettings::default().highlights)?,
+                    box_read: BoxRead::parse(&self.ml_box_read).context("invalid --ml-box-read")?,
                 };
                 m.validate().context("invalid multilayer option")?;
                 MethodSettings::Multilayer(m)

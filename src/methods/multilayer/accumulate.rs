@@ -82,9 +82,8 @@ pub fn accumulate_for(
             levels,
             borders,
             &settings.aperture,
-            settings.epsilon,
+            (settings.epsilon, first, settings.box_read),
             region,
-            first,
         ),
     }
 }
@@ -109,9 +108,8 @@ pub fn accumulate_for_baseline(
             levels,
             borders,
             &settings.aperture,
-            settings.epsilon,
+            (settings.epsilon, first, settings.box_read),
             region,
-            first,
         ),
     }
 }

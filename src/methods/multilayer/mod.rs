@@ -198,6 +198,33 @@ impl Bokeh {
 /// Most filter steps (a box of 2^10 = 1024 pixels).
 pub const MAX_FILTER_STEPS: usize = 10;
 
+/// How a pixel reads a box level whose cells are coarser than a pixel (the levels serving
+/// CoCs below the shape threshold, [`Bokeh::Shape`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum BoxRead {
+    /// The cell whose centre is nearest, as the paper: a level of 2^k px cells draws its
+    /// blur in blocks of 2^k px (an alpha-cut sprig of CoC 2.8 px came out in 2 px squares).
+    Nearest,
+    /// The four cells around the pixel's centre, weighted bilinearly, one surface seen from
+    /// several cells merged into one entry (not in the paper; as the shape levels are read).
+    #[default]
+    Bilinear,
+}
+
+impl BoxRead {
+    /// Parses `nearest` or `bilinear`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "nearest" => Ok(Self::Nearest),
+            "bilinear" => Ok(Self::Bilinear),
+            other => Err(Error::invalid(
+                "box read",
+                format!("{other:?}: expected nearest or bilinear"),
+            )),
+        }
+    }
+}
+
 /// Settings of `multilayer`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MultilayerSettings {
@@ -225,6 +252,11 @@ pub struct MultilayerSettings {
     /// ([`crate::methods::highlights`]); `None`: filtered as every fragment (the paper's).
     /// Default 1 (brighter than white; measured in the README).
     pub highlights: Option<f32>,
+    /// How a pixel reads the box levels coarser than a pixel, with [`Bokeh::Shape`]: the
+    /// nearest cell (the paper's) or the four around it weighted bilinearly (not in the
+    /// paper). Default [`BoxRead::Bilinear`] (measured in the README). `Bokeh::Box` reads as
+    /// the paper.
+    pub box_read: BoxRead,
 }
 
 impl Default for MultilayerSettings {
@@ -239,6 +271,7 @@ impl Default for MultilayerSettings {
             bokeh: Bokeh::default(),
             aperture: Aperture::Disc,
             highlights: Some(1.0),
+            box_read: BoxRead::default(),
         }
     }
 }

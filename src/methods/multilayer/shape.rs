@@ -42,7 +42,7 @@ use rayon::prelude::*;
 
 use super::accumulate::{level_weight, Region};
 use super::filter::Level;
-use super::Borders;
+use super::{Borders, BoxRead};
 use crate::image::{ColorImage, Rgba};
 use crate::lens::Aperture;
 use crate::raster::from_half;
@@ -525,6 +525,8 @@ struct RowInputs<'a> {
     /// Per box level, each fragment's weight there: 0 at or above the shape threshold, else
     /// its level weight (worked out once per fragment, not once per pixel that reads it).
     box_weights: &'a [Vec<f32>],
+    /// How a pixel reads the box levels coarser than a pixel.
+    box_read: BoxRead,
     epsilon: f32,
 }
 
@@ -540,15 +542,14 @@ pub fn accumulate_shape(
     levels: &[Level],
     borders: &Borders,
     aperture: &Aperture,
-    epsilon: f32,
+    (epsilon, first, box_read): (f32, usize, BoxRead),
     region: Region,
-    first: usize,
 ) -> ColorImage {
     accumulate_shape_with(
         levels,
         borders,
         aperture,
-        (epsilon, first),
+        (epsilon, first, box_read),
         region,
         RowFns {
             gather: gather_row,
@@ -563,15 +564,14 @@ pub fn accumulate_shape_baseline(
     levels: &[Level],
     borders: &Borders,
     aperture: &Aperture,
-    epsilon: f32,
+    (epsilon, first, box_read): (f32, usize, BoxRead),
     region: Region,
-    first: usize,
 ) -> ColorImage {
     accumulate_shape_with(
         levels,
         borders,
         aperture,
-        (epsilon, first),
+        (epsilon, first, box_read),
         region,
         RowFns {
             gather: gather_row_inner,
@@ -584,7 +584,7 @@ fn accumulate_shape_with<G, P>(
     levels: &[Level],
     borders: &Borders,
     aperture: &Aperture,
-    (epsilon, first): (f32, usize),
+    (epsilon, first, box_read): (f32, usize, BoxRead),
     region: Region,
     fns: RowFns<G, P>,
 ) -> ColorImage
@@ -709,6 +709,7 @@ where
         first,
         box_levels,
         box_weights: &box_weights,
+        box_read,
         epsilon,
     };
     let mut data = vec![[0.0f32; 4]; width * height];
@@ -941,9 +942,18 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
         first,
         box_levels,
         box_weights,
+        box_read,
         epsilon,
     } = *inputs;
     let mut entries: Vec<(f32, Rgba)> = Vec::new();
+    // Bilinear box reads: per box level coarser than a pixel, the rows of cells the row reads
+    // between, and the runs of the two columns of cells last read (a column's runs are worked
+    // out once per row: the pixels of a cell's span share them).
+    let mut box_cells: Vec<BoxCells> = levels
+        .iter()
+        .take(box_levels)
+        .map(|level| BoxCells::new(level, y, box_read))
+        .collect();
     // The gathered rows each level's pixels read between: the same for the whole row.
     let between_y: Vec<((usize, usize), f32)> = gathered
         .iter()
@@ -955,8 +965,18 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
         .collect();
     for (x, out) in (x0..).zip(row.iter_mut()) {
         entries.clear();
-        // CoCs below the threshold: one cell per level, as the paper.
-        for (level, weights) in levels.iter().take(box_levels).zip(box_weights) {
+        // CoCs below the threshold: one cell per level, as the paper, or the four around the
+        // pixel's centre weighted bilinearly ([`BoxRead`]).
+        for ((level, weights), cells) in levels
+            .iter()
+            .take(box_levels)
+            .zip(box_weights)
+            .zip(&mut box_cells)
+        {
+            if cells.bilinear {
+                cells.read(level, weights, x, epsilon, &mut entries);
+                continue;
+            }
             let (cx, cy) = level.cell_of_pixel(x, y);
             let i = cy * level.width + cx;
             let (a, b) = (level.offsets[i] as usize, level.offsets[i + 1] as usize);
@@ -1010,6 +1030,138 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
         }
         entries.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         *out = composite_sum(&entries, epsilon);
+    }
+}
+
+/// One box level's bilinear reads along a pixel row: the two rows of cells the row lies
+/// between and their weights, and the runs ([`Run`]) of the last two columns of cells read,
+/// unweighted, top then bottom.
+struct BoxCells {
+    bilinear: bool,
+    rows: (usize, usize),
+    fy: f32,
+    /// The last two columns read.
+    columns: [Column; 2],
+}
+
+/// A column of a box level's cells, in the two rows a pixel row reads between: its runs, the
+/// top cell's then the bottom cell's.
+#[derive(Clone)]
+struct Column {
+    cx: usize,
+    runs: Vec<(f32, Rgba)>,
+    /// Where the top cell's runs end.
+    split: usize,
+}
+
+impl Column {
+    const NONE: usize = usize::MAX;
+
+    fn empty() -> Self {
+        Self {
+            cx: Self::NONE,
+            runs: Vec::new(),
+            split: 0,
+        }
+    }
+}
+
+impl BoxCells {
+    fn new(level: &Level, y: usize, read: BoxRead) -> Self {
+        let bilinear = read == BoxRead::Bilinear && level.stride_px > 1.0;
+        let (rows, fy) = if bilinear {
+            level.between(y, level.height, 1)
+        } else {
+            ((0, 0), 0.0)
+        };
+        Self {
+            bilinear,
+            rows,
+            fy,
+            columns: [Column::empty(), Column::empty()],
+        }
+    }
+
+    /// The runs of column `cx` (the cells of both rows), kept in slot `slot`.
+    #[inline(always)]
+    fn column(&mut self, level: &Level, weights: &[f32], cx: usize, slot: usize, epsilon: f32) {
+        if self.columns[slot].cx == cx {
+            return;
+        }
+        // The previous pixel's right column is this one's left; at the level's last column
+        // both are the same.
+        if slot == 0 && self.columns[1].cx == cx {
+            self.columns.swap(0, 1);
+            return;
+        }
+        if slot == 1 && self.columns[0].cx == cx {
+            self.columns[1] = self.columns[0].clone();
+            return;
+        }
+        let (top, bottom) = self.rows;
+        let Column { runs, split, .. } = &mut self.columns[slot];
+        runs.clear();
+        for (k, cy) in [top, bottom].into_iter().enumerate() {
+            let i = cy * level.width + cx;
+            let (a, b) = (level.offsets[i] as usize, level.offsets[i + 1] as usize);
+            let mut run = Run::new();
+            for ((&z, c), &weight) in level.depth[a..b]
+                .iter()
+                .zip(&level.color[a..b])
+                .zip(&weights[a..b])
+            {
+                if weight > 0.0 {
+                    run.add(z, weight, from_half(c), epsilon, runs);
+                }
+            }
+            run.flush(runs);
+            if k == 0 {
+                *split = runs.len();
+            }
+        }
+        self.columns[slot].cx = cx;
+    }
+
+    /// Adds the bilinear read of the cells around pixel `x`'s centre to `entries`: each cell's
+    /// runs times its weight, one surface seen from several cells summed into one entry.
+    #[inline(always)]
+    fn read(
+        &mut self,
+        level: &Level,
+        weights: &[f32],
+        x: usize,
+        epsilon: f32,
+        entries: &mut Vec<(f32, Rgba)>,
+    ) {
+        let ((left, right), fx) = level.between(x, level.width, 1);
+        self.column(level, weights, left, 0, epsilon);
+        self.column(level, weights, right, 1, epsilon);
+        let start = entries.len();
+        let fy = self.fy;
+        for (slot, wx) in [(0, 1.0 - fx), (1, fx)] {
+            let Column { runs, split, .. } = &self.columns[slot];
+            for (part, wy) in [(&runs[..*split], 1.0 - fy), (&runs[*split..], fy)] {
+                let w = wx * wy;
+                if w <= 0.0 {
+                    continue;
+                }
+                for &(z, c) in part {
+                    let p = c.map(|v| v * w);
+                    match entries[start..]
+                        .iter_mut()
+                        .find(|(d, _)| z <= *d + epsilon * d.abs() && *d <= z + epsilon * z.abs())
+                    {
+                        Some((d, q)) => {
+                            *d = d.min(z);
+                            for (qk, pk) in q.iter_mut().zip(p) {
+                                *qk += pk;
+                            }
+                        }
+                        None => entries.push((z, p)),
+                    }
+                }
+            }
+        }
     }
 }
 
