@@ -47,6 +47,10 @@
 //!   +0.06 to +0.08 dB on `railing`, `glass`, `grass`; 1.02 to 1.12 times the time at 1280x720.
 //!   `--ml-bokeh box` is the paper's; `--ml-bokeh full` ([`Bokeh::Full`]) gathers from 2.5 px,
 //!   level 0 at every other pixel (`railing` at 640x360 +2.1 dB, for 16% more time).
+//! - `box_read` (`--ml-box-read`, [`BoxRead::Bilinear`] by default, not in the paper): with the
+//!   shape's bokeh, the box levels coarser than a pixel are read from the four cells around the
+//!   pixel's centre, weighted bilinearly, not from the nearest cell, whose blur came in blocks
+//!   of the level's cells (`railing` at 640x360 +1.0 dB, `grass` +0.8 dB).
 //! - `highlights` (`--highlight-rays`, default on for fragments brighter than white; not in
 //!   the paper): such fragments are scattered on their own with each lens ray's visibility past
 //!   the nearer fragments ([`crate::methods::highlights`]), so a near bar's shadow crosses the

@@ -1012,18 +1012,7 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
                     // One surface seen from the four cells is one entry (the four are side
                     // by side: summed, as `composite_sum` would), so the sort stays short.
                     for (&z, c) in g.depth[a..e].iter().zip(&g.color[a..e]) {
-                        let p = c.map(|v| v * w);
-                        match entries[start..].iter_mut().find(|(d, _)| {
-                            z <= *d + epsilon * d.abs() && *d <= z + epsilon * z.abs()
-                        }) {
-                            Some((d, q)) => {
-                                *d = d.min(z);
-                                for (qk, pk) in q.iter_mut().zip(p) {
-                                    *qk += pk;
-                                }
-                            }
-                            None => entries.push((z, p)),
-                        }
+                        add_side_by_side(&mut entries, start, z, c.map(|v| v * w), epsilon);
                     }
                 }
             }
@@ -1146,22 +1135,30 @@ impl BoxCells {
                     continue;
                 }
                 for &(z, c) in part {
-                    let p = c.map(|v| v * w);
-                    match entries[start..]
-                        .iter_mut()
-                        .find(|(d, _)| z <= *d + epsilon * d.abs() && *d <= z + epsilon * z.abs())
-                    {
-                        Some((d, q)) => {
-                            *d = d.min(z);
-                            for (qk, pk) in q.iter_mut().zip(p) {
-                                *qk += pk;
-                            }
-                        }
-                        None => entries.push((z, p)),
-                    }
+                    add_side_by_side(entries, start, z, c.map(|v| v * w), epsilon);
                 }
             }
         }
+    }
+}
+
+/// Adds a surface at `z` with weighted colour `p`, read from one of several neighbouring
+/// cells, to the entries from `start` on: summed into the entry of the same surface (within
+/// the depth threshold either way, the nearer depth kept), as `composite_sum` would sum cells
+/// side by side, so the sort stays short; else a new entry.
+#[inline(always)]
+fn add_side_by_side(entries: &mut Vec<(f32, Rgba)>, start: usize, z: f32, p: Rgba, epsilon: f32) {
+    match entries[start..]
+        .iter_mut()
+        .find(|(d, _)| z <= *d + epsilon * d.abs() && *d <= z + epsilon * z.abs())
+    {
+        Some((d, q)) => {
+            *d = d.min(z);
+            for (qk, pk) in q.iter_mut().zip(p) {
+                *qk += pk;
+            }
+        }
+        None => entries.push((z, p)),
     }
 }
 
