@@ -88,6 +88,52 @@ pub fn add_screen_rect(
     scene.meshes.push(mesh);
 }
 
+/// A 96x64 frame (50 mm, f/1, focus 2 m) of a grey board in focus filling it, an opaque
+/// orange square `square` (pixels) 2.8 px of CoC in front of it, and, with `wall_coc`, a dark
+/// wall filling the frame behind the board at that CoC; with `reference` at 512 lens samples
+/// of it.
+pub fn square_before_board(
+    square: (f32, f32, f32, f32),
+    wall_coc: Option<f32>,
+) -> (
+    defocus::scene::Scene,
+    defocus::lens::Camera,
+    defocus::image::ColorImage,
+) {
+    use defocus::scene::Material;
+    let camera = test_camera(96, 64, 2.0, 1.0);
+    let lens = camera.thin_lens().unwrap();
+    let mut scene = defocus::scene::Scene::default();
+    let (w, h) = (camera.width_px as f32, camera.height_px as f32);
+    let whole = (-w, -h, 2.0 * w, 2.0 * h);
+    let board = scene.add_material(Material::color("board", [0.8, 0.8, 0.8]));
+    if let Some(c) = wall_coc {
+        let wall = scene.add_material(Material::color("wall", [0.02, 0.02, 0.05]));
+        add_screen_rect(&mut scene, &camera, whole, lens.depth_for_coc_px(c), wall);
+    }
+    let orange = scene.add_material(Material::color("square", [0.9, 0.3, 0.1]));
+    add_screen_rect(&mut scene, &camera, whole, camera.focus_m, board);
+    add_screen_rect(
+        &mut scene,
+        &camera,
+        square,
+        lens.depth_for_coc_px(-2.8),
+        orange,
+    );
+    let truth = defocus::methods::reference::render(
+        &scene,
+        &camera,
+        &defocus::methods::reference::ReferenceSettings {
+            samples: 512,
+            ..Default::default()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap()
+    .image;
+    (scene, camera, truth)
+}
+
 /// A long-lens camera (150 mm, f/1.4, focus 1 m) on a `size`x`size` image and a small very
 /// bright square (2x2 px, emission 1000) at `z_m` on its centre: a point light whose bokeh is
 /// tens of pixels wide. Returns the scene, the camera and the light's signed CoC in pixels.

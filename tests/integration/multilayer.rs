@@ -714,26 +714,7 @@ fn filter_and_accumulate_are_bit_identical_to_their_baseline_builds() {
 /// paper's, `--ml-box-read nearest`), the edge came in steps of two equal pixels.
 #[test]
 fn box_levels_read_bilinearly_draw_no_blocks() {
-    let camera = test_camera(96, 64, 2.0, 1.0);
-    let lens = camera.thin_lens().unwrap();
-    let mut scene = Scene::default();
-    let (w, h) = (camera.width_px as f32, camera.height_px as f32);
-    let board = scene.add_material(Material::color("board", [0.8, 0.8, 0.8]));
-    let square = scene.add_material(Material::color("square", [0.9, 0.3, 0.1]));
-    add_screen_rect(&mut scene, &camera, (-w, -h, 2.0 * w, 2.0 * h), 2.0, board);
-    let near = lens.depth_for_coc_px(-2.8);
-    add_screen_rect(&mut scene, &camera, (40.0, 16.0, 56.0, 48.0), near, square);
-    let truth = reference::render(
-        &scene,
-        &camera,
-        &ReferenceSettings {
-            samples: 512,
-            ..ReferenceSettings::default()
-        },
-        &mut |_, _| {},
-    )
-    .unwrap()
-    .image;
+    let (scene, camera, truth) = crate::square_before_board((40.0, 16.0, 56.0, 48.0), None);
     let run = |box_read| {
         let s = MultilayerSettings {
             box_read,

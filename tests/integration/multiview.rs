@@ -439,31 +439,9 @@ fn almost_a_pinhole_multiview_gives_the_pinhole_frame() {
 /// such rays saw the wall, and the square came out dark-rimmed: `--no-see-behind` keeps that.
 #[test]
 fn a_ray_passing_behind_a_surface_of_its_layer_sees_what_it_hides() {
-    let camera = test_camera(96, 64, 2.0, 1.0);
-    let lens = camera.thin_lens().unwrap();
-    let mut scene = Scene::default();
-    let (w, h) = (camera.width_px as f32, camera.height_px as f32);
-    let whole = (-w, -h, 2.0 * w, 2.0 * h);
-    let board = scene.add_material(Material::color("board", [0.8, 0.8, 0.8]));
-    let wall = scene.add_material(Material::color("wall", [0.02, 0.02, 0.05]));
-    let square = scene.add_material(Material::color("square", [0.9, 0.3, 0.1]));
-    add_screen_rect(&mut scene, &camera, whole, lens.depth_for_coc_px(1.5), wall);
-    add_screen_rect(&mut scene, &camera, whole, camera.focus_m, board);
-    let near = lens.depth_for_coc_px(-2.8);
-    add_screen_rect(&mut scene, &camera, (40.0, 24.0, 56.0, 40.0), near, square);
     // Layers from the square's CoC, 4 px deep: the square and the board in the first, the
     // wall (1.5 px) in the second.
-    let truth = reference::render(
-        &scene,
-        &camera,
-        &ReferenceSettings {
-            samples: 512,
-            ..ReferenceSettings::default()
-        },
-        &mut |_, _| {},
-    )
-    .unwrap()
-    .image;
+    let (scene, camera, truth) = crate::square_before_board((40.0, 24.0, 56.0, 40.0), Some(1.5));
     let run = |see_behind: bool| {
         let settings = MultiviewSettings {
             see_behind,

@@ -978,19 +978,7 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
                 continue;
             }
             let (cx, cy) = level.cell_of_pixel(x, y);
-            let i = cy * level.width + cx;
-            let (a, b) = (level.offsets[i] as usize, level.offsets[i + 1] as usize);
-            let mut run = Run::new();
-            for ((&z, c), &weight) in level.depth[a..b]
-                .iter()
-                .zip(&level.color[a..b])
-                .zip(&weights[a..b])
-            {
-                if weight > 0.0 {
-                    run.add(z, weight, from_half(c), epsilon, &mut entries);
-                }
-            }
-            run.flush(&mut entries);
+            cell_runs(level, weights, cy * level.width + cx, epsilon, &mut entries);
         }
         // Larger CoCs: the gathers of the four cells around the pixel's centre on their
         // level, weighted bilinearly (a cell's gather is exact at its centre; the pixel reads
@@ -1020,6 +1008,24 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
         entries.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         *out = composite_sum(&entries, epsilon);
     }
+}
+
+/// The runs ([`Run`]) of box level cell `i`'s fragments, each at its weight there (those of
+/// weight 0 left out), appended to `out`.
+#[inline(always)]
+fn cell_runs(level: &Level, weights: &[f32], i: usize, epsilon: f32, out: &mut Vec<(f32, Rgba)>) {
+    let (a, b) = (level.offsets[i] as usize, level.offsets[i + 1] as usize);
+    let mut run = Run::new();
+    for ((&z, c), &weight) in level.depth[a..b]
+        .iter()
+        .zip(&level.color[a..b])
+        .zip(&weights[a..b])
+    {
+        if weight > 0.0 {
+            run.add(z, weight, from_half(c), epsilon, out);
+        }
+    }
+    run.flush(out);
 }
 
 /// One box level's bilinear reads along a pixel row: the two rows of cells the row lies
@@ -1091,19 +1097,7 @@ impl BoxCells {
         let Column { runs, split, .. } = &mut self.columns[slot];
         runs.clear();
         for (k, cy) in [top, bottom].into_iter().enumerate() {
-            let i = cy * level.width + cx;
-            let (a, b) = (level.offsets[i] as usize, level.offsets[i + 1] as usize);
-            let mut run = Run::new();
-            for ((&z, c), &weight) in level.depth[a..b]
-                .iter()
-                .zip(&level.color[a..b])
-                .zip(&weights[a..b])
-            {
-                if weight > 0.0 {
-                    run.add(z, weight, from_half(c), epsilon, runs);
-                }
-            }
-            run.flush(runs);
+            cell_runs(level, weights, cy * level.width + cx, epsilon, runs);
             if k == 0 {
                 *split = runs.len();
             }

@@ -2232,6 +2232,37 @@ mod tests {
         assert!(checked > 5000, "only {checked} brackets checked");
     }
 
+    /// A packet's worth of random rays for layer 0 of `layers`: each a random direction and a
+    /// speed in `speed`, with its steps and CoC step there as [`RayTable`] works them out.
+    struct RandomLanes {
+        vx: [f32; LANES],
+        vy: [f32; LANES],
+        dc: [f32; LANES],
+        steps: [usize; LANES],
+        stepsf: [f32; LANES],
+    }
+
+    impl RandomLanes {
+        fn new(rng: &mut SplitMix64, layers: &DepthLayers, speed: (f32, f32)) -> Self {
+            let (ca, cb) = layers.spacing.bounds(0);
+            let mut out = Self {
+                vx: [0.0; LANES],
+                vy: [0.0; LANES],
+                dc: [0.0; LANES],
+                steps: [0; LANES],
+                stepsf: [0.0; LANES],
+            };
+            for j in 0..LANES {
+                let a = rng.range(0.0, std::f32::consts::TAU);
+                let v = Vec2::new(a.cos(), a.sin()) * rng.range(speed.0, speed.1);
+                (out.vx[j], out.vy[j]) = (v.x, v.y);
+                let n = ((cb - ca) * v.length()).ceil().max(1.0) as usize;
+                (out.steps[j], out.stepsf[j], out.dc[j]) = (n, n as f32, (cb - ca) / n as f32);
+            }
+            out
+        }
+    }
+
     #[test]
     fn a_crossing_over_a_samples_pixel_between_two_samples_is_found() {
         // Random height fields in the layer's range and random rays in front of the surface at
@@ -2255,20 +2286,15 @@ mod tests {
                 }
             });
             let spacing = layers.spacing;
-            let (ca, cb) = spacing.bounds(0);
+            let (ca, _) = spacing.bounds(0);
             let p = Vec2::new(20.5, 20.5);
-            let mut vx = [0.0f32; LANES];
-            let mut vy = [0.0f32; LANES];
-            let mut dc = [0.0f32; LANES];
-            let mut steps = [0usize; LANES];
-            let mut stepsf = [0.0f32; LANES];
-            for j in 0..LANES {
-                let a = rng.range(0.0, std::f32::consts::TAU);
-                let v = Vec2::new(a.cos(), a.sin()) * rng.range(0.3, 1.0);
-                (vx[j], vy[j]) = (v.x, v.y);
-                let n = ((cb - ca) * v.length()).ceil().max(1.0) as usize;
-                (steps[j], stepsf[j], dc[j]) = (n, n as f32, (cb - ca) / n as f32);
-            }
+            let RandomLanes {
+                vx,
+                vy,
+                dc,
+                steps,
+                stepsf,
+            } = RandomLanes::new(&mut rng, &layers, (0.3, 1.0));
             let live = (1u32 << LANES) - 1;
             let seg = Segment {
                 layers: &layers,
@@ -2366,19 +2392,14 @@ mod tests {
                     levels[rng.below(4)] + 0.01 * rng.below(3) as f32
                 }
             });
-            let (ca, cb) = layers.spacing.bounds(0);
-            let mut vx = [0.0f32; LANES];
-            let mut vy = [0.0f32; LANES];
-            let mut dc = [0.0f32; LANES];
-            let mut steps = [0usize; LANES];
-            let mut stepsf = [0.0f32; LANES];
-            for j in 0..LANES {
-                let a = rng.range(0.0, std::f32::consts::TAU);
-                let v = Vec2::new(a.cos(), a.sin()) * rng.range(0.0, 1.0);
-                (vx[j], vy[j]) = (v.x, v.y);
-                let n = ((cb - ca) * v.length()).ceil().max(1.0) as usize;
-                (steps[j], stepsf[j], dc[j]) = (n, n as f32, (cb - ca) / n as f32);
-            }
+            let (ca, _) = layers.spacing.bounds(0);
+            let RandomLanes {
+                vx,
+                vy,
+                dc,
+                steps,
+                stepsf,
+            } = RandomLanes::new(&mut rng, &layers, (0.0, 1.0));
             let live = rng.next_u64() as u32 & ((1 << LANES) - 1);
             let most = (0..LANES)
                 .filter(|&j| lane(live, j))
