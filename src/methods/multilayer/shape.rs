@@ -946,64 +946,68 @@ fn shape_row_inner(inputs: &RowInputs, x0: usize, y: usize, row: &mut [Rgba]) {
         epsilon,
     } = *inputs;
     let mut entries: Vec<(f32, Rgba)> = Vec::new();
-    // Bilinear box reads: per box level coarser than a pixel, the rows of cells the row reads
-    // between, and the runs of the two columns of cells last read (a column's runs are worked
-    // out once per row: the pixels of a cell's span share them).
-    let mut box_cells: Vec<BoxCells> = levels
+    // Bilinear box reads: per box level coarser than a pixel, its reads along the row ([`None`]:
+    // the nearest cell).
+    let mut box_between: Vec<Option<Between>> = levels
         .iter()
         .take(box_levels)
-        .map(|level| BoxCells::new(level, y, box_read))
+        .map(|level| {
+            (box_read == BoxRead::Bilinear && level.stride_px > 1.0)
+                .then(|| Between::new(level, &level.offsets, y, 1))
+        })
         .collect();
-    // The gathered rows each level's pixels read between: the same for the whole row.
-    let between_y: Vec<((usize, usize), f32)> = gathered
+    // The gathered levels' reads along the row.
+    let mut gathered_between: Vec<Option<Between>> = gathered
         .iter()
         .zip(&levels[first..])
         .map(|(g, level)| {
             g.as_ref()
-                .map_or(((0, 0), 0.0), |g| level.between(y, level.height, g.step))
+                .map(|g| Between::new(level, &g.offsets, y, g.step))
         })
         .collect();
     for (x, out) in (x0..).zip(row.iter_mut()) {
         entries.clear();
         // CoCs below the threshold: one cell per level, as the paper, or the four around the
         // pixel's centre weighted bilinearly ([`BoxRead`]).
-        for ((level, weights), cells) in levels
+        for ((level, weights), between) in levels
             .iter()
             .take(box_levels)
             .zip(box_weights)
-            .zip(&mut box_cells)
+            .zip(&mut box_between)
         {
-            if cells.bilinear {
-                cells.read(level, weights, x, epsilon, &mut entries);
-                continue;
+            let cell = |i: usize, out: &mut Vec<(f32, Rgba)>| {
+                cell_runs(level, weights, i, epsilon, out);
+            };
+            match between {
+                Some(between) => between.read(level, x, epsilon, &mut entries, cell),
+                None => {
+                    let (cx, cy) = level.cell_of_pixel(x, y);
+                    cell(cy * level.width + cx, &mut entries);
+                }
             }
-            let (cx, cy) = level.cell_of_pixel(x, y);
-            cell_runs(level, weights, cy * level.width + cx, epsilon, &mut entries);
         }
         // Larger CoCs: the gathers of the four cells around the pixel's centre on their
         // level, weighted bilinearly (a cell's gather is exact at its centre; the pixel reads
         // between them rather than taking the nearest, which would draw the bokeh's corners on
         // the level's grid of cells).
-        for ((g, level), &((y0c, y1c), fy)) in gathered.iter().zip(&levels[first..]).zip(&between_y)
+        for ((g, level), between) in gathered
+            .iter()
+            .zip(&levels[first..])
+            .zip(&mut gathered_between)
         {
-            let Some(g) = g else { continue };
-            let ((x0c, x1c), fx) = level.between(x, level.width, g.step);
-            let start = entries.len();
-            for (cy, wy) in [(y0c, 1.0 - fy), (y1c, fy)] {
-                for (cx, wx) in [(x0c, 1.0 - fx), (x1c, fx)] {
-                    let w = wx * wy;
-                    if w <= 0.0 {
-                        continue;
-                    }
-                    let i = cy * level.width + cx;
-                    let (a, e) = (g.offsets[i] as usize, g.offsets[i + 1] as usize);
-                    // One surface seen from the four cells is one entry (the four are side
-                    // by side: summed, as `composite_sum` would), so the sort stays short.
-                    for (&z, c) in g.depth[a..e].iter().zip(&g.color[a..e]) {
-                        add_side_by_side(&mut entries, start, z, c.map(|v| v * w), epsilon);
-                    }
-                }
-            }
+            let (Some(g), Some(between)) = (g, between) else {
+                continue;
+            };
+            let cell = |i: usize, out: &mut Vec<(f32, Rgba)>| {
+                let (a, e) = (g.offsets[i] as usize, g.offsets[i + 1] as usize);
+                out.extend(
+                    g.depth[a..e]
+                        .iter()
+                        .copied()
+                        .zip(g.color[a..e].iter().copied()),
+                );
+            };
+            between.read(level, x, epsilon, &mut entries, cell);
         }
         entries.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         *out = composite_sum(&entries, epsilon);
@@ -1028,25 +1032,28 @@ fn cell_runs(level: &Level, weights: &[f32], i: usize, epsilon: f32, out: &mut V
     run.flush(out);
 }
 
-/// One box level's bilinear reads along a pixel row: the two rows of cells the row lies
-/// between and their weights, and the runs ([`Run`]) of the last two columns of cells read,
-/// unweighted, top then bottom.
-struct BoxCells {
-    bilinear: bool,
+/// One level's bilinear reads along a pixel row, between the cells whose index is a multiple
+/// of `step`: the two rows of cells the row lies between and the second's weight, and the last
+/// two columns of cells read, each with its two cells' entries already blended between the
+/// rows. A column is blended once per row: every pixel between it and the next reads it.
+struct Between {
+    step: usize,
     rows: (usize, usize),
     fy: f32,
+    /// Neither row has an entry: the read adds nothing.
+    empty: bool,
     /// The last two columns read.
     columns: [Column; 2],
+    /// One cell's entries before they are weighted (reused).
+    cell: Vec<(f32, Rgba)>,
 }
 
-/// A column of a box level's cells, in the two rows a pixel row reads between: its runs, the
-/// top cell's then the bottom cell's.
+/// A column of a level's cells, in the two rows a pixel row reads between: their entries,
+/// weighted by row and summed side by side ([`add_side_by_side`]).
 #[derive(Clone)]
 struct Column {
     cx: usize,
-    runs: Vec<(f32, Rgba)>,
-    /// Where the top cell's runs end.
-    split: usize,
+    entries: Vec<(f32, Rgba)>,
 }
 
 impl Column {
@@ -1055,31 +1062,34 @@ impl Column {
     fn empty() -> Self {
         Self {
             cx: Self::NONE,
-            runs: Vec::new(),
-            split: 0,
+            entries: Vec::new(),
         }
     }
 }
 
-impl BoxCells {
-    fn new(level: &Level, y: usize, read: BoxRead) -> Self {
-        let bilinear = read == BoxRead::Bilinear && level.stride_px > 1.0;
-        let (rows, fy) = if bilinear {
-            level.between(y, level.height, 1)
-        } else {
-            ((0, 0), 0.0)
-        };
+impl Between {
+    /// The reads along pixel row `y` of a level of `offsets` (per cell, where its entries
+    /// start, as [`Level::offsets`]).
+    fn new(level: &Level, offsets: &[u32], y: usize, step: usize) -> Self {
+        let (rows, fy) = level.between(y, level.height, step);
+        let row_empty = |cy: usize| offsets[cy * level.width] == offsets[(cy + 1) * level.width];
         Self {
-            bilinear,
+            step,
             rows,
             fy,
+            empty: row_empty(rows.0) && row_empty(rows.1),
             columns: [Column::empty(), Column::empty()],
+            cell: Vec::new(),
         }
     }
 
-    /// The runs of column `cx` (the cells of both rows), kept in slot `slot`.
+    /// Column `cx` blended between the two rows, kept in slot `slot`; `cell(i, out)` appends
+    /// cell `i`'s entries.
     #[inline(always)]
-    fn column(&mut self, level: &Level, weights: &[f32], cx: usize, slot: usize, epsilon: f32) {
+    fn column<F>(&mut self, width: usize, cx: usize, slot: usize, epsilon: f32, cell: &F)
+    where
+        F: Fn(usize, &mut Vec<(f32, Rgba)>),
+    {
         if self.columns[slot].cx == cx {
             return;
         }
@@ -1094,43 +1104,47 @@ impl BoxCells {
             return;
         }
         let (top, bottom) = self.rows;
-        let Column { runs, split, .. } = &mut self.columns[slot];
-        runs.clear();
-        for (k, cy) in [top, bottom].into_iter().enumerate() {
-            cell_runs(level, weights, cy * level.width + cx, epsilon, runs);
-            if k == 0 {
-                *split = runs.len();
+        let Column { entries, .. } = &mut self.columns[slot];
+        entries.clear();
+        for (cy, wy) in [(top, 1.0 - self.fy), (bottom, self.fy)] {
+            if wy <= 0.0 {
+                continue;
+            }
+            self.cell.clear();
+            cell(cy * width + cx, &mut self.cell);
+            for &(z, c) in &self.cell {
+                add_side_by_side(entries, 0, z, c.map(|v| v * wy), epsilon);
             }
         }
         self.columns[slot].cx = cx;
     }
 
-    /// Adds the bilinear read of the cells around pixel `x`'s centre to `entries`: each cell's
-    /// runs times its weight, one surface seen from several cells summed into one entry.
+    /// Adds the bilinear read of the cells around pixel `x`'s centre to `entries`: the two
+    /// columns' entries times their weights, one surface seen from both summed into one entry.
     #[inline(always)]
-    fn read(
+    fn read<F>(
         &mut self,
         level: &Level,
-        weights: &[f32],
         x: usize,
         epsilon: f32,
         entries: &mut Vec<(f32, Rgba)>,
-    ) {
-        let ((left, right), fx) = level.between(x, level.width, 1);
-        self.column(level, weights, left, 0, epsilon);
-        self.column(level, weights, right, 1, epsilon);
+        cell: F,
+    ) where
+        F: Fn(usize, &mut Vec<(f32, Rgba)>),
+    {
+        if self.empty {
+            return;
+        }
+        let ((left, right), fx) = level.between(x, level.width, self.step);
+        self.column(level.width, left, 0, epsilon, &cell);
+        self.column(level.width, right, 1, epsilon, &cell);
         let start = entries.len();
-        let fy = self.fy;
         for (slot, wx) in [(0, 1.0 - fx), (1, fx)] {
-            let Column { runs, split, .. } = &self.columns[slot];
-            for (part, wy) in [(&runs[..*split], 1.0 - fy), (&runs[*split..], fy)] {
-                let w = wx * wy;
-                if w <= 0.0 {
-                    continue;
-                }
-                for &(z, c) in part {
-                    add_side_by_side(entries, start, z, c.map(|v| v * w), epsilon);
-                }
+            if wx <= 0.0 {
+                continue;
+            }
+            for &(z, c) in &self.columns[slot].entries {
+                add_side_by_side(entries, start, z, c.map(|v| v * wx), epsilon);
             }
         }
     }
