@@ -206,12 +206,8 @@ fn add_tile_clipped(
 
 /// `sum += tile`, pixel by pixel: the accumulation of `reference`'s views. Compiled for several
 /// instruction sets and chosen at run time ([`multiversion`]); additions only, so the same bits
-/// in every version.
-#[multiversion::multiversion(targets(
-    "x86_64+avx512f+avx512vl+avx2",
-    "x86_64+avx2",
-    "aarch64+neon"
-))]
+/// in every version. No AVX-512 version (README, "Without AVX-512 where it was slower").
+#[multiversion::multiversion(targets("x86_64+avx2", "aarch64+neon"))]
 pub(crate) fn add_tile(sum: &mut [Rgba], tile: &[Rgba]) {
     add_tile_baseline(sum, tile);
 }
