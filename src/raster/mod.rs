@@ -62,6 +62,64 @@ pub(crate) fn filled_in_parallel<T: Copy + Send + Sync>(value: T, n: usize) -> V
     v
 }
 
+/// Elements copied in parallel into a vector of their own (a serial copy of
+/// `multilayer`'s levels was a stretch of its filter pass that one core ran alone).
+pub(crate) fn par_copy<T: Copy + Default + Send + Sync>(src: &[T]) -> Vec<T> {
+    /// Elements a task copies.
+    const CHUNK: usize = 1 << 16;
+    let mut out = filled_in_parallel(T::default(), src.len());
+    out.par_chunks_mut(CHUNK)
+        .zip(src.par_chunks(CHUNK))
+        .for_each(|(d, s)| d.copy_from_slice(s));
+    out
+}
+
+/// The rows `parts` one after another, copied in parallel (see [`par_copy`]).
+pub(crate) fn par_concat<T: Copy + Default + Send + Sync>(parts: &[&[T]]) -> Vec<T> {
+    let total = parts.iter().map(|p| p.len()).sum();
+    let mut out = filled_in_parallel(T::default(), total);
+    split_as(&mut out, parts)
+        .into_par_iter()
+        .zip(parts.par_iter())
+        .for_each(|(d, s)| d.copy_from_slice(s));
+    out
+}
+
+/// `out` cut into consecutive slices as long as `parts`, one each.
+fn split_as<'a, T, U>(mut out: &'a mut [T], parts: &[&[U]]) -> Vec<&'a mut [T]> {
+    let mut slices = Vec::with_capacity(parts.len());
+    for p in parts {
+        let (head, tail) = std::mem::take(&mut out).split_at_mut(p.len());
+        slices.push(head);
+        out = tail;
+    }
+    slices
+}
+
+/// The offsets (prefix sums from 0, one more than the cells) of cells whose fragment counts
+/// are `rows`, row after row, worked out in parallel.
+pub(crate) fn par_offsets(rows: &[&[u32]]) -> Vec<u32> {
+    let mut bases = Vec::with_capacity(rows.len());
+    let mut total = 0u32;
+    for r in rows {
+        bases.push(total);
+        total += r.iter().sum::<u32>();
+    }
+    let cells: usize = rows.iter().map(|r| r.len()).sum();
+    let mut out = vec![0u32; cells + 1];
+    split_as(&mut out[1..], rows)
+        .into_par_iter()
+        .zip(rows.par_iter().zip(bases.par_iter()))
+        .for_each(|(out, (counts, &base))| {
+            let mut at = base;
+            for (o, &n) in out.iter_mut().zip(counts.iter()) {
+                at += n;
+                *o = at;
+            }
+        });
+    out
+}
+
 /// The [`TILE`]-pixel tiles of a `width x height` image, row-major (the last column and row
 /// of tiles cut at the image's edges): the order in which the rasterizer hands them to a
 /// [`Sink`].
@@ -719,4 +777,44 @@ pub fn render_gbuffer(prepared: &PreparedScene, view: &View) -> GBuffer {
     let mut g = GBuffer::new(view.lens.width_px, view.lens.height_px);
     binned.rasterize(prepared, &mut g);
     g
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::random::SplitMix64;
+
+    /// Rows of random lengths (some empty, some longer than a copy task's chunk) and values.
+    fn random_rows(seed: u64) -> Vec<Vec<u32>> {
+        let mut rng = SplitMix64::new(seed);
+        (0..40)
+            .map(|_| {
+                let len = match rng.next_u64() % 4 {
+                    0 => 0,
+                    1 => (rng.next_u64() % 8) as usize,
+                    2 => (rng.next_u64() % 1000) as usize,
+                    _ => 60_000 + (rng.next_u64() % 20_000) as usize,
+                };
+                (0..len).map(|_| (rng.next_u64() % 5) as u32).collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn parallel_copies_and_prefix_sums_are_the_serial_ones() {
+        for seed in 0..3 {
+            let rows = random_rows(seed);
+            let parts: Vec<&[u32]> = rows.iter().map(|r| &r[..]).collect();
+            let serial: Vec<u32> = rows.iter().flatten().copied().collect();
+            assert_eq!(par_concat(&parts), serial);
+            assert_eq!(par_copy(&serial), serial);
+            let mut sums = vec![0u32];
+            for &n in &serial {
+                sums.push(sums.last().unwrap() + n);
+            }
+            assert_eq!(par_offsets(&parts), sums);
+        }
+        assert!(par_concat::<u32>(&[]).is_empty());
+        assert_eq!(par_offsets(&[]), vec![0]);
+    }
 }

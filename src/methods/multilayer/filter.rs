@@ -25,7 +25,9 @@
 
 use rayon::prelude::*;
 
-use crate::raster::{from_half, to_half, FragmentLists, HalfRgba};
+use crate::raster::{
+    from_half, par_concat, par_copy, par_offsets, to_half, FragmentLists, HalfRgba,
+};
 
 /// Largest number of fragments kept in one list of a filtered level (the farthest are dropped
 /// beyond it; merging keeps lists far shorter in practice).
@@ -67,9 +69,9 @@ impl Level {
             footprint_px: 1.0,
             stride_px: 1.0,
             origin_px: 0.5,
-            offsets: lists.offsets().to_vec(),
-            depth: lists.depths().to_vec(),
-            color: lists.colors().to_vec(),
+            offsets: par_copy(lists.offsets()),
+            depth: par_copy(lists.depths()),
+            color: par_copy(lists.colors()),
             centroid: Vec::new(),
         }
     }
@@ -364,31 +366,16 @@ fn step_with(
         .into_par_iter()
         .map(|y| row_fn(&inputs, y))
         .collect();
-    let mut offsets = Vec::with_capacity(nw * nh + 1);
-    offsets.push(0u32);
-    let total: usize = rows.iter().map(|r| r.1.len()).sum();
-    let mut depth = Vec::with_capacity(total);
-    let mut color = Vec::with_capacity(total);
-    let mut centroid = Vec::with_capacity(if centroids { total } else { 0 });
-    for (counts, d, c, m) in rows {
-        for n in counts {
-            let last = *offsets.last().unwrap_or(&0);
-            offsets.push(last + n);
-        }
-        depth.extend_from_slice(&d);
-        color.extend_from_slice(&c);
-        centroid.extend_from_slice(&m);
-    }
     Level {
         width: nw,
         height: nh,
         footprint_px: level.footprint_px * 2.0,
         stride_px: stride,
         origin_px: origin,
-        offsets,
-        depth,
-        color,
-        centroid,
+        offsets: par_offsets(&rows.iter().map(|r| &r.0[..]).collect::<Vec<_>>()),
+        depth: par_concat(&rows.iter().map(|r| &r.1[..]).collect::<Vec<_>>()),
+        color: par_concat(&rows.iter().map(|r| &r.2[..]).collect::<Vec<_>>()),
+        centroid: par_concat(&rows.iter().map(|r| &r.3[..]).collect::<Vec<_>>()),
     }
 }
 

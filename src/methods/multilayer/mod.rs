@@ -64,6 +64,8 @@ pub mod accumulate;
 pub mod filter;
 pub mod shape;
 
+use rayon::prelude::*;
+
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, ThinLens};
 use crate::raster::{
@@ -497,10 +499,10 @@ fn filter_with(
     base.footprint_px = 1.0;
     let max_d = lists
         .depths()
-        .iter()
+        .par_iter()
         .map(|&z| 2.0 * borders.lens.coc_px(z).abs())
         .filter(|d| d.is_finite())
-        .fold(0.0f32, f32::max);
+        .reduce(|| 0.0f32, f32::max);
     let (mip, stack) = steps_for(settings, max_d);
     let mut levels = vec![base];
     let mut total = peak.max(levels[0].bytes());

@@ -45,7 +45,7 @@ use super::filter::Level;
 use super::{Borders, BoxRead};
 use crate::image::{ColorImage, Rgba};
 use crate::lens::Aperture;
-use crate::raster::from_half;
+use crate::raster::{from_half, par_concat, par_offsets};
 
 /// `rho`: the smallest CoC radius, in cells of its level's box, that a level gathers in the
 /// aperture's shape; level S serves radii from `rho 2^S` to `rho 2^(S+1)` pixels. Measured on
@@ -330,7 +330,7 @@ struct Reach {
 
 /// One fragment of a level's band: what the gather reads of it, side by side (one cache line
 /// holds it, where separate arrays took one line each).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 struct BandFragment {
     /// CoC radius in cells, and the normalisation of the gather grid at that radius: worked
     /// out once per fragment, not once per cell that reads it.
@@ -385,16 +385,10 @@ impl BandLevel {
                 (counts, b)
             })
             .collect();
-        let mut out = BandLevel::default();
-        out.offsets.push(0);
-        for (counts, b) in rows {
-            for k in counts {
-                let last = *out.offsets.last().unwrap_or(&0);
-                out.offsets.push(last + k);
-            }
-            out.fragments.extend_from_slice(&b);
+        BandLevel {
+            offsets: par_offsets(&rows.iter().map(|r| &r.0[..]).collect::<Vec<_>>()),
+            fragments: par_concat(&rows.iter().map(|r| &r.1[..]).collect::<Vec<_>>()),
         }
-        out
     }
 }
 
@@ -663,20 +657,12 @@ where
                     }
                 })
                 .collect();
-            let mut g = Gathered {
+            Some(Gathered {
+                offsets: par_offsets(&rows.iter().map(|r| &r.0[..]).collect::<Vec<_>>()),
+                depth: par_concat(&rows.iter().map(|r| &r.1[..]).collect::<Vec<_>>()),
+                color: par_concat(&rows.iter().map(|r| &r.2[..]).collect::<Vec<_>>()),
                 step,
-                ..Gathered::default()
-            };
-            g.offsets.push(0);
-            for (counts, d, c) in rows {
-                for k in counts {
-                    let last = *g.offsets.last().unwrap_or(&0);
-                    g.offsets.push(last + k);
-                }
-                g.depth.extend_from_slice(&d);
-                g.color.extend_from_slice(&c);
-            }
-            Some(g)
+            })
         })
         .collect();
     // Worked out only for the rows of cells the region reads (the guard band's rows above and
