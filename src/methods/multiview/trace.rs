@@ -504,6 +504,15 @@ fn trace_row_inner(
     }
 }
 
+/// The steps a ray of `speed` (pixels per pixel of CoC) takes through a layer of CoCs `(ca, cb)`,
+/// about one pixel of travel each, and the CoC step: the one formula of [`layer`], the
+/// [`RayTable`] and the packets, which must agree bit for bit.
+#[inline(always)]
+fn layer_steps((ca, cb): (f32, f32), speed: f32) -> (usize, f32) {
+    let n = ((cb - ca) * speed).ceil().max(1.0) as usize;
+    (n, (cb - ca) / n as f32)
+}
+
 /// Traces one lens ray through `v` landing on pixel centre `p`.
 #[inline(always)]
 fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
@@ -553,9 +562,8 @@ impl RayTable {
                 let sp = v.length();
                 speed[s * rays + r] = sp;
                 for l in 0..layers {
-                    let (ca, cb) = spacing.bounds(l);
-                    let n = ((cb - ca) * sp).ceil().max(1.0) as usize;
-                    steps[(s * layers + l) * rays + r] = (n as u32, (cb - ca) / n as f32);
+                    let (n, dc) = layer_steps(spacing.bounds(l), sp);
+                    steps[(s * layers + l) * rays + r] = (n as u32, dc);
                 }
             }
         }
@@ -1387,8 +1395,7 @@ fn layer(input: &TraceInput, l: usize, p: Vec2, v: Vec2, speed: f32, state: &mut
     let layers = input.layers;
     let spacing = &layers.spacing;
     let (ca, cb) = spacing.bounds(l);
-    let steps = ((cb - ca) * speed).ceil().max(1.0) as usize;
-    let dc = (cb - ca) / steps as f32;
+    let (steps, dc) = layer_steps((ca, cb), speed);
     // The ray was in front of the surface under it at the previous sample; a crossing from
     // there to behind it brackets a hit. It enters the layer in front of everything the
     // layer holds: the overlap margin before its front bound.
@@ -2254,8 +2261,8 @@ mod tests {
                 let a = rng.range(0.0, std::f32::consts::TAU);
                 let v = Vec2::new(a.cos(), a.sin()) * rng.range(speed.0, speed.1);
                 (out.vx[j], out.vy[j]) = (v.x, v.y);
-                let n = ((cb - ca) * v.length()).ceil().max(1.0) as usize;
-                (out.steps[j], out.stepsf[j], out.dc[j]) = (n, n as f32, (cb - ca) / n as f32);
+                let (n, dc) = layer_steps((ca, cb), v.length());
+                (out.steps[j], out.stepsf[j], out.dc[j]) = (n, n as f32, dc);
             }
             out
         }
