@@ -879,8 +879,13 @@ impl SampleBatch {
         if self.pixels == 0 {
             return;
         }
-        shader.shade_batch(self.lanes, uv, colors);
-        self.resolve(alpha_to_coverage, colors, (blend, back_facing), tile);
+        if shader.shade_batch(self.lanes, uv, colors) {
+            self.resolve(alpha_to_coverage, colors, (blend, back_facing), tile);
+        } else {
+            // Every lane discarded (most batches of a cut-out's card): no fragment.
+            self.pixels = 0;
+            self.lanes = 0;
+        }
     }
 
     /// Emits the pixels' fragments from their lanes' `colors` (`None`: discarded) and empties

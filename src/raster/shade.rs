@@ -91,8 +91,13 @@ impl<'a> Shader<'a> {
 
     /// [`Shader::shade`] for the first `n` pixels of a batch, bit for bit: `out[i]` is `None`
     /// where the fragment is discarded. Texture lookups go through
-    /// [`BoundTexture::sample_batch`].
-    pub(crate) fn shade_batch(&self, n: usize, uv: &UvBatch, out: &mut [Option<Rgba>; BATCH]) {
+    /// [`BoundTexture::sample_batch`]. False when the early alpha test discarded them all.
+    pub(crate) fn shade_batch(
+        &self,
+        n: usize,
+        uv: &UvBatch,
+        out: &mut [Option<Rgba>; BATCH],
+    ) -> bool {
         let base_coords = self
             .base
             .as_ref()
@@ -122,7 +127,7 @@ impl<'a> Shader<'a> {
             }
             if m == 0 {
                 out[..n].fill(None);
-                return;
+                return false;
             }
             if m < n {
                 let (mut sub_uv, mut sub_c) = (UvBatch::default(), Coords::default());
@@ -150,7 +155,7 @@ impl<'a> Shader<'a> {
                 for (&i, c) in kept[..m].iter().zip(shaded) {
                     out[i] = c;
                 }
-                return;
+                return true;
             }
         }
         self.shade_lanes(
@@ -159,6 +164,7 @@ impl<'a> Shader<'a> {
             |e| e.coords_batch(uv, self.lod_bias),
             out,
         );
+        true
     }
 
     /// [`Shader::shade_batch`] for lanes that share their screen derivatives `duv_dx`,
