@@ -24,6 +24,7 @@
 use half::f16;
 use rayon::prelude::*;
 
+use super::setup::count16;
 use super::{Fragment, Sink, TileRect, TileSink, COVERAGE_SAMPLES, FULL_COVERAGE};
 use crate::image::Rgba;
 
@@ -94,10 +95,7 @@ impl HeldFragment {
         {
             return false;
         }
-        let (na, nb) = (
-            self.mask.count_ones() as f32,
-            other.mask.count_ones() as f32,
-        );
+        let (na, nb) = (count16(self.mask) as f32, count16(other.mask) as f32);
         self.depth_m = (self.depth_m * na + other.depth_m * nb) / (na + nb);
         for (a, b) in self.color.iter_mut().zip(other.color) {
             *a += b;
@@ -533,12 +531,12 @@ pub(crate) fn hide_coincident(slots: &mut [HeldFragment], scale: CocScale) {
         if hiding == 0 {
             continue;
         }
-        let free = COVERAGE_SAMPLES - hiding.count_ones();
-        let seen = (back.mask & !hiding).count_ones();
+        let free = COVERAGE_SAMPLES - count16(hiding);
+        let seen = count16(back.mask & !hiding);
         let share = if free == 0 || seen == 0 {
             0.0
         } else {
-            (seen * COVERAGE_SAMPLES) as f32 / (free * back.mask.count_ones()) as f32
+            (seen * COVERAGE_SAMPLES) as f32 / (free * count16(back.mask)) as f32
         };
         slots[k].color = back.color.map(|v| v * share);
     }

@@ -191,7 +191,7 @@ impl Fragment {
     /// The fraction of the pixel covered, from 1/16 to 1.
     #[inline]
     pub fn coverage_fraction(&self) -> f32 {
-        self.coverage.count_ones() as f32 / COVERAGE_SAMPLES as f32
+        setup::count16(self.coverage) as f32 / COVERAGE_SAMPLES as f32
     }
 }
 

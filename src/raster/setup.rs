@@ -632,7 +632,7 @@ impl ShadingGroups {
                 .iter()
                 .map(|&q| usize::from(mask & q != 0))
                 .sum(),
-            Self::Samples => mask.count_ones() as usize,
+            Self::Samples => count16(mask) as usize,
         }
     }
 
@@ -705,7 +705,7 @@ fn keep_share(mask: u16, share: f32) -> u16 {
 /// Set bits of a mask, by byte table: x86-64's baseline has no `popcnt`, and `count_ones`
 /// becomes a dozen instructions.
 #[inline(always)]
-fn count16(mask: u16) -> u32 {
+pub(crate) fn count16(mask: u16) -> u32 {
     u32::from(COUNT8[usize::from(mask & 0xff)]) + u32::from(COUNT8[usize::from(mask >> 8)])
 }
 
