@@ -897,17 +897,41 @@ impl SampleBatch {
         (blend, back_facing): (bool, bool),
         tile: &mut T,
     ) {
+        if alpha_to_coverage {
+            // One lane a pixel, lane `i` pixel `i` (`ShadingGroups::Pixel`): each kept lane is
+            // its pixel's fragment, with the arithmetic of the general case below.
+            debug_assert_eq!(self.lanes, self.pixels);
+            let lanes = colors[..self.lanes].iter().zip(&self.lane);
+            for ((color, &(_, bits)), &(x, y, depth_m)) in lanes.zip(&self.pixel) {
+                let Some(mut color) = *color else {
+                    continue;
+                };
+                let bits = keep_share(bits, color[3]);
+                if bits == 0 {
+                    continue;
+                }
+                color[3] = 1.0;
+                let w = count16(bits) as f32;
+                let inv = 1.0 / w;
+                tile.fragment(&Fragment {
+                    x,
+                    y,
+                    depth_m,
+                    color: color.map(|c| (0.0 + w * c) * inv),
+                    blend,
+                    coverage: bits,
+                    dithered: true,
+                    back_facing,
+                });
+            }
+            self.pixels = 0;
+            self.lanes = 0;
+            return;
+        }
         let mut sum = [[0.0f32; 4]; BATCH];
         let mut kept = [0u16; BATCH];
         for (color, &(p, bits)) in colors[..self.lanes].iter().zip(&self.lane) {
-            if let Some(mut color) = *color {
-                let bits = if alpha_to_coverage {
-                    let bits = keep_share(bits, color[3]);
-                    color[3] = 1.0;
-                    bits
-                } else {
-                    bits
-                };
+            if let Some(color) = *color {
                 let w = count16(bits) as f32;
                 for (a, b) in sum[p as usize].iter_mut().zip(color) {
                     *a += w * b;
@@ -927,7 +951,7 @@ impl SampleBatch {
                 color: sum[i].map(|v| v * inv),
                 blend,
                 coverage: kept[i],
-                dithered: alpha_to_coverage,
+                dithered: false,
                 back_facing,
             });
         }

@@ -15,6 +15,20 @@ use glam::Vec3;
 
 use crate::{add_screen_rect, test_camera};
 
+/// `scene`'s fragment lists through `camera`'s pinhole view, at most `cap` a pixel, sampled as
+/// `input` says, without a guard band.
+fn pinhole_lists(
+    scene: &Scene,
+    camera: &Camera,
+    cap: usize,
+    input: defocus::raster::LayeredInput,
+) -> defocus::raster::FragmentLists {
+    use defocus::raster::{render_fragment_lists, PreparedScene, View};
+    let prepared = PreparedScene::new(scene, &camera.camera_from_world).unwrap();
+    let view = View::pinhole(camera.thin_lens().unwrap());
+    render_fragment_lists(&prepared, &view, cap, input, None)
+}
+
 /// The three layered methods at the settings the issue measures (multiview with 64 rays).
 fn layered(scene: &Scene, camera: &Camera, aperture: &Aperture) -> Vec<(&'static str, ColorImage)> {
     layered_with(
@@ -359,9 +373,7 @@ fn point_light_becomes_the_aperture_shape_in_splat_and_multiview_as_in_reference
 /// object leaves free, as in an anti-aliased frame, not darkened by the back side a second time.
 #[test]
 fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_behind() {
-    use defocus::raster::{
-        from_half, render_fragment_lists, LayeredInput, PreparedScene, View, COINCIDENT_COC_PX,
-    };
+    use defocus::raster::{from_half, LayeredInput, COINCIDENT_COC_PX};
     // A long lens, so that the board lies pixels of CoC behind the object.
     let camera = Camera {
         focal_length_mm: 200.0,
@@ -380,14 +392,7 @@ fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_b
     // Back side first, as a mesh may list it.
     add_screen_rect(&mut scene, &camera, (16.5, 8.0, 48.0, 56.0), 1.51, dark);
     add_screen_rect(&mut scene, &camera, (16.5, 8.0, 48.0, 56.0), 1.50, dark);
-    let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-    let lists = render_fragment_lists(
-        &prepared,
-        &View::pinhole(lens),
-        2,
-        LayeredInput::default(),
-        None,
-    );
+    let lists = pinhole_lists(&scene, &camera, 2, LayeredInput::default());
     // Inside the object: its front, then the board (the back side hidden at every sample).
     let (depths, colors) = lists.pixel(32, 32);
     assert_eq!(depths.len(), 2, "{depths:?}");
@@ -410,13 +415,7 @@ fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_b
         "edge {out}, list {depths:?}"
     );
     // Without coverage masks (the papers' input) the back side is a layer of its own.
-    let plain = render_fragment_lists(
-        &prepared,
-        &View::pinhole(lens),
-        2,
-        LayeredInput::PAPER,
-        None,
-    );
+    let plain = pinhole_lists(&scene, &camera, 2, LayeredInput::PAPER);
     let (depths, _) = plain.pixel(32, 32);
     assert!((depths[1] - 1.51).abs() < 1e-3, "{depths:?}");
 }
@@ -428,9 +427,7 @@ fn the_back_of_a_thin_object_neither_darkens_its_edge_nor_crowds_out_what_lies_b
 /// its front at the same distance is a surface a blur can show, and keeps its slot.
 #[test]
 fn the_inside_of_a_closed_mesh_takes_no_slot() {
-    use defocus::raster::{
-        render_fragment_lists, LayeredInput, PreparedScene, View, COINCIDENT_COC_PX,
-    };
+    use defocus::raster::{LayeredInput, COINCIDENT_COC_PX};
     let camera = Camera {
         focal_length_mm: 200.0,
         ..test_camera(64, 64, 3.0, 1.4)
@@ -453,14 +450,7 @@ fn the_inside_of_a_closed_mesh_takes_no_slot() {
                 t.swap(1, 2);
             }
         }
-        let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-        render_fragment_lists(
-            &prepared,
-            &View::pinhole(lens),
-            2,
-            LayeredInput::default(),
-            None,
-        )
+        pinhole_lists(&scene, &camera, 2, LayeredInput::default())
     };
     let inside = lists_with(true);
     let (depths, _) = inside.pixel(32, 32);
@@ -580,7 +570,7 @@ fn a_near_bar_draws_its_shadow_across_the_bokeh_of_a_light_behind_it() {
 /// over each pixel, with per-sample lookups (`LayeredInput::SAMPLE_SHADED`) and with one lookup
 /// a quadrant (the default), and whether the two inputs are the same bit for bit.
 fn minified_stripes(focus_m: f32, z_m: f32) -> (f32, f32, bool) {
-    use defocus::raster::{from_half, render_fragment_lists, LayeredInput, PreparedScene, View};
+    use defocus::raster::{from_half, LayeredInput};
     use defocus::scene::{Texture, TextureBinding};
     let (columns, rows) = (32usize, 256usize);
     let stripe = |c: usize| ((c / 5) % 2) as f32;
@@ -620,10 +610,8 @@ fn minified_stripes(focus_m: f32, z_m: f32) -> (f32, f32, bool) {
             .sum::<f32>()
             / 64.0
     };
-    let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-    let lens = camera.thin_lens().unwrap();
     let lists = |input: LayeredInput| {
-        let lists = render_fragment_lists(&prepared, &View::pinhole(lens), 2, input, None);
+        let lists = pinhole_lists(&scene, &camera, 2, input);
         let colors: Vec<f32> = (0..64 * 64)
             .map(|i| from_half(&lists.pixel(i % 64, i / 64).1[0])[0])
             .collect();
@@ -689,4 +677,74 @@ fn per_sample_lookups_stop_where_the_blur_hides_them() {
             "CoC {coc_px} px: the input should be the quadrants' ({quadrants})"
         );
     }
+}
+
+/// Alpha to coverage: an alpha-mask card whose texture's alpha is two-valued (transparent left
+/// half, opaque right half, green throughout), magnified so that its filtered edge spans a few
+/// pixels, in front of a white board. Across the edge each pixel's card fragment is the card's
+/// colour, opaque over the samples it keeps: its alpha is a whole number of the 16 samples
+/// (the kept share of the filtered alpha), it climbs from the hole to the solid part, and the
+/// board stays in the list behind it where the card leaves samples free.
+#[test]
+fn alpha_to_coverage_keeps_whole_opaque_samples_across_a_cut_outs_edge() {
+    use defocus::raster::{from_half, LayeredInput};
+    use defocus::scene::{FilterMode, Texture, TextureBinding, TextureSampler, WrapMode};
+    let camera = test_camera(64, 64, 3.0, 2.8);
+    let mut scene = Scene::default();
+    let texels = (0..16 * 16)
+        .map(|i| [0.0, 1.0, 0.0, if i % 16 < 8 { 0.0 } else { 1.0 }])
+        .collect();
+    let t = scene.add_texture(Texture::new(ColorImage::from_vec(16, 16, texels).unwrap()));
+    let card = scene.add_material(Material {
+        name: "cut-out".into(),
+        base_color_texture: Some(TextureBinding {
+            texture: t,
+            sampler: TextureSampler {
+                mag_filter: FilterMode::Linear,
+                wrap_u: WrapMode::ClampToEdge,
+                wrap_v: WrapMode::ClampToEdge,
+                ..Default::default()
+            },
+            uv_transform: Default::default(),
+        }),
+        alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
+        ..Default::default()
+    });
+    let white = scene.add_material(Material::color("board", [1.0; 3]));
+    add_screen_rect(&mut scene, &camera, (0.0, 0.0, 64.0, 64.0), 3.0, white);
+    add_screen_rect(&mut scene, &camera, (0.0, 0.0, 64.0, 64.0), 1.5, card);
+    let lists = pinhole_lists(&scene, &camera, 4, LayeredInput::default());
+    let mut alphas = Vec::new();
+    for x in 20..44 {
+        let (depths, colors) = lists.pixel(x, 32);
+        let card_alpha = match depths.first() {
+            Some(&z) if (z - 1.5).abs() < 1e-3 => {
+                let c = from_half(&colors[0]);
+                let a = c[3];
+                assert!(
+                    (a * 16.0 - (a * 16.0).round()).abs() < 1e-3,
+                    "pixel {x}: alpha {a} is not a whole number of samples"
+                );
+                assert!(
+                    c[0].abs() < 1e-3 && (c[1] - a).abs() < 2e-3 && c[2].abs() < 1e-3,
+                    "pixel {x}: {c:?} is not the card's green, premultiplied"
+                );
+                a
+            }
+            _ => 0.0,
+        };
+        if card_alpha < 1.0 {
+            let board = depths.iter().position(|&z| (z - 3.0).abs() < 1e-3);
+            assert!(board.is_some(), "pixel {x}: no board behind, {depths:?}");
+        }
+        alphas.push(card_alpha);
+    }
+    assert!(alphas.windows(2).all(|w| w[0] <= w[1]), "{alphas:?}");
+    assert_eq!(
+        (alphas[0], alphas[alphas.len() - 1]),
+        (0.0, 1.0),
+        "{alphas:?}"
+    );
+    let partial = alphas.iter().filter(|&&a| a > 0.0 && a < 1.0).count();
+    assert!(partial >= 2, "the edge spans pixels: {alphas:?}");
 }
