@@ -899,7 +899,8 @@ impl SampleBatch {
     ) {
         if alpha_to_coverage {
             // One lane a pixel, lane `i` pixel `i` (`ShadingGroups::Pixel`): each kept lane is
-            // its pixel's fragment, with the arithmetic of the general case below.
+            // its pixel's fragment, with the arithmetic of the general case below (`0.0 +` is
+            // its sum's start, which turns a -0 into +0 there too).
             debug_assert_eq!(self.lanes, self.pixels);
             let lanes = colors[..self.lanes].iter().zip(&self.lane);
             for ((color, &(_, bits)), &(x, y, depth_m)) in lanes.zip(&self.pixel) {
