@@ -692,7 +692,7 @@ fn keep_share(mask: u16, share: f32) -> u16 {
     let ranks = TO_RANKS[0][lo] | TO_RANKS[1][hi];
     let (lo, hi) = bytes(ranks);
     // `left < count <= 16`: within the low byte's ranks, or all of them and some high ones.
-    let below = u32::from(COUNT8[lo]);
+    let below = u32::from(MASK_SUMS[0][lo].2);
     let kept = if left <= below {
         u16::from(LOWEST8[lo][left as usize])
     } else {
@@ -702,23 +702,13 @@ fn keep_share(mask: u16, share: f32) -> u16 {
     FROM_RANKS[0][lo] | FROM_RANKS[1][hi]
 }
 
-/// Set bits of a mask, by byte table: x86-64's baseline has no `popcnt`, and `count_ones`
-/// becomes a dozen instructions.
+/// Set bits of a mask, from the per-byte counts of [`MASK_SUMS`]: x86-64's baseline has no
+/// `popcnt`, and `count_ones` becomes a dozen instructions.
 #[inline(always)]
 pub(crate) fn count16(mask: u16) -> u32 {
-    u32::from(COUNT8[usize::from(mask & 0xff)]) + u32::from(COUNT8[usize::from(mask >> 8)])
+    let (lo, hi) = (usize::from(mask & 0xff), usize::from(mask >> 8));
+    u32::from(MASK_SUMS[0][lo].2 + MASK_SUMS[1][hi].2)
 }
-
-/// Set bits of each byte.
-const COUNT8: [u8; 256] = {
-    let mut counts = [0u8; 256];
-    let mut b = 0;
-    while b < 256 {
-        counts[b] = (b as u8).count_ones() as u8;
-        b += 1;
-    }
-    counts
-};
 
 /// Per byte and `k <= 8`: its lowest `k` set bits (all of them when it has fewer).
 const LOWEST8: [[u8; 9]; 256] = {
@@ -1113,8 +1103,9 @@ pub(crate) fn raster_triangle<T: TileSink>(
         // its covered samples, kept within the triangle's (the plane's value there can run off
         // where the triangle is seen edge-on).
         let origin_y = tri.origin.y;
+        // Rows' runs without their pixels already hidden in `tile`.
+        let span = |tile: &T, y, xa, xb| unhidden_span(tile, tri, y, xa, xb);
         if flat.is_some() {
-            let span = |tile: &T, y, xa, xb| unhidden_span(tile, tri, y, xa, xb);
             for_each_covered_mask(tri, rect, tile, span, |tile, x, y, mask, c| {
                 let e = plane(x, y as f32 + 0.5 - origin_y + c.y) + p1 * c.x;
                 let Some(depth_m) = visible_depth(tile, tri, x, y, e.x) else {
@@ -1161,7 +1152,6 @@ pub(crate) fn raster_triangle<T: TileSink>(
                 groups == ShadingGroups::Quadrants && tri.farthest_m >= near && tri.nearest_m <= far
             });
             let mut batch = SampleBatch::new();
-            let span = |tile: &T, y, xa, xb| unhidden_span(tile, tri, y, xa, xb);
             for_each_covered_mask(tri, rect, tile, span, |tile, x, y, mask, c| {
                 let fy = y as f32 + 0.5 - origin_y;
                 let e = plane(x, fy + c.y) + p1 * c.x;
