@@ -529,7 +529,7 @@ impl PostArgs {
         lens: Option<&ThinLens>,
     ) -> Result<MethodSettings> {
         let settings = self.settings_of(method, aperture, seed, height_px, lens)?;
-        self.lens_effects()?.check_for_method(method)?;
+        crate::methods::registry::check_effects(method, &self.lens_effects()?)?;
         // The flags of the other methods are range-checked too: a bad value is a mistake
         // whichever method runs (`--max-coc nan` with `hammon` is refused, not ignored).
         for other in crate::methods::registry::ids() {

@@ -11,9 +11,11 @@
 //! - [`sequence`]: `render` and `blur` over frame sequences ([`sequence::blur`],
 //!   [`sequence::render`]).
 //! - [`flags`]: the flags they share and their parsers.
+//! - [`grid`]: the report's contact sheet of every method's image with its numbers.
 
 pub mod blur;
 pub mod flags;
+pub mod grid;
 pub mod render;
 pub mod report;
 pub mod sequence;

@@ -23,9 +23,14 @@ use serde::Serialize;
 
 use super::blur::{BlurArgs, BlurJob, DepthKind};
 use super::flags::{parse_focus, ExrArgs, ExrCompressionArg, Focus};
+use super::grid;
 use super::render::{RenderArgs, RenderJob, ViewArgs};
 use crate::options::PostArgs;
 use clap::Args;
+
+/// The report's contact sheet: the truth and every method's image side by side, with their
+/// PSNR and time (see [`grid`]).
+pub const GRID_PNG: &str = "grid.png";
 
 /// Sweep keys and the methods each applies to (the flag of that name changes their settings).
 const SWEEPS: &[(&str, &[&str])] = &[
@@ -75,8 +80,10 @@ pub struct CompareArgs {
     /// Report on a rendered frame: its depth pass (metres, view-axis; EXR, PFM or PNG).
     #[arg(long, value_name = "FILE", help_heading = "Report", requires = "color")]
     pub depth: Option<PathBuf>,
-    /// Report on a rendered frame: the ground truth to compare with (e.g. from another renderer).
-    #[arg(long, value_name = "FILE", help_heading = "Report", requires = "color")]
+    /// Report: the ground truth to compare with (e.g. from another renderer), instead of
+    /// `reference` rendered with --reference-samples. Needed with --color; with --scene it
+    /// must have the scene camera's size.
+    #[arg(long, value_name = "FILE", help_heading = "Report", conflicts_with_all = ["a", "b"])]
     pub truth: Option<PathBuf>,
     /// Report: the methods, `all` or a comma-separated list of ids.
     #[arg(
@@ -625,14 +632,37 @@ pub fn write(
                 ),
             ),
         ]);
-        let out = job.compute(&mut |_, _| {})?;
-        let ms = out.timings.total_ms();
-        (
-            out.image,
-            Some(ms),
-            format!("defocus report: {}", shown(scene)),
-            format!("reference, {} lens samples", a.reference_samples),
-        )
+        if let Some(truth_path) = &a.truth {
+            // Another renderer's truth of the same scene and camera.
+            let truth = io::read_color(truth_path)?;
+            if (truth.width(), truth.height()) != (cam.width_px, cam.height_px) {
+                bail!(
+                    "--truth {} is {}x{} but the scene's camera renders {}x{}: expected the same size (set --width and --height)",
+                    shown(truth_path),
+                    truth.width(),
+                    truth.height(),
+                    cam.width_px,
+                    cam.height_px
+                );
+            }
+            let last = parameters.len() - 1;
+            parameters[last] = ("truth".to_string(), shown(truth_path));
+            (
+                truth,
+                None,
+                format!("defocus report: {}", shown(scene)),
+                format!("ground truth {}", shown(truth_path)),
+            )
+        } else {
+            let out = job.compute(&mut |_, _| {})?;
+            let ms = out.timings.total_ms();
+            (
+                out.image,
+                Some(ms),
+                format!("defocus report: {}", shown(scene)),
+                format!("reference, {} lens samples", a.reference_samples),
+            )
+        }
     } else {
         let truth_path = a.truth.clone().context("--truth")?;
         let truth = io::read_color(&truth_path)?;
@@ -852,6 +882,30 @@ pub fn write(
     }
     let legend = legend_image()?;
     files.png("error-legend.png", &legend)?;
+    // The contact sheet: the truth, then every run that gave an image, with its numbers.
+    let truth_caption = match truth_ms {
+        Some(ms) => format!("{} views {ms:.0} ms", a.reference_samples),
+        None => "ground truth".to_string(),
+    };
+    let mut tiles = vec![grid::Tile {
+        image: &truth,
+        caption: vec!["truth".to_string(), truth_caption],
+    }];
+    for (i, o) in &outputs {
+        let r = &results[*i];
+        tiles.push(grid::Tile {
+            image: &o.image,
+            caption: vec![
+                r.label.clone(),
+                format!(
+                    "{:.1} dB {:.0} ms",
+                    r.psnr_db.unwrap_or(f64::NAN),
+                    r.total_ms.unwrap_or(f64::NAN)
+                ),
+            ],
+        });
+    }
+    files.png(GRID_PNG, &grid::contact_sheet(&tiles, grid::TILE_WIDTH_PX))?;
 
     let report = Report {
         title,
@@ -905,6 +959,7 @@ fn report_files(report: &Report) -> Vec<String> {
         report.reference.image_png.clone(),
         report.reference.image_exr.clone(),
         "error-legend.png".to_string(),
+        GRID_PNG.to_string(),
     ];
     for r in &report.runs {
         names.extend(
@@ -926,7 +981,7 @@ fn previous_report_files(dir: &Path) -> Vec<String> {
     let Ok(value) = serde_json::from_str::<serde_json::Value>(&text) else {
         return Vec::new();
     };
-    let mut names = vec!["error-legend.png".to_string()];
+    let mut names = vec!["error-legend.png".to_string(), GRID_PNG.to_string()];
     let mut add = |v: &serde_json::Value| {
         if let Some(n) = v.as_str() {
             names.push(n.to_string());

@@ -185,30 +185,28 @@ impl LensEffects {
         on
     }
 
-    /// Checks the ranges, and refuses the effects that method `id` of the registry does not
-    /// render ([`crate::methods::registry::MethodInfo::effects`]), naming them.
-    pub fn check_for_method(&self, id: &str) -> Result<()> {
+    /// Checks the ranges, and refuses the effects that are on but not among `supported` (the
+    /// effects method `method_id` renders), naming them. The lens knows no method: each method
+    /// passes its own list, and the registry adds which other methods render them.
+    pub fn check_supported(&self, method_id: &str, supported: &[&str]) -> Result<()> {
         self.validate()?;
-        let info = crate::methods::registry::find(id)?;
-        let missing: Vec<&str> = self
-            .active()
-            .into_iter()
-            .filter(|e| !info.effects.contains(e))
-            .collect();
+        let missing = self.unsupported(supported);
         if missing.is_empty() {
             return Ok(());
         }
-        let supported: Vec<&str> = crate::methods::registry::METHODS
-            .iter()
-            .filter(|m| missing.iter().all(|e| m.effects.contains(e)))
-            .map(|m| m.id)
-            .collect();
         Err(Error::Option(format!(
-            "method {id} does not support the lens effect {} (--{}); {} support it",
+            "method {method_id} does not support the lens effect {} (--{})",
             missing.join(", "),
             missing.join(", --"),
-            supported.join(", ")
         )))
+    }
+
+    /// The effects that are on but not among `supported`, by name ([`EFFECT_NAMES`]).
+    pub fn unsupported(&self, supported: &[&str]) -> Vec<&'static str> {
+        self.active()
+            .into_iter()
+            .filter(|e| !supported.contains(e))
+            .collect()
     }
 
     /// The same effects without chromatic aberration: what each channel's run of a method that

@@ -40,6 +40,9 @@ pub use crate::lens::{Taps, CANDIDATES, MAX_TAPS};
 use crate::timing::Timings;
 use crate::Result;
 
+/// The lens effects ([`crate::lens::EFFECT_NAMES`]) this method renders; it refuses the others.
+pub const EFFECTS: &[&str] = &["anamorphic", "cats-eye", "chromatic"];
+
 /// Settings of the `poisson` gather.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PoissonSettings {
@@ -82,7 +85,7 @@ pub fn render(
 ) -> Result<MethodOutput> {
     check_frame(color, depth, lens)?;
     if settings.effects.is_chromatic() {
-        settings.effects.check_for_method("poisson")?;
+        settings.effects.check_supported("poisson", EFFECTS)?;
         let mono = PoissonSettings {
             effects: settings.effects.without_colour(),
             ..settings.clone()
@@ -94,7 +97,7 @@ pub fn render(
     let mut timings = Timings::default();
     let mut taps = Taps::poisson_disc(&settings.aperture, settings.taps, settings.seed, 0.0)?;
     let effects = settings.effects;
-    effects.check_for_method("poisson")?;
+    effects.check_supported("poisson", EFFECTS)?;
     for p in &mut taps.points {
         *p = effects.squeeze(*p);
     }

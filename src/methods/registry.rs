@@ -95,7 +95,7 @@ pub const METHODS: &[MethodInfo] = &[
         description: "aperture kernel as a sum of separable filters (SVD), depth-edge mask with a 2D fallback",
         paper: "McGraw 2015, Fast bokeh effects using low-rank linear filters",
         input: InputKind::PinholeFrame,
-        effects: &["anamorphic", "chromatic"],
+        effects: super::lowrank::EFFECTS,
     },
     MethodInfo {
         id: "gaussian",
@@ -109,14 +109,14 @@ pub const METHODS: &[MethodInfo] = &[
         description: "baseline: Poisson-disc gather in the aperture shape with depth rejection",
         paper: "after Scheuermann 2004",
         input: InputKind::PinholeFrame,
-        effects: &["anamorphic", "cats-eye", "chromatic"],
+        effects: super::poisson::EFFECTS,
     },
     MethodInfo {
         id: "splat",
         description: "tiled scatter: every fragment splatted in the aperture's shape, blended in depth order per tile (--layers N: from fragment lists)",
         paper: "Fast depth of field rendering (poster; tiled DoF splatting)",
         input: InputKind::PinholeFrame,
-        effects: &["anamorphic", "chromatic"],
+        effects: super::splat::EFFECTS,
     },
     MethodInfo {
         id: "multilayer",
@@ -130,9 +130,31 @@ pub const METHODS: &[MethodInfo] = &[
         description: "lens rays traced through CoC-spaced depth layers rendered once: reference-like, cost independent of the scene",
         paper: "Lee, Eisemann, Seidel 2009, Depth-of-field rendering with multiview synthesis",
         input: InputKind::DepthLayers,
-        effects: &["anamorphic", "cats-eye", "chromatic"],
+        effects: super::multiview::EFFECTS,
     },
 ];
+
+/// Checks the lens effects' ranges, and refuses those that method `id` does not render
+/// ([`MethodInfo::effects`]), naming them and the methods that render them all.
+pub fn check_effects(id: &str, effects: &crate::lens::LensEffects) -> Result<()> {
+    effects.validate()?;
+    let info = find(id)?;
+    let missing = effects.unsupported(info.effects);
+    if missing.is_empty() {
+        return Ok(());
+    }
+    let supported: Vec<&str> = METHODS
+        .iter()
+        .filter(|m| missing.iter().all(|e| m.effects.contains(e)))
+        .map(|m| m.id)
+        .collect();
+    Err(crate::Error::Option(format!(
+        "method {id} does not support the lens effect {} (--{}); {} support it",
+        missing.join(", "),
+        missing.join(", --"),
+        supported.join(", ")
+    )))
+}
 
 /// The registry entry of `id`, or an error listing the known ids.
 pub fn find(id: &str) -> Result<&'static MethodInfo> {

@@ -2,6 +2,7 @@
 
 mod cli;
 mod cli_post;
+mod docs;
 mod fuzz;
 mod hammon;
 mod image_io;

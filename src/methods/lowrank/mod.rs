@@ -110,6 +110,9 @@ use crate::timing::Timings;
 use crate::{Error, Result};
 use rayon::prelude::*;
 
+/// The lens effects ([`crate::lens::EFFECT_NAMES`]) this method renders; it refuses the others.
+pub const EFFECTS: &[&str] = &["anamorphic", "chromatic"];
+
 /// Smallest base kernel chosen automatically, in pixels.
 pub const MIN_AUTO_KERNEL_PX: usize = 17;
 
@@ -252,7 +255,7 @@ pub fn render(
 ) -> Result<MethodOutput> {
     if settings.effects.is_chromatic() {
         // A run per channel through its own lens, as `reference`.
-        settings.effects.check_for_method("lowrank")?;
+        settings.effects.check_supported("lowrank", EFFECTS)?;
         let mono = LowRankSettings {
             effects: settings.effects.without_colour(),
             ..settings.clone()
@@ -348,7 +351,7 @@ fn run(
     mut timings: Timings,
     detailed: bool,
 ) -> Result<Detailed> {
-    settings.effects.check_for_method("lowrank")?;
+    settings.effects.check_supported("lowrank", EFFECTS)?;
     if settings.effects.is_chromatic() {
         return Err(Error::invalid(
             "chromatic aberration",

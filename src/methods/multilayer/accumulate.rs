@@ -16,7 +16,7 @@
 use rayon::prelude::*;
 
 use super::filter::Level;
-use super::{shape, Borders, MultilayerSettings};
+use super::Borders;
 use crate::image::{ColorImage, Rgba};
 use crate::raster::from_half;
 
@@ -68,50 +68,27 @@ impl Region {
     }
 }
 
-/// Blends the levels into the output image of `region` with the bokeh `settings` ask for: the
-/// paper's box ([`accumulate`]) or the aperture's shape ([`shape::accumulate_shape`]).
-pub fn accumulate_for(
+/// Blends the levels into the output image of `region` with the paper's box bokeh (premultiplied
+/// linear RGBA): the box half of [`super::accumulate_for`], which picks it or the aperture's
+/// shape.
+pub fn accumulate_box(
     levels: &[Level],
     borders: &Borders,
-    settings: &MultilayerSettings,
+    epsilon: f32,
     region: Region,
 ) -> ColorImage {
-    match settings.bokeh.first_shape_level() {
-        None => accumulate_with(levels, borders, settings.epsilon, region, accumulate_row),
-        Some(first) => shape::accumulate_shape(
-            levels,
-            borders,
-            &settings.aperture,
-            (settings.epsilon, first, settings.box_read),
-            region,
-        ),
-    }
+    accumulate_with(levels, borders, epsilon, region, accumulate_row)
 }
 
-/// [`accumulate_for`] built for the portable baseline only: the twin the run-time dispatched
+/// [`accumulate_box`] built for the portable baseline only: the twin the run-time dispatched
 /// build is tested against.
-pub fn accumulate_for_baseline(
+pub fn accumulate_box_baseline(
     levels: &[Level],
     borders: &Borders,
-    settings: &MultilayerSettings,
+    epsilon: f32,
     region: Region,
 ) -> ColorImage {
-    match settings.bokeh.first_shape_level() {
-        None => accumulate_with(
-            levels,
-            borders,
-            settings.epsilon,
-            region,
-            accumulate_row_inner,
-        ),
-        Some(first) => shape::accumulate_shape_baseline(
-            levels,
-            borders,
-            &settings.aperture,
-            (settings.epsilon, first, settings.box_read),
-            region,
-        ),
-    }
+    accumulate_with(levels, borders, epsilon, region, accumulate_row_inner)
 }
 
 /// Blends the levels into the output image with the paper's box bokeh (premultiplied linear

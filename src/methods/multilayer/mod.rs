@@ -551,17 +551,11 @@ pub fn render(
     camera: &Camera,
     settings: &MultilayerSettings,
 ) -> Result<MethodOutput> {
-    render_with(
-        scene,
-        camera,
-        settings,
-        accumulate::accumulate_for,
-        filter::step,
-    )
+    render_with(scene, camera, settings, accumulate_for, filter::step)
 }
 
 /// [`render`] with the filter and accumulate passes built for the portable baseline only
-/// ([`filter::step_baseline`], [`accumulate::accumulate_for_baseline`]): the twin the run-time
+/// ([`filter::step_baseline`], [`accumulate_for_baseline`]): the twin the run-time
 /// dispatched build is tested against.
 pub fn render_baseline(
     scene: &Scene,
@@ -572,12 +566,53 @@ pub fn render_baseline(
         scene,
         camera,
         settings,
-        accumulate::accumulate_for_baseline,
+        accumulate_for_baseline,
         filter::step_baseline,
     )
 }
 
-/// The accumulate pass's signature (see [`accumulate::accumulate_for`]).
+/// Blends the levels into the output image of `region` with the bokeh `settings` ask for: the
+/// paper's box ([`accumulate::accumulate_box`]) or the aperture's shape
+/// ([`shape::accumulate_shape`]).
+pub fn accumulate_for(
+    levels: &[Level],
+    borders: &Borders,
+    settings: &MultilayerSettings,
+    region: accumulate::Region,
+) -> ColorImage {
+    match settings.bokeh.first_shape_level() {
+        None => accumulate::accumulate_box(levels, borders, settings.epsilon, region),
+        Some(first) => shape::accumulate_shape(
+            levels,
+            borders,
+            &settings.aperture,
+            (settings.epsilon, first, settings.box_read),
+            region,
+        ),
+    }
+}
+
+/// [`accumulate_for`] built for the portable baseline only: the twin the run-time dispatched
+/// build is tested against.
+pub fn accumulate_for_baseline(
+    levels: &[Level],
+    borders: &Borders,
+    settings: &MultilayerSettings,
+    region: accumulate::Region,
+) -> ColorImage {
+    match settings.bokeh.first_shape_level() {
+        None => accumulate::accumulate_box_baseline(levels, borders, settings.epsilon, region),
+        Some(first) => shape::accumulate_shape_baseline(
+            levels,
+            borders,
+            &settings.aperture,
+            (settings.epsilon, first, settings.box_read),
+            region,
+        ),
+    }
+}
+
+/// The accumulate pass's signature (see [`accumulate_for`]).
 type AccumulateFn = fn(&[Level], &Borders, &MultilayerSettings, accumulate::Region) -> ColorImage;
 
 fn render_with(
@@ -689,7 +724,7 @@ mod tests {
                     width: frame.width_px,
                     height: frame.height_px,
                 };
-                accumulate::accumulate_for(&levels, &borders, &settings, region)
+                accumulate_for(&levels, &borders, &settings, region)
             };
             let trimmed = collect(&prepared, lens, guard, &settings);
             let full = render_fragment_lists(

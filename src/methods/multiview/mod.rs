@@ -81,6 +81,9 @@ use cull::WindowMin;
 pub use trace::MipFilter;
 use trace::{LayerMip, TraceInput};
 
+/// The lens effects ([`crate::lens::EFFECT_NAMES`]) this method renders; it refuses the others.
+pub const EFFECTS: &[&str] = &["anamorphic", "cats-eye", "chromatic"];
+
 /// `--timings` labels of `multiview`.
 pub mod pass {
     /// World to camera space.
@@ -423,7 +426,7 @@ pub fn sample_sets(settings: &MultiviewSettings) -> Result<(Vec<Vec<Vec2>>, Vec<
             settings.seed.wrapping_add(j as u64),
         )?;
         let effects = settings.effects;
-        effects.check_for_method("multiview")?;
+        effects.check_supported("multiview", EFFECTS)?;
         let mut points: Vec<Vec2> = set
             .samples
             .iter()
@@ -531,7 +534,7 @@ fn render_with(
     settings.validate()?;
     if settings.effects.is_chromatic() {
         // A run per channel through its own lens, as `reference`.
-        settings.effects.check_for_method("multiview")?;
+        settings.effects.check_supported("multiview", EFFECTS)?;
         let mono = MultiviewSettings {
             effects: settings.effects.without_colour(),
             ..settings.clone()

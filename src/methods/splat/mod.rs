@@ -54,6 +54,9 @@ use super::coc_map;
 use super::highlights;
 use super::MethodOutput;
 
+/// The lens effects ([`crate::lens::EFFECT_NAMES`]) this method renders; it refuses the others.
+pub const EFFECTS: &[&str] = &["anamorphic", "chromatic"];
+
 /// `--timings` labels of `splat`.
 pub mod pass {
     /// The CoC map of a single-layer frame.
@@ -288,7 +291,7 @@ fn render_detailed_with(
     blend_fn: BlendFn,
 ) -> Result<(MethodOutput, SplatStats)> {
     settings.validate()?;
-    settings.effects.check_for_method("splat")?;
+    settings.effects.check_supported("splat", EFFECTS)?;
     coc_map::check_frame(color, depth, lens)?;
     if settings.effects.is_chromatic() {
         return per_channel(settings, lens.focus_m, |mono, focus_m, scale| {
@@ -331,7 +334,7 @@ pub fn render_scene(
     settings: &SplatSettings,
 ) -> Result<(MethodOutput, SplatStats)> {
     settings.validate()?;
-    settings.effects.check_for_method("splat")?;
+    settings.effects.check_supported("splat", EFFECTS)?;
     if settings.effects.is_chromatic() {
         return per_channel(settings, camera.focus_m, |mono, focus_m, scale| {
             let channel = Camera {
