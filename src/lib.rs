@@ -5,6 +5,53 @@
 //! and the post-process and layered methods of the papers. See `README.md` for conventions.
 //!
 //! The library never prints; it returns values and typed errors ([`Error`]).
+//!
+//! The methods are listed in [`methods::registry::METHODS`]; [`methods::registry::run_scene`]
+//! runs any of them on a scene and [`methods::registry::run_frame`] the post-process ones on a
+//! colour image with its depth pass. The command line (`defocus render`, `blur`, `compare`) is
+//! a thin shell over [`jobs`]. The user guide is in `docs/` (`docs/SUMMARY.md`).
+//!
+//! # Example
+//!
+//! Render the built-in `railing` scene with `multilayer`, small, then blur a colour array and
+//! its depth array (a compositor's input) with `lowrank`:
+//!
+//! ```
+//! use defocus::image::{ColorImage, GrayImage};
+//! use defocus::methods::registry::{self, Frame, MethodSettings, SceneOptions};
+//!
+//! # fn main() -> defocus::Result<()> {
+//! // A built-in scene brings its own camera and aperture.
+//! let scene = defocus::scene::builtin::load("railing")?;
+//! let mut camera = scene.defaults.clone().expect("built-in scenes have a camera").camera;
+//! (camera.width_px, camera.height_px) = (160, 90);
+//! let settings = MethodSettings::default_for("multilayer")?;
+//! let out = registry::run_scene(&settings, &scene, &camera, &SceneOptions::default(), &mut |_, _| {})?;
+//! assert_eq!((out.image.width(), out.image.height()), (160, 90));
+//! assert!(!out.timings.passes.is_empty()); // per-pass times, named `multilayer/<pass>`
+//!
+//! // A frame and its depth pass: linear premultiplied RGBA, view-axis depth in metres.
+//! let (w, h) = (64, 48);
+//! let color = ColorImage::from_vec(w, h, (0..w * h).map(|i| {
+//!     let v = if (i % w / 8 + i / w / 8) % 2 == 0 { 1.0 } else { 0.0 };
+//!     [v, v, v, 1.0]
+//! }).collect())?;
+//! let depth = GrayImage::new(w, h, 10.0); // everything 10 m away
+//! camera.width_px = w;
+//! camera.height_px = h;
+//! camera.focus_m = 2.0; // focused nearer: the checkerboard blurs
+//! let lens = camera.thin_lens()?;
+//! assert!(lens.coc_px(10.0).abs() > 1.0);
+//! let blurred = registry::run_frame(
+//!     &MethodSettings::default_for("lowrank")?,
+//!     &Frame { color: &color, depth: &depth, lens: &lens },
+//! )?;
+//! // A normalised kernel keeps the mean brightness of the board.
+//! let mean = |img: &ColorImage| img.pixels().iter().map(|p| p[0] as f64).sum::<f64>() / (w * h) as f64;
+//! assert!((mean(&blurred.image) - mean(&color)).abs() < 0.05);
+//! # Ok(())
+//! # }
+//! ```
 
 pub mod autofocus;
 pub mod blur;

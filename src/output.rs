@@ -66,7 +66,7 @@ pub fn is_durable() -> bool {
 }
 
 /// A staged file being written: a plain file that, on Linux, asks the kernel to start writing
-/// its bytes to the disk every [`WRITEBACK_BYTES`] (`sync_file_range`, without waiting), so that
+/// its bytes to the disk every `WRITEBACK_BYTES` (`sync_file_range`, without waiting), so that
 /// the fsync before the rename finds most of a large file already on its way and waits for less.
 #[derive(Debug)]
 pub struct StagedFile {

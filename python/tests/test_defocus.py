@@ -300,3 +300,17 @@ def test_blur_sequence_writes_each_frame_as_blur_does_resumes_and_names_a_bad_fr
                               method="hammon")
     with pytest.raises(ValueError, match="--depth"):
         defocus.blur_sequence(*args[:2], method="hammon")
+
+
+def test_focus_pixel_alone_focuses_there_and_a_distance_with_it_is_refused():
+    # Two planes at 1 m and 4 m: focusing on a pixel of the near half keeps that half sharp,
+    # as focus=1.0 does, and blurs the far half.
+    img = checkerboard()
+    depth = two_planes(near=1.0, far=4.0)
+    by_pixel = defocus.blur(img, depth, "lowrank", focus_pixel=(W // 4, H // 2), fstop=1.4)
+    by_distance = defocus.blur(img, depth, "lowrank", focus=1.0, fstop=1.4)
+    assert np.abs(by_pixel - by_distance).max() < 1e-5
+    near = (slice(8, H - 8), slice(8, W // 2 - 8))
+    assert np.abs(by_pixel[near] - img[near]).max() < 1e-3
+    with pytest.raises(ValueError, match="focus"):
+        defocus.blur(img, depth, "lowrank", focus=2.0, focus_pixel=(1, 1))

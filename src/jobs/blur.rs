@@ -35,7 +35,7 @@ pub struct BlurArgs {
     /// serves every frame).
     #[arg(long, value_name = "FILE")]
     pub color: PathBuf,
-    /// Depth image in metres: EXR channel Z / depth / <layer>.Depth.Z (may be the colour file
+    /// Depth image in metres: EXR channel Z / depth / `<layer>.Depth.Z` (may be the colour file
     /// itself), 8/16-bit PNG or PFM (times --depth-scale). Not needed with --tilt-shift.
     #[arg(long, value_name = "FILE", required_unless_present = "tilt_shift")]
     pub depth: Option<PathBuf>,

@@ -120,7 +120,7 @@ pub struct RenderArgs {
 }
 
 /// Flags of `render` that choose and place the camera (boxed in [`RenderArgs`] to keep
-/// [`Command`] small).
+/// `Command` small).
 #[derive(Debug, Args, Clone)]
 #[command(next_help_heading = "Camera (scene files and views)")]
 pub struct ViewArgs {

@@ -94,8 +94,8 @@ struct PresetFile {
 
 impl LensEffects {
     /// A lens preset: a built-in name ([`PRESETS`]) or a JSON file with the fields
-    /// `description`, and any of `anamorphic` (aspect), `cats_eye_mm` ([distance] or
-    /// [distance, radius]) and `chromatic` ([dioptres] or [dioptres, scale]). Returns the effects
+    /// `description`, and any of `anamorphic` (aspect), `cats_eye_mm` (`[distance]` or
+    /// `[distance, radius]`) and `chromatic` (`[dioptres]` or `[dioptres, scale]`). Returns the effects
     /// and the description.
     pub fn preset(spec: &str) -> Result<(LensEffects, String)> {
         let (source, text) = match PRESETS.iter().find(|(name, _)| *name == spec) {

@@ -15,7 +15,7 @@ pub enum SamplerKind {
     #[default]
     Halton,
     /// Owen-scrambled Sobol (0,2)-sequence for the lens, and a second one, scrambled and
-    /// shuffled apart, for the pixel ([`owen_sobol`]). Every run of 2^m samples from a multiple
+    /// shuffled apart, for the pixel (`owen_sobol`). Every run of 2^m samples from a multiple
     /// of 2^m has one lens point in each of the 2^m elementary boxes of the unit square; the
     /// seed picks the scrambles. Measured against Halton in the README ("How fast `reference`
     /// converges"): the same error at 64-256 samples.

@@ -26,9 +26,9 @@
 //! every ray anyway; there the scatter replaces the few of a pixel's rays that meet a small
 //! light, which made its bokeh noisy.)
 //!
-//! What keeps it affordable: a ray skips the blocks of [`BLOCK`] pixels and the pixels that hold
+//! What keeps it affordable: a ray skips the blocks of `BLOCK` pixels and the pixels that hold
 //! nothing in the 64 bins of CoC it crosses there; a highlight whose rays can pass nothing nearer
-//! is drawn whole; the rest trace their visibility on a grid [`stride_px`] apart, pixel by pixel
+//! is drawn whole; the rest trace their visibility on a grid `stride_px` apart, pixel by pixel
 //! only in the cells a shadow's edge crosses, and with four rays over the pixels at the edge.
 
 use glam::Vec2;

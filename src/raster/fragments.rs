@@ -268,7 +268,7 @@ impl FragmentLists {
     }
 
     /// Resolves the coverage masks of surfaces that no blur through `lens` can separate, as
-    /// the fragments of each pixel are finished ([`hide_coincident`]).
+    /// the fragments of each pixel are finished (`hide_coincident`).
     pub fn with_coincident_surfaces(mut self, lens: crate::lens::ThinLens) -> Self {
         self.coincident = Some(lens);
         self

@@ -226,7 +226,7 @@ const SURFACES: usize = 3;
 
 /// Per-tile state of [`DepthLayers`].
 ///
-/// Per layer and pixel (a slot) the [`SURFACES`] nearest surfaces. Most slots stay empty (a
+/// Per layer and pixel (a slot) the `SURFACES` nearest surfaces. Most slots stay empty (a
 /// pixel meets a few surfaces among tens of layers), so the slots live in a scratch buffer that
 /// is neither cleared nor allocated per tile: a bit per slot says which hold something (the
 /// others are [`HeldFragment::EMPTY`]), and when the tile finishes, its used slots are kept in a

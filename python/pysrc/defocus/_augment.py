@@ -8,27 +8,69 @@ import numpy as np
 
 
 class RandomDefocus:
-    """Blurs an (image, depth) pair through a thin lens with a random focus and f-number.
+    """A lens-blur augmentation: blurs (image, depth) pairs with a random focus and f-number.
 
     Unlike a uniform disc or Gaussian blur, the blur follows the depth: what lies at the
     focus distance stays sharp, and the blur grows with the distance from it, in the
-    aperture's shape. Each call draws:
+    aperture's shape. Each call draws the focus distance, the f-number and the aperture, then
+    calls ``defocus.blur``. The draws come from ``numpy.random.default_rng(seed)``: the same
+    seed gives the same sequence of blurs.
 
-    - the focus distance, uniformly in 1/distance (dioptres) within ``focus_range`` metres,
-      or, without a range, the depth at a random pixel of the image (so some surface of the
-      image is in focus);
-    - the f-number, uniformly in stops (log N) within ``fstop_range``;
-    - the aperture, one of ``aperture`` when it is a list.
+    Works on NumPy arrays and on torch tensors (through NumPy; a CxHxW tensor comes back
+    CxHxW, on its device and in its dtype).
 
-    The draws come from ``numpy.random.default_rng(seed)``: the same seed gives the same
-    sequence of blurs. ``last_params`` holds the last call's draws (focus in metres, f-number,
-    aperture, applied), for labels such as a defocus map.
+    Parameters
+    ----------
+    focus_range : tuple of (float, float) or None, default None
+        ``(near, far)`` in metres, ``0 < near <= far``: the focus distance is drawn uniformly
+        in 1/distance (dioptres) between them. ``None``: the depth of a random pixel of the
+        image among those with a finite depth above 0, so that some surface of the image is
+        in focus.
+    fstop_range : tuple of (float, float), default (1.4, 8.0)
+        ``(low, high)`` f-numbers, ``0 < low <= high``: the f-number is drawn uniformly in
+        stops (in log N) between them. ``blur`` refuses f-numbers below 0.1.
+    aperture : str or sequence of str, default "disc"
+        An aperture as ``blur`` takes it (``"disc"``, ``"poly:6"``, ...), or a non-empty list
+        of them, one drawn per call with equal chances.
+    method : str, default "lowrank"
+        The method of ``blur``.
+    focal_length : float, default 50.0
+        Focal length in millimetres.
+    sensor_width : float, default 36.0
+        Sensor width in millimetres (full frame is 36).
+    depth_kind : str, default "depth"
+        What the depth holds, as in ``blur``. With ``"inverse"`` or ``"disparity"`` the focus
+        is drawn in metres (``depth_scale / value``); with ``"coc"`` the map gives every
+        pixel's blur, and the drawn focus and f-number do not change the image.
+    depth_scale : float, default 1.0
+        Metres per depth unit, as in ``blur``.
+    p : float, default 1.0
+        The probability, 0 to 1, that a call blurs; otherwise the image comes back as it came
+        in (the draws are still made, so the sequence does not depend on ``p``'s outcomes).
+    seed : int or None, default None
+        Seed of the draws; ``None``: fresh entropy from the operating system, a different
+        sequence each time.
+    **method_options
+        The method's options, as ``blur`` takes them (``rank=3``), for every call.
 
-    Works on NumPy arrays (HxWxC colour, float32 linear or uint8 sRGB, and HxW depth in
-    metres) and on torch tensors, through NumPy: a CxHxW tensor comes back CxHxW, on its
-    device and in its dtype.
+    Attributes
+    ----------
+    last_params : dict
+        The last call's draws, for labels such as a defocus map: ``"applied"`` (bool),
+        ``"focus"`` (metres), ``"fstop"`` (float) and ``"aperture"`` (str). Empty before the
+        first call.
+    rng : numpy.random.Generator
+        The generator the draws come from (``reseed`` replaces it).
 
-    Example, a data loader that makes defocus training pairs::
+    Raises
+    ------
+    ValueError
+        ``focus_range`` not ``0 < near <= far``, ``fstop_range`` not ``0 < low <= high``,
+        ``p`` outside 0 to 1, or an empty list of apertures.
+
+    Examples
+    --------
+    A data set that makes defocus training pairs::
 
         aug = defocus.RandomDefocus(fstop_range=(1.4, 4.0), seed=0)
 
@@ -80,8 +122,16 @@ class RandomDefocus:
         self.last_params: Dict[str, Any] = {}
 
     def reseed(self, seed: Optional[int]) -> None:
-        """Starts a new stream of draws (for example one per data-loader worker, whose copies
-        of this object would otherwise draw the same sequence)."""
+        """Starts a new stream of draws, from ``numpy.random.default_rng(seed)``.
+
+        For example one per data-loader worker, whose copies of this object would otherwise
+        draw the same sequence.
+
+        Parameters
+        ----------
+        seed : int or None
+            Seed of the draws; ``None``: fresh entropy from the operating system.
+        """
         self.rng = np.random.default_rng(seed)
 
     def _metres(self, d: np.ndarray) -> np.ndarray:
@@ -110,6 +160,31 @@ class RandomDefocus:
         return {"applied": applied, "focus": float(focus), "fstop": fstop, "aperture": aperture}
 
     def __call__(self, image: Any, depth: Any) -> Any:
+        """Draws a focus, an f-number and an aperture, and blurs ``image`` with them.
+
+        Parameters
+        ----------
+        image : numpy.ndarray or torch.Tensor
+            HxWx3 or HxWx4, float32 linear light (alpha premultiplied) or uint8 sRGB, as
+            ``blur`` takes it; a tensor may also be CxHxW.
+        depth : numpy.ndarray or torch.Tensor
+            HxW (a tensor may have axes of length 1, such as 1xHxW), of the kind
+            ``depth_kind``; metres by default.
+
+        Returns
+        -------
+        numpy.ndarray or torch.Tensor
+            The blurred image as ``blur`` returns it (the same shape and channels; float32
+            for float input, uint8 for uint8), or, for a tensor, a tensor in the input's
+            layout, device and dtype. ``image`` itself when the draw skipped the blur
+            (``p`` below 1). The draws are in ``last_params``.
+
+        Raises
+        ------
+        ValueError
+            What ``blur`` raises, or, without ``focus_range``, a depth with no finite value
+            above 0 to focus on.
+        """
         from . import blur
 
         tensor = hasattr(image, "detach") and hasattr(image, "cpu")

@@ -1,4 +1,9 @@
-"""Type stubs of the native module (the public API, with docs, is in ``defocus/__init__.py``)."""
+"""Type stubs of the native module ``defocus._defocus`` (python/src/lib.rs).
+
+The public API, with its documentation, is ``defocus/__init__.py``. These stubs follow the
+``#[pyfunction]`` signatures parameter for parameter: ``python/tests/test_stubs.py`` compares
+them with the compiled module's ``inspect.signature``.
+"""
 
 from typing import Any, Dict, List, Optional, Tuple, Union
 
@@ -21,8 +26,8 @@ def blur(
     aperture: str,
     seed: int,
     flags: List[str],
-    highlights: Optional[str] = ...,
-    timings: bool = ...,
+    highlights: Optional[str] = None,
+    timings: bool = False,
 ) -> Union[np.ndarray, Tuple[np.ndarray, Dict[str, Any]]]: ...
 def render(
     scene: str,

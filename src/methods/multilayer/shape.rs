@@ -22,7 +22,7 @@
 //!    (`norm`): a point light keeps its energy to within 2%, sits where it is in the cell, and
 //!    the weight changes continuously with depth.
 //! 3. CoCs below `rho 2^1` pixels (at most a few pixels across, where shape and box differ by a
-//!    pixel or two) are taken from the levels as in the paper ([`super::accumulate`]): one cell
+//!    pixel or two) are taken from the levels as in the paper ([`super::accumulate()`]): one cell
 //!    per level, the two levels around the CoC blended to the disc's variance.
 //! 4. A pixel only walks the grid of a level where some fragment the level serves can reach it:
 //!    per level, 8x8-pixel tiles hold the largest CoC radius of the fragments within reach,

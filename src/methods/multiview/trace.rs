@@ -9,7 +9,7 @@
 //! the stored surface (`h(q(C)) <= C`). The segment is sampled a pixel apart from the front;
 //! the first sample behind the surface brackets the hit with the one before, and the pixels
 //! between the two are walked in order to the first point at or behind the surface as stored
-//! ([`refine`]; the paper's false-position iteration on a linear model of the surface with
+//! (`refine`; the paper's false-position iteration on a linear model of the surface with
 //! `--paper-refine`). Empty pixels hold +inf and are never hit. A
 //! ray whose segment in a layer leaves the image is discarded, as in the paper. A layer the pixel's rays
 //! cannot hit (the minimum over the window they can reach, `cull`, lies beyond the layer) is
@@ -24,7 +24,7 @@
 //! mipmap at that footprint ([`MipFilter`]) gives a coverage `v1` and a colour `c1`; the ray
 //! contributes `v1 c1` and continues behind with weight `1 - v1` (`v1 c1 + (1 - v1) c2`). By
 //! default a ray that passes a layer in front of the focal plane without hitting it takes the
-//! coverage its cone meets there too ([`graze`]; the paper's version with `--paper-cone`).
+//! coverage its cone meets there too (`graze`; the paper's version with `--paper-cone`).
 //!
 //! Jitter (section 4.5): each pixel uses one of 16 sample sets (different seeds of the shared
 //! sampler, so every set covers the aperture as `reference`'s does), picked from a 16x16 noise
@@ -312,10 +312,10 @@ pub struct TraceInput<'a> {
     /// How the mipmaps were filtered: the cones' levels are chosen for it.
     pub mip_filter: MipFilter,
     /// With cone tracing: a ray that passes a layer without hitting it still takes the
-    /// coverage its cone meets there ([`graze`]).
+    /// coverage its cone meets there (`graze`).
     pub graze: bool,
-    /// The paper's false-position refinement of a crossing ([`refine_false_position`]) instead
-    /// of [`refine`]'s walk (portable code only).
+    /// The paper's false-position refinement of a crossing (`refine_false_position`) instead
+    /// of `refine`'s walk (portable code only).
     pub paper_refine: bool,
     /// The lens sample sets (unit aperture points); one, or 16 for jitter.
     pub sets: &'a [Vec<Vec2>],
@@ -356,7 +356,7 @@ pub fn trace_baseline(input: &TraceInput) -> ColorImage {
 /// `l`, or the cones of those that pass it read it (`graze`): a layer with no surface there
 /// can be skipped. A ray's position is linear in its CoC, so its samples lie within
 /// `max(|C_l|, |C_l+1|) |v|` of the pixel; a grazing cone reads at the middle `C` of the layer,
-/// `|C| |v|` away, between the levels `k0` and `k0 + 1` of the layer's [`graze_level`], so the
+/// `|C| |v|` away, between the levels `k0` and `k0 + 1` of the layer's `graze_level`, so the
 /// pixels it draws on lie within [`MipFilter::texel_reach`] of level `k0 + 1` of that point.
 /// (`input.culls` is not read.)
 pub fn cull_radius(input: &TraceInput, l: usize) -> usize {
@@ -539,8 +539,8 @@ fn ray(input: &TraceInput, open: &[bool], p: Vec2, v: Vec2) -> Ray {
 
 /// Per sample set, ray and layer, what the trace of a ray needs that does not depend on the
 /// pixel: its speed `|v|` (pixels per pixel of CoC), and in each layer its number of steps and
-/// its CoC step (computed as [`layer`] computes them, so the same bits); and per layer, where
-/// the rays that pass it graze it ([`graze_level`], the same for every ray: a `log2` per layer
+/// its CoC step (computed as `layer` computes them, so the same bits); and per layer, where
+/// the rays that pass it graze it (`graze_level`, the same for every ray: a `log2` per layer
 /// instead of one per packet and layer).
 pub struct RayTable {
     rays: usize,
