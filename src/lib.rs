@@ -31,7 +31,7 @@
 //! assert!(!out.timings.passes.is_empty()); // per-pass times, named `multilayer/<pass>`
 //!
 //! // A frame and its depth pass: linear premultiplied RGBA, view-axis depth in metres.
-//! let (w, h) = (64, 48);
+//! let (w, h) = (128, 96);
 //! let color = ColorImage::from_vec(w, h, (0..w * h).map(|i| {
 //!     let v = if (i % w / 8 + i / w / 8) % 2 == 0 { 1.0 } else { 0.0 };
 //!     [v, v, v, 1.0]
@@ -39,14 +39,15 @@
 //! let depth = GrayImage::new(w, h, 10.0); // everything 10 m away
 //! camera.width_px = w;
 //! camera.height_px = h;
-//! camera.focus_m = 2.0; // focused nearer: the checkerboard blurs
+//! (camera.focus_m, camera.fstop) = (0.5, 1.0); // focused near, wide open: the board blurs
 //! let lens = camera.thin_lens()?;
-//! assert!(lens.coc_px(10.0).abs() > 1.0);
+//! assert!(lens.coc_px(10.0) > 4.0); // behind the focus: a positive CoC radius, in pixels
 //! let blurred = registry::run_frame(
 //!     &MethodSettings::default_for("lowrank")?,
 //!     &Frame { color: &color, depth: &depth, lens: &lens },
 //! )?;
-//! // A normalised kernel keeps the mean brightness of the board.
+//! // The middle of a white square turns grey, and a normalised kernel keeps the board's mean.
+//! assert!(blurred.image.get(w / 2 + 4, h / 2 + 4)[0] < 0.8);
 //! let mean = |img: &ColorImage| img.pixels().iter().map(|p| p[0] as f64).sum::<f64>() / (w * h) as f64;
 //! assert!((mean(&blurred.image) - mean(&color)).abs() < 0.05);
 //! # Ok(())

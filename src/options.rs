@@ -390,7 +390,8 @@ pub struct PostArgs {
     pub lens: Option<String>,
     /// Anamorphic aperture: the bokeh's width over its height, its area kept (0.5: the tall
     /// ovals of a 2x anamorphic lens; 1: round). Exact in reference; multiview stretches its lens
-    /// rays and poisson its taps; other methods refuse it.
+    /// rays, poisson its taps, splat its footprints and lowrank its kernel; other methods refuse
+    /// it.
     #[arg(
         long,
         value_name = "ASPECT",
@@ -412,7 +413,8 @@ pub struct PostArgs {
     /// Chromatic aberration: red in focus DPT dioptres (1/m) nearer than green and blue as much
     /// farther (longitudinal: behind the focus the bokeh fringes red, in front of it blue), and
     /// red's aperture SCALE times green's, blue's 1/SCALE times (lateral) [default SCALE: 1].
-    /// Exact in reference (a pass per channel); other methods refuse it.
+    /// Exact in reference (a pass per channel); multiview, poisson, splat and lowrank run once
+    /// per channel through its lens as well; other methods refuse it.
     #[arg(
         long,
         value_name = "DPT[,SCALE]",

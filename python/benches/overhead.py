@@ -1,4 +1,4 @@
-"""What the Python shell costs, measured (issue #28).
+"""What the Python shell costs, measured.
 
 1. A 1280x720 `lowrank` blur through `defocus.blur` (NumPy in, NumPy out): the call's wall
    time against the wall time of the Rust library call inside it (`timings=True`:

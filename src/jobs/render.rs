@@ -68,7 +68,7 @@ pub struct RenderArgs {
     /// Aperture: `disc`, `poly:B[,rot=DEG][,curve=R]` (B blades, rotation in degrees
     /// counter-clockwise, curved blades of radius R in aperture radii, R >= 1), `star[:N[,INNER]]`,
     /// `heart`, `ring[:INNER]` or `image:PATH` (a greyscale image used as density, as the
-    /// far-field bokeh appears) [default: the scene's]. hammon, gaussian and multilayer (box filters) have no shape.
+    /// far-field bokeh appears) [default: the scene's]. hammon and gaussian have no shape; multilayer draws it for blurs of a few pixels and more (--ml-bokeh).
     #[arg(long, value_name = "SPEC")]
     pub aperture: Option<String>,
     /// Lens sampler: halton (low discrepancy, the default), sobol (Owen-scrambled), stratified, random.

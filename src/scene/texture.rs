@@ -90,7 +90,7 @@ const TWO_VALUED_MAX_EDGE: f32 = 0.25;
 const BOUND_CELL: usize = 4;
 
 /// Upper bounds on the alpha a lookup can return, for rejecting the fragments of alpha-tested
-/// materials before the full lookup (issue #15: an early alpha test on a cheap coverage
+/// materials before the full lookup (an early alpha test on a cheap coverage
 /// lookup). Per mip level `L`, per cell of [`BOUND_CELL`]² texels: the largest alpha of level
 /// `L` over the cell widened by [`BOUND_CELL`] texels on every side, the widening taken under
 /// every wrap mode at once (clamped, repeated and mirrored indices all included).

@@ -313,7 +313,7 @@ fn story_in(text: &str, markdown: bool) -> Vec<String> {
             markdown
                 && digits > 0
                 && !after.is_some_and(|b| b.is_ascii_alphanumeric())
-                && !before.is_some_and(|b| b.is_ascii_alphanumeric() || *b == b'&')
+                && !before.is_some_and(|b| b.is_ascii_alphanumeric() || b == b'&')
         }) || lower.contains("issue #")
             || lower
                 .match_indices("issue ")
@@ -450,10 +450,34 @@ fn every_flag_the_docs_show_exists() {
             }
         }
     }
-    assert!(commands > 30, "only {commands} commands found: is the parser right?");
+    assert!(
+        commands > 30,
+        "only {commands} commands found: is the parser right?"
+    );
     assert!(
         unknown.is_empty(),
         "flags shown in the docs that the command does not take:\n{}",
         unknown.join("\n")
+    );
+}
+
+#[test]
+fn every_page_of_the_docs_is_in_the_book() {
+    let summary = std::fs::read_to_string(root().join("docs/SUMMARY.md")).expect("docs/SUMMARY.md");
+    let listed: BTreeSet<String> = link_targets(&summary).into_iter().collect();
+    let mut missing = Vec::new();
+    for page in markdown_under(&root().join("docs")) {
+        let rel = page
+            .strip_prefix(root().join("docs"))
+            .unwrap()
+            .to_string_lossy()
+            .replace('\\', "/");
+        if rel != "SUMMARY.md" && !listed.contains(&rel) {
+            missing.push(rel);
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "pages of docs/ that docs/SUMMARY.md does not list (the book leaves them out): {missing:?}"
     );
 }

@@ -22,8 +22,10 @@ pub struct Cli {
     /// No progress bar.
     #[arg(long, short, global = true)]
     pub quiet: bool,
-    /// Peak memory the layered methods may plan for, in GiB (default 16): a run that would need
-    /// more is refused before it allocates, naming the option to lower.
+    /// Peak memory a run may plan for, in GiB (default 16; also `DEFOCUS_MEMORY_BUDGET_GIB`):
+    /// images read, every method's frame and the layered methods' lists and layers are counted
+    /// before they are allocated, and a run that would need more is refused, naming the option
+    /// to lower.
     #[arg(long, global = true, value_name = "GIB", allow_negative_numbers = true)]
     pub memory_budget: Option<f64>,
     /// Do not wait for each output to reach the disk (fsync) before it replaces its target.
