@@ -93,7 +93,8 @@ pub fn parse_threshold(s: &str) -> crate::Result<Option<f32>> {
 /// output's) every fragment brighter than `threshold` (luminance of its colour over its
 /// coverage) whose CoC is at least [`MIN_COC_PX`] pixels of the output, with its CoC clamped to
 /// `max_coc_px` of the output: its colour becomes zero (its coverage stays, it still hides what
-/// lies behind it) and it is returned.
+/// lies behind it) and it is returned; so are the bright fragments the lists kept apart from a
+/// full pixel ([`FragmentLists::overflow_highlights`]).
 pub fn take(
     lists: &mut FragmentLists,
     lens: &ThinLens,
@@ -101,10 +102,24 @@ pub fn take(
     threshold: f32,
     max_coc_px: f32,
 ) -> Vec<Highlight> {
-    take_indexed(lists, lens, scale, threshold, max_coc_px)
+    let mut found: Vec<Highlight> = take_indexed(lists, lens, scale, threshold, max_coc_px)
         .into_iter()
         .map(|(_, h)| h)
-        .collect()
+        .collect();
+    // Those a full pixel kept apart (`FragmentLists::keeping_bright_overflow`): their colour
+    // is in no fragment of the lists, so they are scattered whatever their CoC.
+    let (width, max) = (lists.width(), max_coc_px * scale);
+    found.extend(
+        lists
+            .overflow_highlights()
+            .iter()
+            .map(|&(pixel, depth, c)| Highlight {
+                centre: Vec2::new((pixel % width) as f32 + 0.5, (pixel / width) as f32 + 0.5),
+                coc_px: lens.coc_px(depth).clamp(-max, max),
+                color: [c[0], c[1], c[2]],
+            }),
+    );
+    found
 }
 
 /// [`take`], each highlight with the index of its fragment in the lists.
@@ -321,6 +336,9 @@ fn visibility(lists: &FragmentLists, cocs: &Cocs, x0: Vec2, c0: f32, u: Vec2) ->
     let (w, h) = (lists.width() as i64, lists.height() as i64);
     let offsets = lists.offsets();
     let colors = lists.colors();
+    // The opacity each fragment hides a light behind it with: its own surfaces' (what a full
+    // pixel merged into it lay behind it), where the lists keep it.
+    let own_alpha = lists.own_alphas();
     // Along t = c0 - c (0 at the light, growing towards the eye) the ray is over x0 + t u,
     // to a pixel of CoC past the nearest surface (whose CoC would otherwise end the walk's
     // last interval, which is open there).
@@ -360,9 +378,10 @@ fn visibility(lists: &FragmentLists, cocs: &Cocs, x0: Vec2, c0: f32, u: Vec2) ->
                 // Most pixels hold nothing at the ray's CoC over them.
                 if cocs.pixel_bins[i] & cocs.bins.span(c_lo, c_hi) != 0 {
                     let range = offsets[i] as usize..offsets[i + 1] as usize;
-                    for (&c, color) in cocs.coc[range.clone()].iter().zip(&colors[range]) {
+                    for (f, &c) in range.clone().zip(&cocs.coc[range]) {
                         if c > c_lo && c <= c_hi {
-                            v *= 1.0 - color[3].to_f32().clamp(0.0, 1.0);
+                            let alpha = own_alpha.map_or(colors[f][3], |o| o[f]).to_f32();
+                            v *= 1.0 - alpha.clamp(0.0, 1.0);
                         }
                     }
                     if v < 1e-3 {

@@ -50,6 +50,9 @@ pub struct HeldFragment {
     pub dithered: bool,
     /// Seen from its back ([`Fragment::back_facing`]).
     pub back: bool,
+    /// The opacity it took in from fragments behind it ([`HeldFragment::absorb`]): its own
+    /// surfaces' opacity is `color[3]` less this.
+    pub absorbed: f32,
 }
 
 impl HeldFragment {
@@ -61,6 +64,7 @@ impl HeldFragment {
         blend: false,
         dithered: false,
         back: false,
+        absorbed: 0.0,
     };
 
     /// A rasterized fragment, premultiplied by its opacity and coverage.
@@ -74,6 +78,7 @@ impl HeldFragment {
             blend: f.blend,
             dithered: f.dithered,
             back: f.back_facing,
+            absorbed: 0.0,
         }
     }
 
@@ -102,6 +107,7 @@ impl HeldFragment {
         }
         self.mask |= other.mask;
         self.back &= other.back;
+        self.absorbed += other.absorbed;
         true
     }
 
@@ -114,9 +120,24 @@ impl HeldFragment {
         for (a, b) in self.color.iter_mut().zip(back.color) {
             *a += t * b;
         }
+        self.absorbed += t * back.color[3];
         self.mask |= back.mask;
         self.blend |= back.blend;
         self.dithered |= back.dithered;
+    }
+
+    /// The opacity of its own surfaces, without what it absorbed from behind.
+    #[inline]
+    pub fn own_alpha(&self) -> f32 {
+        (self.color[3] - self.absorbed).max(0.0)
+    }
+
+    /// True when its colour's luminance exceeds `threshold` times its opacity: a highlight
+    /// (see [`crate::methods::highlights`]).
+    #[inline]
+    pub(crate) fn is_bright(&self, threshold: f32) -> bool {
+        let [r, g, b, a] = self.color;
+        a > 0.0 && crate::image::luminance([r, g, b]) > threshold * a
     }
 
     /// True when nothing behind it shows in the pinhole view, to within [`OPAQUE_ALPHA`]: what
@@ -197,6 +218,13 @@ pub struct FragmentLists {
     coincident: Option<crate::lens::ThinLens>,
     /// See [`FragmentLists::merging_overflow`].
     merge_overflow: bool,
+    /// See [`FragmentLists::keeping_bright_overflow`].
+    bright_overflow: Option<f32>,
+    /// The bright fragments kept apart from a full list: pixel (row-major), depth, colour.
+    overflow_highlights: Vec<(usize, f32, Rgba)>,
+    /// With bright overflow kept apart: each fragment's own opacity (see
+    /// [`FragmentLists::own_alphas`]); empty otherwise.
+    own_alpha: Vec<f16>,
 }
 
 /// Which fragments of a guard band around a frame can reach the frame once blurred: one at
@@ -264,6 +292,9 @@ impl FragmentLists {
             reach: None,
             coincident: None,
             merge_overflow: false,
+            bright_overflow: None,
+            overflow_highlights: Vec::new(),
+            own_alpha: Vec::new(),
         }
     }
 
@@ -287,6 +318,34 @@ impl FragmentLists {
     pub fn merging_overflow(mut self) -> Self {
         self.merge_overflow = true;
         self
+    }
+
+    /// With [`FragmentLists::merging_overflow`]: a fragment brighter than `threshold` (the
+    /// luminance of its colour over its opacity, as `--highlight-rays` takes highlights out of
+    /// the lists) that a full pixel would merge into a nearer one is kept apart instead, at its
+    /// own depth ([`FragmentLists::overflow_highlights`]); only its opacity is merged, so it
+    /// still hides what lies behind it. A light seen through more surfaces than the lists hold
+    /// (city lights through three panes and a leaf) is then scattered with its own CoC, not the
+    /// CoC of the surface it was merged into, whose blur made it a dot.
+    pub fn keeping_bright_overflow(mut self, threshold: f32) -> Self {
+        self.bright_overflow = Some(threshold);
+        self
+    }
+
+    /// The bright fragments a full pixel kept apart ([`FragmentLists::keeping_bright_overflow`]):
+    /// pixel index (row-major), view-axis depth in metres, premultiplied linear colour (its
+    /// coverage included), in the order of the tiles.
+    pub fn overflow_highlights(&self) -> &[(usize, f32, Rgba)] {
+        &self.overflow_highlights
+    }
+
+    /// With bright overflow kept apart ([`FragmentLists::keeping_bright_overflow`]), the
+    /// opacity of each fragment's own surfaces, parallel to [`FragmentLists::colors`]: a
+    /// fragment that merged the overflow of a full pixel holds in its opacity what lay behind
+    /// it (the wall behind four panes), which must not hide a light that lay in front of that.
+    /// `None` otherwise (every fragment's opacity is its own).
+    pub fn own_alphas(&self) -> Option<&[f16]> {
+        (!self.own_alpha.is_empty()).then_some(self.own_alpha.as_slice())
     }
 
     /// Drops, as it rasterizes, the fragments outside the frame that cannot reach it once
@@ -488,6 +547,20 @@ impl FragmentLists {
                     }
                 }
             });
+        if self.bright_overflow.is_some() && self.merge_overflow {
+            let mut own = vec![f16::ZERO; total];
+            for (rect, tile) in &tiles {
+                let mut src = 0usize;
+                for (k, &c) in tile.counts.iter().enumerate() {
+                    let (tx, ty) = (k % rect.width(), k / rect.width());
+                    let dst = offsets[(rect.y0 + ty) * w + rect.x0 + tx] as usize;
+                    let c = c as usize;
+                    own[dst..dst + c].copy_from_slice(&tile.out_own[src..src + c]);
+                    src += c;
+                }
+            }
+            self.own_alpha = own;
+        }
     }
 }
 
@@ -648,6 +721,34 @@ pub struct FragmentTile {
     coincident: Option<CocScale>,
     /// See [`FragmentLists::merging_overflow`].
     merge_overflow: bool,
+    /// See [`FragmentLists::keeping_bright_overflow`].
+    bright_overflow: Option<f32>,
+    /// The bright fragments kept apart: pixel of the tile, fragment.
+    bright: Vec<(usize, HeldFragment)>,
+    /// After `finish`, with bright overflow kept apart: each fragment's own opacity.
+    out_own: Vec<f16>,
+}
+
+/// Takes `back` into `front` as [`HeldFragment::absorb`] does, but a `back` brighter than
+/// `threshold` is kept apart in `bright` (pixel `i`) and only its opacity merged: see
+/// [`FragmentLists::keeping_bright_overflow`].
+fn absorb_or_keep(
+    front: &mut HeldFragment,
+    back: &HeldFragment,
+    threshold: Option<f32>,
+    bright: &mut Vec<(usize, HeldFragment)>,
+    i: usize,
+) {
+    match threshold {
+        Some(t) if back.is_bright(t) => {
+            bright.push((i, *back));
+            front.absorb(&HeldFragment {
+                color: [0.0, 0.0, 0.0, back.color[3]],
+                ..*back
+            });
+        }
+        _ => front.absorb(back),
+    }
 }
 
 impl TileSink for FragmentTile {
@@ -712,8 +813,9 @@ impl TileSink for FragmentTile {
             None if merge_overflow => {
                 // Full: the two farthest of the N + 2 become one, the nearer over the farther.
                 let far = farthest_slot(slots);
+                let (t, bright) = (self.bright_overflow, &mut self.bright);
                 let at = if held.depth_m >= slots[far].depth_m {
-                    slots[far].absorb(&held);
+                    absorb_or_keep(&mut slots[far], &held, t, bright, i);
                     far
                 } else {
                     let mut next = None::<usize>;
@@ -725,13 +827,13 @@ impl TileSink for FragmentTile {
                     match next {
                         Some(g) if slots[g].depth_m > held.depth_m => {
                             let back = slots[far];
-                            slots[g].absorb(&back);
+                            absorb_or_keep(&mut slots[g], &back, t, bright, i);
                             slots[far] = held;
                         }
                         _ => {
                             let back = slots[far];
                             slots[far] = held;
-                            slots[far].absorb(&back);
+                            absorb_or_keep(&mut slots[far], &back, t, bright, i);
                         }
                     }
                     far
@@ -796,12 +898,22 @@ impl TileSink for FragmentTile {
                     kept += 1;
                 } else {
                     let back = slots[k];
-                    slots[kept - 1].absorb(&back);
+                    absorb_or_keep(
+                        &mut slots[kept - 1],
+                        &back,
+                        self.bright_overflow,
+                        &mut self.bright,
+                        i,
+                    );
                 }
             }
             for s in &slots[..kept] {
                 self.out_depth.push(s.depth_m);
                 self.out_color.push(to_half(s.color));
+            }
+            if self.bright_overflow.is_some() {
+                self.out_own
+                    .extend(slots[..kept].iter().map(|s| f16::from_f32(s.own_alpha())));
             }
             self.counts[i] = kept as u32;
         }
@@ -834,10 +946,19 @@ impl Sink for FragmentLists {
             out_color: Vec::new(),
             coincident: self.coincident.as_ref().map(CocScale::of),
             merge_overflow: self.merge_overflow,
+            bright_overflow: self.bright_overflow.filter(|_| self.merge_overflow),
+            bright: Vec::new(),
+            out_own: Vec::new(),
         }
     }
 
-    fn end_tile(&mut self, rect: TileRect, tile: FragmentTile) {
+    fn end_tile(&mut self, rect: TileRect, mut tile: FragmentTile) {
+        let w = self.width;
+        for (k, f) in std::mem::take(&mut tile.bright) {
+            let (tx, ty) = (k % rect.width(), k / rect.width());
+            let pixel = (rect.y0 + ty) * w + rect.x0 + tx;
+            self.overflow_highlights.push((pixel, f.depth_m, f.color));
+        }
         self.tiles.push((rect, tile));
     }
 }

@@ -758,10 +758,27 @@ pub fn render_fragment_lists(
     input: LayeredInput,
     reach: Option<Reach>,
 ) -> FragmentLists {
+    render_fragment_lists_with(prepared, view, cap, input, reach, None)
+}
+
+/// [`render_fragment_lists`]; with `highlights`, the fragments brighter than it that a full
+/// pixel would merge into a nearer one are kept apart, at their own depth
+/// ([`FragmentLists::keeping_bright_overflow`]: coverage input only).
+pub fn render_fragment_lists_with(
+    prepared: &PreparedScene,
+    view: &View,
+    cap: usize,
+    input: LayeredInput,
+    reach: Option<Reach>,
+    highlights: Option<f32>,
+) -> FragmentLists {
     let binned = input.bin(prepared, view);
     let mut lists = FragmentLists::new(view.lens.width_px, view.lens.height_px, cap);
     if input.coverage {
         lists = lists.with_coincident_surfaces(view.lens).merging_overflow();
+        if let Some(t) = highlights {
+            lists = lists.keeping_bright_overflow(t);
+        }
     }
     if let Some(reach) = reach {
         lists = lists.with_reach(reach);

@@ -5,6 +5,7 @@ mod cli_post;
 mod docs;
 mod fuzz;
 mod hammon;
+mod highlights;
 mod image_io;
 mod jobs;
 mod layered;

@@ -69,7 +69,7 @@ use rayon::prelude::*;
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, ThinLens};
 use crate::raster::{
-    render_fragment_lists, FragmentLists, LayeredInput, PreparedScene, Reach, View,
+    render_fragment_lists_with, FragmentLists, LayeredInput, PreparedScene, Reach, View,
 };
 use crate::scene::Scene;
 use crate::timing::Timings;
@@ -437,12 +437,13 @@ pub fn collect(
         slack_px: REACH_SLACK_PX * k as f32,
         square: false,
     });
-    render_fragment_lists(
+    render_fragment_lists_with(
         prepared,
         &View::pinhole(big),
         settings.fragments,
         settings.input,
         reach,
+        settings.highlights,
     )
 }
 
@@ -727,7 +728,7 @@ mod tests {
                 accumulate_for(&levels, &borders, &settings, region)
             };
             let trimmed = collect(&prepared, lens, guard, &settings);
-            let full = render_fragment_lists(
+            let full = crate::raster::render_fragment_lists(
                 &prepared,
                 &View::pinhole(lens),
                 settings.fragments,

@@ -44,7 +44,7 @@ use rayon::prelude::*;
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::{Aperture, Camera, LensEffects, ThinLens};
 use crate::raster::{
-    render_fragment_lists, FragmentLists, LayeredInput, PreparedScene, Reach, View,
+    render_fragment_lists_with, FragmentLists, LayeredInput, PreparedScene, Reach, View,
 };
 use crate::scene::Scene;
 use crate::timing::Timings;
@@ -462,12 +462,13 @@ fn collect(
             square: true,
         }
     });
-    render_fragment_lists(
+    render_fragment_lists_with(
         prepared,
         &View::pinhole(lens),
         settings.layers,
         settings.input,
         reach,
+        settings.highlights,
     )
 }
 
@@ -528,7 +529,7 @@ mod tests {
                     .0
             };
             let trimmed = collect(&prepared, lens, guard, &settings);
-            let full = render_fragment_lists(
+            let full = crate::raster::render_fragment_lists(
                 &prepared,
                 &View::pinhole(lens),
                 settings.layers,
