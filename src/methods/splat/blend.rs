@@ -95,19 +95,30 @@ impl Shape {
         self.squeeze.x.max(self.squeeze.y)
     }
 
-    /// An offset in pixels and an edge width, in the unsqueezed aperture's frame (the same
-    /// values without a squeeze).
+    /// The squeeze a fragment of CoC radius `coc_px` is drawn with: the aperture's, except
+    /// that neither axis of its footprint falls below the half pixel every fragment is drawn
+    /// with ([`draw_radius`]). An in-focus point seen through an anamorphic lens stays one
+    /// pixel; squeezing its half-pixel draw radius spread it over the rows above and below
+    /// (`splat --layers 4 --anamorphic 0.5` blurred `traps`' in-focus chart: 31.9 dB against
+    /// `reference` with the same squeeze, 37.6 with a round aperture). The ideal lens's is 1.
     #[inline]
-    fn unsqueeze(&self, d_px: Vec2, soft_px: f32) -> (Vec2, f32) {
-        (d_px / self.squeeze, soft_px / self.stretch())
+    pub fn squeeze_for(&self, coc_px: f32) -> Vec2 {
+        if self.squeeze == Vec2::ONE {
+            return Vec2::ONE;
+        }
+        let r = draw_radius(coc_px).abs();
+        (self.squeeze * coc_px.abs()).max(Vec2::splat(0.5)) / r
     }
 
-    /// Coverage in [0, 1] of the pixel at offset `d_px` from a fragment's centre, for the
-    /// signed radius `c` (|c| >= 0.5) and an edge `soft_px` pixels wide (1, or the block size
-    /// of a merged fragment: the footprint of a block is its disc widened by the block).
+    /// Coverage in [0, 1] of the pixel at offset `d_px` from a fragment's centre, for its
+    /// signed CoC radius `c` (drawn at least half a pixel wide, [`draw_radius`]) and an edge
+    /// `soft_px` pixels wide (1, or the block size of a merged fragment: the footprint of a
+    /// block is its disc widened by the block).
     #[inline]
     pub fn coverage(&self, d_px: Vec2, c: f32, soft_px: f32) -> f32 {
-        let (d_px, soft_px) = self.unsqueeze(d_px, soft_px);
+        let squeeze = self.squeeze_for(c);
+        let c = draw_radius(c);
+        let (d_px, soft_px) = (d_px / squeeze, soft_px / squeeze.x.max(squeeze.y));
         let r = c.abs();
         let v = d_px / c;
         let inv = 1.0 / soft_px;
@@ -126,9 +137,10 @@ impl Shape {
 
     /// `1 / (summed coverage)`: the weight that makes a fragment's footprint sum to 1.
     pub fn norm(&self, centre: Vec2, c: f32, soft_px: f32) -> f32 {
-        let r = c.abs();
+        let r = draw_radius(c).abs();
         if r >= 4.0 {
-            return 1.0 / (self.area * r * r * self.squeeze.x * self.squeeze.y);
+            let squeeze = self.squeeze_for(c);
+            return 1.0 / (self.area * r * r * squeeze.x * squeeze.y);
         }
         let reach = reach_px(c, soft_px, self.stretch());
         let (x0, x1) = (
@@ -185,9 +197,10 @@ const MAX_BLADES: usize = 16;
 /// edge `soft` pixels wide, in pixel units.
 struct Footprint<'a> {
     shape: &'a Shape,
-    c: f32,
+    /// The fragment's CoC radius, and the radius it is drawn with ([`draw_radius`]).
+    coc: f32,
     r: f32,
-    /// The edge width in the unsqueezed frame ([`Shape::unsqueeze`]), and the pixel one.
+    /// The edge width in the unsqueezed frame, and the pixel one.
     soft: f32,
     soft_px: f32,
     /// The squeeze: rows and columns are walked in pixels, tested in the unsqueezed frame
@@ -210,18 +223,20 @@ struct Footprint<'a> {
 
 impl<'a> Footprint<'a> {
     #[inline]
-    fn new(shape: &'a Shape, c: f32, soft_px: f32) -> Self {
-        let (_, soft) = shape.unsqueeze(Vec2::ZERO, soft_px);
+    fn new(shape: &'a Shape, coc: f32, soft_px: f32) -> Self {
+        let squeeze = shape.squeeze_for(coc);
+        let c = draw_radius(coc);
+        let soft = soft_px / squeeze.x.max(squeeze.y);
         let r = c.abs();
         let (o, i) = (r + 0.5 * soft, r - 0.5 * soft);
         let mut fp = Self {
             shape,
-            c,
+            coc,
             r,
             soft,
             soft_px,
-            squeeze: shape.squeeze,
-            inv_squeeze: Vec2::ONE / shape.squeeze,
+            squeeze,
+            inv_squeeze: Vec2::ONE / squeeze,
             inv_soft: 1.0 / soft,
             outer2: o * o,
             inner2: if i > 0.0 { i * i } else { -1.0 },
@@ -341,7 +356,9 @@ impl<'a> Footprint<'a> {
     #[inline]
     fn coverage(&self, dx: f32, dy: f32) -> f32 {
         if let ShapeKind::Density(_) = self.shape.kind {
-            return self.shape.coverage(Vec2::new(dx, dy), self.c, self.soft_px);
+            return self
+                .shape
+                .coverage(Vec2::new(dx, dy), self.coc, self.soft_px);
         }
         let (dx, dy) = (dx * self.inv_squeeze.x, dy * self.inv_squeeze.y);
         match self.shape.kind {
@@ -361,7 +378,7 @@ impl<'a> Footprint<'a> {
             }
             _ => self
                 .shape
-                .coverage(Vec2::new(dx, dy) * self.squeeze, self.c, self.soft_px),
+                .coverage(Vec2::new(dx, dy) * self.squeeze, self.coc, self.soft_px),
         }
     }
 }
@@ -753,7 +770,6 @@ fn blend_tile_inner<const ROUND: bool>(
             batch_coc = f.coc_px;
         }
         let centre = f.centre();
-        let c = draw_radius(f.coc_px);
         let soft = f.soft_px(merge);
         let reach = reach_px(f.coc_px, soft, shape.stretch());
         let py0 = (floor_r::<ROUND>(centre.y - reach).max(y0 as f32) as usize).max(y0);
@@ -769,7 +785,7 @@ fn blend_tile_inner<const ROUND: bool>(
         let (bx0f, bx1f) = (bx0 as f32, bx1 as f32);
         let first = |lo: f32| first_px::<ROUND>(centre.x, lo, (bx0f, bx1f)) as usize;
         let last = |hi: f32| end_px::<ROUND>(centre.x, hi, (bx0f, bx1f)) as usize;
-        let fp = Footprint::new(shape, c, soft);
+        let fp = Footprint::new(shape, f.coc_px, soft);
         // A footprint that covers the tile's four corner pixels at full coverage covers all its
         // pixels so (the disc and the polygons are convex): added once, not row by row.
         if bx0 == x0 && bx1 == x1 && py0 == y0 && py1 == y1 && fp.convex() {

@@ -188,13 +188,7 @@ fn splat(
         let fragments = build::fragments(layers, width, height, settings.merge, settings.group_px);
         let norms: Vec<f32> = fragments
             .par_iter()
-            .map(|f| {
-                shape.norm(
-                    f.centre(),
-                    blend::draw_radius(f.coc_px),
-                    f.soft_px(settings.merge),
-                )
-            })
+            .map(|f| shape.norm(f.centre(), f.coc_px, f.soft_px(settings.merge)))
             .collect();
         // Only the tiles of the region are blended (the guard band around it is a source).
         let window = build::TileWindow::of(width, height, region);
@@ -363,7 +357,12 @@ pub fn render_scene(
         PreparedScene::new(scene, &camera.camera_from_world)
     })?;
     // Fragments of the guard band around the frame splat into it too (cut back at the end).
-    let guard = settings.input.guard_band_px(&prepared, &frame);
+    // The band is as wide as the largest CoC; a squeezed aperture reaches `stretch` times
+    // farther along its long axis.
+    let stretch = blend::Shape::new(&settings.aperture)
+        .with_effects(&settings.effects)
+        .stretch();
+    let guard = (settings.input.guard_band_px(&prepared, &frame) as f32 * stretch).ceil() as usize;
     let lens = frame.with_guard_band(guard);
     check(&lens)?;
     let mut lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
