@@ -313,7 +313,7 @@ fn story_in(text: &str, markdown: bool) -> Vec<String> {
             markdown
                 && digits > 0
                 && !after.is_some_and(|b| b.is_ascii_alphanumeric())
-                && !before.is_some_and(|b| b.is_ascii_alphanumeric() || *b == b'&')
+                && !before.is_some_and(|b| b.is_ascii_alphanumeric() || b == b'&')
         }) || lower.contains("issue #")
             || lower
                 .match_indices("issue ")
@@ -450,7 +450,10 @@ fn every_flag_the_docs_show_exists() {
             }
         }
     }
-    assert!(commands > 30, "only {commands} commands found: is the parser right?");
+    assert!(
+        commands > 30,
+        "only {commands} commands found: is the parser right?"
+    );
     assert!(
         unknown.is_empty(),
         "flags shown in the docs that the command does not take:\n{}",
