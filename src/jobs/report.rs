@@ -22,7 +22,7 @@ use base64::Engine as _;
 use serde::Serialize;
 
 use super::blur::{BlurArgs, BlurJob, DepthKind};
-use super::flags::{parse_focus, ExrArgs, ExrCompressionArg, Focus};
+use super::flags::{check_input, parse_focus, ExrArgs, ExrCompressionArg, Focus};
 use super::grid;
 use super::render::{RenderArgs, RenderJob, ViewArgs};
 use crate::options::PostArgs;
@@ -585,6 +585,15 @@ pub fn write(
     // Every run's flags, sweep values included, are checked before anything is rendered.
     for run in &runs {
         check_run(a, run)?;
+    }
+    for (flag, path) in [
+        ("--truth", &a.truth),
+        ("--color", &a.color),
+        ("--depth", &a.depth),
+    ] {
+        if let Some(p) = path {
+            check_input(p, flag)?;
+        }
     }
     std::fs::create_dir_all(&dir)
         .with_context(|| format!("could not create the report folder {}", shown(&dir)))?;

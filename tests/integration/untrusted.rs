@@ -845,3 +845,185 @@ fn a_report_on_a_full_disk_fails_and_leaves_the_old_report() {
     assert!(before == after, "a file of the old report changed");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+// ---------------------------------------------------------------------------------------------
+// Images named on the command line
+// ---------------------------------------------------------------------------------------------
+
+/// A 32x24 frame (colour, depth) and its truth, written into `dir` as `c.exr`, `z.exr` and
+/// `truth.exr`.
+fn small_frame(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
+    let (c, z, t) = (dir.join("c.exr"), dir.join("z.exr"), dir.join("truth.exr"));
+    let color = ColorImage::from_vec(
+        32,
+        24,
+        (0..32 * 24)
+            .map(|i| {
+                let v = if (i % 32 / 4 + i / 32 / 4) % 2 == 0 {
+                    0.8
+                } else {
+                    0.1
+                };
+                [v, v, v, 1.0]
+            })
+            .collect(),
+    )
+    .unwrap();
+    io::write_color(&c, &color).unwrap();
+    io::write_depth_exr(&z, &defocus::image::GrayImage::new(32, 24, 3.0)).unwrap();
+    io::write_color(&t, &color).unwrap();
+    (c, z, t)
+}
+
+/// Runs defocus with `args` (without `--quiet`), failing the test when it takes longer than
+/// [`REFUSAL_TIMEOUT`] (it waits on a FIFO); its exit code and standard error.
+fn run_within_timeout(args: &[&str]) -> (Option<i32>, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut e = String::new();
+            std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut e).unwrap();
+            return (status.code(), e);
+        }
+        if start.elapsed() > REFUSAL_TIMEOUT {
+            let _ = child.kill();
+            panic!("{args:?} blocked");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A FIFO given where an image is read (each flag, `compare A B`, a frame of a sequence, and
+/// the library's reader, which Python calls) is refused at once, naming it and the flag, not
+/// waited on for ever.
+#[test]
+fn a_fifo_given_as_an_image_is_refused_without_blocking() {
+    let base = temp_dir("fifo-images");
+    let frame = small_frame(&base);
+    let fifo = base.join("pipe.exr");
+    if !mkfifo(&fifo) {
+        return;
+    }
+    let (c, z, t) = (s(&frame.0), s(&frame.1), s(&frame.2));
+    let p = s(&fifo);
+    let out = base.join("o.exr");
+    let o = s(&out);
+    let image = format!("image:{p}");
+    let r = base.join("R");
+    let rr = s(&r);
+    // Sequence frames 1 and 3 are files, frame 2 a FIFO.
+    std::fs::copy(&frame.0, base.join("f.0001.exr")).unwrap();
+    std::fs::copy(&frame.0, base.join("f.0003.exr")).unwrap();
+    assert!(mkfifo(&base.join("f.0002.exr")));
+    let seq = base.join("f.####.exr");
+    let seq_out = base.join("g.####.exr");
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec!["blur", "--color", p, "--depth", z, "--out", o],
+            "--color",
+        ),
+        (
+            vec!["blur", "--color", c, "--depth", p, "--out", o],
+            "--depth",
+        ),
+        (
+            vec![
+                "blur",
+                "--color",
+                c,
+                "--depth",
+                z,
+                "--aperture",
+                &image,
+                "--out",
+                o,
+            ],
+            "--aperture",
+        ),
+        (
+            vec![
+                "compare",
+                "--color",
+                c,
+                "--depth",
+                z,
+                "--truth",
+                p,
+                "--methods",
+                "hammon",
+                "--out",
+                rr,
+            ],
+            "--truth",
+        ),
+        (
+            vec![
+                "compare",
+                "--color",
+                p,
+                "--depth",
+                z,
+                "--truth",
+                t,
+                "--methods",
+                "hammon",
+                "--out",
+                rr,
+            ],
+            "--color",
+        ),
+        (vec!["compare", c, p], "pipe.exr"),
+        (vec!["compare", p, c], "pipe.exr"),
+        (
+            vec!["kernel", "--filter", p, "--filter-out", o, "--size", "9"],
+            "--filter",
+        ),
+        (
+            vec![
+                "blur",
+                "--color",
+                s(&seq),
+                "--depth",
+                z,
+                "--frames",
+                "1-3",
+                "--out",
+                s(&seq_out),
+            ],
+            "f.0002.exr",
+        ),
+    ];
+    for (args, flag) in &cases {
+        let (code, e) = run_within_timeout(args);
+        assert_eq!(code, Some(1), "{args:?}: {e}");
+        assert!(
+            e.contains(flag) && e.contains("FIFO") && !e.contains("panicked"),
+            "{args:?}: {e}"
+        );
+        assert!(!out.exists(), "{args:?}");
+    }
+    // The sequence's other frames are written.
+    assert!(base.join("g.0001.exr").is_file() && base.join("g.0003.exr").is_file());
+    // The library's readers, which the Python package calls.
+    let (tx, rx) = mpsc::channel();
+    let f = fifo.clone();
+    std::thread::spawn(move || {
+        let _ = tx.send((
+            io::read_color(&f).err().map(|e| e.to_string()),
+            io::image_size(&f).err().map(|e| e.to_string()),
+        ));
+    });
+    let (color, size) = rx
+        .recv_timeout(REFUSAL_TIMEOUT)
+        .expect("read_color blocked");
+    for e in [color, size] {
+        let e = e.expect("refused");
+        assert!(e.contains("pipe.exr") && e.contains("FIFO"), "{e}");
+    }
+}

@@ -13,6 +13,7 @@ use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 
 use super::LoadOptions;
+use crate::input::OpenError;
 use crate::error::shown;
 use crate::{Error, Result};
 
@@ -156,17 +157,13 @@ impl SceneFolder {
     }
 }
 
-/// Reads `path`, which must be a regular file, as far as `limit` says. The type is checked
-/// before opening (opening a FIFO would block) and again on the open file.
+/// Reads `path`, which must be a regular file, as far as `limit` says (opened by
+/// [`crate::input::open_regular`]: a FIFO or a device is refused without blocking).
 fn read_regular(path: &Path, limit: Limit) -> std::result::Result<Vec<u8>, Refusal> {
-    let meta = std::fs::metadata(path).map_err(Refusal::Unreadable)?;
-    if !meta.is_file() {
-        return Err(Refusal::NotRegular);
-    }
-    let file = std::fs::File::open(path).map_err(Refusal::Unreadable)?;
-    if !file.metadata().map_err(Refusal::Unreadable)?.is_file() {
-        return Err(Refusal::NotRegular);
-    }
+    let file = crate::input::open_regular(path).map_err(|e| match e {
+        OpenError::NotRegular(_) => Refusal::NotRegular,
+        OpenError::Io(e) => Refusal::Unreadable(e),
+    })?;
     let (take, cap) = match limit {
         Limit::Cap(cap) => (cap.saturating_add(1), Some(cap)),
         Limit::Prefix(n) => (n, None),
