@@ -13,8 +13,8 @@ use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 
 use super::LoadOptions;
-use crate::input::OpenError;
 use crate::error::shown;
+use crate::input::OpenError;
 use crate::{Error, Result};
 
 /// Most bytes read from an image file a scene refers to: far more than the largest image
@@ -44,6 +44,8 @@ pub(super) struct SceneFolder {
     /// That folder with every link followed.
     root: PathBuf,
     allow_external: bool,
+    /// The files read so far through this folder, as resolved (links followed).
+    read: std::sync::Mutex<Vec<PathBuf>>,
 }
 
 /// Why a referenced file is not read.
@@ -71,7 +73,24 @@ impl SceneFolder {
             dir,
             root,
             allow_external: options.allow_external_files,
+            read: std::sync::Mutex::new(Vec::new()),
         })
+    }
+
+    /// The files read through this folder so far (resolved, each once), in the order first
+    /// read.
+    pub(super) fn files_read(&self) -> Vec<PathBuf> {
+        self.read.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Reads `path` (already resolved) and records it among [`Self::files_read`].
+    fn read_recorded(&self, path: &Path, limit: Limit) -> std::result::Result<Vec<u8>, Refusal> {
+        let bytes = read_regular(path, limit)?;
+        let mut read = self.read.lock().unwrap_or_else(|e| e.into_inner());
+        if !read.iter().any(|p| p == path) {
+            read.push(path.to_path_buf());
+        }
+        Ok(bytes)
     }
 
     /// Reads the file `reference` (a path as the scene wrote it, after URI decoding) names,
@@ -80,7 +99,7 @@ impl SceneFolder {
     /// reference.
     pub(super) fn read(&self, field: &str, reference: &Path, limit: Limit) -> Result<Vec<u8>> {
         self.resolve(reference)
-            .and_then(|path| read_regular(&path, limit))
+            .and_then(|path| self.read_recorded(&path, limit))
             .map_err(|why| self.refused(field, reference, why))
     }
 
@@ -92,7 +111,8 @@ impl SceneFolder {
         path: &Path,
         limit: Limit,
     ) -> Result<Vec<u8>> {
-        read_regular(path, limit).map_err(|why| self.refused(field, reference, why))
+        self.read_recorded(path, limit)
+            .map_err(|why| self.refused(field, reference, why))
     }
 
     /// The file `reference` names, with links followed, or the error [`Self::read`] would give.
