@@ -324,3 +324,177 @@ fn openjd_template_blurs_a_sequence_in_chunks() {
     assert!(String::from_utf8_lossy(&o.stdout).contains("c.0004.exr"));
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A sequence in which one frame's output is another frame's input or output, or an input in
+/// another spelling, is refused before any frame runs, naming both flags and frames; nothing is
+/// written and no input changes.
+#[test]
+fn a_frame_output_that_is_another_frames_file_is_refused_before_any_frame() {
+    let dir = temp_dir("seq-clash");
+    let frames: Vec<i64> = (1..=20).collect();
+    write_frames(&dir, &frames);
+    // The same frames as `s#.exr` (one digit per frame up to 9), and one depth file.
+    for &n in &frames {
+        std::fs::copy(
+            dir.join(format!("c.{n:04}.exr")),
+            dir.join(format!("s{n}.exr")),
+        )
+        .unwrap();
+    }
+    std::fs::copy(dir.join("d.0001.exr"), dir.join("z.exr")).unwrap();
+    std::fs::copy(dir.join("d.0001.exr"), dir.join("z5.exr")).unwrap();
+    let link = dir.join("alias");
+    std::os::unix::fs::symlink(&*dir, &link).unwrap();
+    let p = |name: &str| s(&dir.join(name)).to_string();
+    let dotted = format!("{}/./c.####.exr", s(&dir));
+    let aliased = s(&link.join("c.####.exr")).to_string();
+    // (flags after `blur`, what the error names)
+    let cases: Vec<(Vec<String>, Vec<&str>)> = vec![
+        (
+            vec![
+                "--color",
+                &p("s#.exr"),
+                "--depth",
+                &p("z.exr"),
+                "--frames",
+                "1-20",
+            ]
+            .into_iter()
+            .map(String::from)
+            .chain([
+                "--out".into(),
+                p("s1#.exr"),
+                "--coc-out".into(),
+                p("k#.exr"),
+            ])
+            .collect(),
+            vec![
+                "--out",
+                "frame 1 would",
+                "s11.exr",
+                "frame 11 of --color",
+                "overwrite inputs",
+            ],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("d.####.exr"),
+                "--frames".into(),
+                "1-20".into(),
+                "--out".into(),
+                p("o#.exr"),
+                "--coc-out".into(),
+                p("o1#.exr"),
+            ],
+            vec![
+                "--out",
+                "frame 11 would",
+                "o11.exr",
+                "frame 1 of --coc-out",
+                "each other",
+            ],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("d.####.exr"),
+                "--out".into(),
+                p("c.%04d.exr"),
+            ],
+            vec!["--out", "frame 1 of --color", "overwrite inputs"],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("d.####.exr"),
+                "--out".into(),
+                dotted,
+            ],
+            vec!["--out", "of --color", "overwrite inputs"],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("d.####.exr"),
+                "--out".into(),
+                aliased,
+            ],
+            vec!["--out", "of --color", "overwrite inputs"],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("z5.exr"),
+                "--frames".into(),
+                "1-9".into(),
+                "--out".into(),
+                p("z#.exr"),
+            ],
+            vec![
+                "--out",
+                "frame 5 would",
+                "z5.exr",
+                "--depth",
+                "overwrite inputs",
+            ],
+        ),
+    ];
+    let before: Vec<(String, Vec<u8>)> = std::fs::read_dir(&*dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .map(|p| (s(&p).to_string(), std::fs::read(&p).unwrap()))
+        .collect();
+    let count = before.len();
+    for (flags, expected) in &cases {
+        let mut args = vec!["blur", "--method", "hammon", "--focus", "2.4"];
+        args.extend(flags.iter().map(String::as_str));
+        let o = defocus(&args);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{flags:?}: {e}");
+        for x in expected {
+            assert!(e.contains(x), "{flags:?}: no '{x}' in {e}");
+        }
+        assert!(!e.contains("kept"), "{flags:?}: {e}");
+    }
+    // Render: a frame's image is another frame's depth pass.
+    let o = defocus(&[
+        "render",
+        "--width",
+        "16",
+        "--height",
+        "9",
+        "--frames",
+        "1-12",
+        "--out",
+        &p("r#.exr"),
+        "--depth-out",
+        &p("r1#.exr"),
+    ]);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("frame 1 of --depth-out") && e.contains("r11.exr"),
+        "{e}"
+    );
+    // Nothing was written, nothing changed.
+    let after = std::fs::read_dir(&*dir)
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().path().is_file())
+        .count();
+    assert_eq!(after, count, "a file was written");
+    for (path, bytes) in &before {
+        assert!(std::fs::read(path).unwrap() == *bytes, "{path} changed");
+    }
+}
