@@ -498,3 +498,122 @@ fn a_frame_output_that_is_another_frames_file_is_refused_before_any_frame() {
         assert!(std::fs::read(path).unwrap() == *bytes, "{path} changed");
     }
 }
+
+/// The farm template's task script is fixed text: no parameter is pasted into it, so none can
+/// be read as shell code.
+#[test]
+fn openjd_template_pastes_no_parameter_into_shell_text() {
+    let template = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("farm/openjd/defocus-blur.yaml"),
+    )
+    .unwrap();
+    let script = template
+        .split("data: |")
+        .nth(1)
+        .expect("the template embeds its task script");
+    assert!(
+        !script.contains("{{"),
+        "a parameter in the script: {script}"
+    );
+    for param in [
+        "Color",
+        "Depth",
+        "Out",
+        "Args",
+        "Defocus",
+        "LastFrame",
+        "ChunkSize",
+    ] {
+        assert!(
+            template.contains(&format!("- \"{{{{Param.{param}}}}}\"")),
+            "{param} is not passed as an argument of its own"
+        );
+    }
+}
+
+/// The farm template with hostile names: folders named `x'$(touch PWNED)'y` and `bob's shot`,
+/// flags holding `$(...)`, and negative frames. Every frame is written, and nothing is run.
+#[test]
+fn openjd_template_runs_no_shell_text_from_its_parameters() {
+    let Some(openjd) = openjd() else {
+        eprintln!(
+            "skipped: the Open Job Description CLI is not installed (pip install openjd-cli, or \
+             set DEFOCUS_OPENJD); scripts/test installs it"
+        );
+        return;
+    };
+    let base = temp_dir("openjd-hostile");
+    let input = base.join("x'$(touch PWNED)'y");
+    let output = base.join("bob's shot");
+    std::fs::create_dir(&input).unwrap();
+    std::fs::create_dir(&output).unwrap();
+    // Frames -3 to -1: written as 1 to 3, then named as the pattern names negative frames.
+    let frames = [-3, -2, -1];
+    write_frames(&input, &[1, 2, 3]);
+    for n in 1..=3 {
+        for stem in ["c", "d"] {
+            std::fs::rename(
+                input.join(format!("{stem}.{n:04}.exr")),
+                input.join(format!("{stem}.-{n:04}.exr")),
+            )
+            .unwrap();
+        }
+    }
+    let template = Path::new(env!("CARGO_MANIFEST_DIR")).join("farm/openjd/defocus-blur.yaml");
+    let run = |args: &str| {
+        std::process::Command::new(&openjd)
+            .current_dir(&*base)
+            .arg("run")
+            .arg(&template)
+            .args([
+                "-p",
+                &format!("Color={}", input.join("c.####.exr").display()),
+            ])
+            .args([
+                "-p",
+                &format!("Depth={}", input.join("d.####.exr").display()),
+            ])
+            .args([
+                "-p",
+                &format!("Out={}", output.join("o.####.exr").display()),
+            ])
+            .args([
+                "-p",
+                "FirstFrame=-3",
+                "-p",
+                "LastFrame=-1",
+                "-p",
+                "ChunkSize=2",
+            ])
+            .args(["-p", &format!("Args={args}")])
+            .args(["-p", &format!("Defocus={}", env!("CARGO_BIN_EXE_defocus"))])
+            .output()
+            .unwrap()
+    };
+    let o = run("--method hammon --focus 2.4");
+    let log = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{log}");
+    for n in frames {
+        assert!(
+            output.join(format!("o.-{:04}.exr", -n)).is_file(),
+            "frame {n}: {log}"
+        );
+    }
+    // A flag value that is shell code reaches defocus as text, and fails there.
+    let o = run("--method hammon --focus $(touch${IFS}PWNED2) --fstop `touch${IFS}PWNED3`");
+    assert!(
+        !o.status.success(),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    let listed = |dir: &Path| -> Vec<String> {
+        std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect()
+    };
+    for dir in [&*base, input.as_path(), output.as_path()] {
+        let names = listed(dir);
+        assert!(!names.iter().any(|n| n.starts_with("PWNED")), "{names:?}");
+    }
+}
