@@ -84,10 +84,26 @@ impl FramePattern {
 
     /// The file of frame `frame`.
     pub fn path(&self, frame: i64) -> PathBuf {
+        self.folder.join(self.file_name(frame))
+    }
+
+    /// The file name (without the folder) of frame `frame`.
+    pub fn file_name(&self, frame: i64) -> String {
         let digits = format!("{:0width$}", frame.unsigned_abs(), width = self.padding);
         let sign = if frame < 0 { "-" } else { "" };
-        self.folder
-            .join(format!("{}{sign}{digits}{}", self.prefix, self.suffix))
+        format!("{}{sign}{digits}{}", self.prefix, self.suffix)
+    }
+
+    /// The folder of the frames, as given (empty for the current one).
+    pub fn folder(&self) -> &Path {
+        &self.folder
+    }
+
+    /// The frame whose file name under this pattern is exactly `name` ([`Self::file_name`] of
+    /// it), if any: `o11.exr` is frame 11 of `o#.exr` and frame 1 of `o1#.exr`.
+    pub fn frame_named(&self, name: &str) -> Option<i64> {
+        self.frame_of(name)
+            .filter(|&frame| self.file_name(frame) == name)
     }
 
     /// The pattern as the user gave it.

@@ -60,6 +60,7 @@ pub mod budget;
 pub mod error;
 pub mod frames;
 pub mod image;
+pub mod input;
 pub mod jobs;
 pub mod lens;
 pub mod methods;

@@ -496,6 +496,14 @@ impl PostArgs {
         Ok(effects)
     }
 
+    /// The file `--lens` names, when it names a preset file rather than a built-in preset.
+    pub fn lens_file(&self) -> Option<std::path::PathBuf> {
+        self.lens
+            .as_deref()
+            .filter(|spec| !crate::lens::PRESETS.iter().any(|(n, _)| n == spec))
+            .map(std::path::PathBuf::from)
+    }
+
     /// True when `--large-blur-coc auto` is given (resolved against the run's lens).
     pub fn large_blur_coc_is_auto(&self) -> bool {
         self.large_blur_coc.as_deref().map(str::trim) == Some("auto")

@@ -15,11 +15,14 @@
 //!    that off.
 //! 6. An interrupted process removes its staged files with [`interrupt`], which waits for a
 //!    commit under way to finish its renames, so a set's targets are all replaced or none.
+//! 7. Files that belong together in one folder (a report) are replaced under a [`FolderLock`],
+//!    and what was written is recorded by [`Digest`], so that a later run removes only files
+//!    that are still exactly what it wrote.
 
 use std::ffi::OsString;
 use std::fs::{File, OpenOptions};
 use std::hash::{BuildHasher, Hasher};
-use std::io::{BufWriter, Write};
+use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Mutex, MutexGuard};
@@ -171,6 +174,23 @@ impl OutputSet {
         })
     }
 
+    /// The [`Digest`] of what has been staged for `target` (written, not yet committed).
+    pub fn staged_digest(&self, target: &Path) -> Result<Digest> {
+        let (temp, _) = self
+            .staged
+            .iter()
+            .rev()
+            .find(|(_, t)| t == target)
+            .ok_or_else(|| {
+                Error::invalid(
+                    "output path",
+                    format!("{} has not been written", shown(target)),
+                )
+            })?;
+        let file = File::open(temp).map_err(|e| Error::io(target, e))?;
+        Digest::of(file).map_err(|e| Error::io(target, e))
+    }
+
     /// Renames every staged file over its target. Every target is checked again first (a folder
     /// or a device in the way fails before anything is renamed). The renames run under the
     /// staging lock, so an interrupt waits until they are done. A rename that still fails
@@ -253,6 +273,133 @@ pub fn check_target(target: &Path) -> Result<()> {
             shown(target)
         ),
     ))
+}
+
+/// The size and SHA-256 of a file's content: how a command records the files it wrote, so that
+/// a later run recognises them (a file replaced or changed since, by anyone, differs) before it
+/// removes one.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Digest {
+    /// Length in bytes.
+    pub bytes: u64,
+    /// SHA-256 of the content, 64 lower-case hexadecimal digits.
+    pub sha256: String,
+}
+
+impl Digest {
+    /// The digest of everything `reader` yields.
+    pub fn of(mut reader: impl Read) -> std::io::Result<Digest> {
+        use sha2::Digest as _;
+        let mut hasher = sha2::Sha256::new();
+        let mut buf = vec![0u8; 1 << 16];
+        let mut bytes = 0u64;
+        loop {
+            let n = match reader.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            };
+            hasher.update(&buf[..n]);
+            bytes += n as u64;
+        }
+        let sha256 = hasher
+            .finalize()
+            .iter()
+            .fold(String::with_capacity(64), |mut s, b| {
+                use std::fmt::Write as _;
+                let _ = write!(s, "{b:02x}");
+                s
+            });
+        Ok(Digest { bytes, sha256 })
+    }
+
+    /// Whether `path` is a regular file (not a link: a link is never followed to a file
+    /// elsewhere) whose content has this digest.
+    pub fn matches_file(&self, path: &Path) -> bool {
+        let is_plain_file = std::fs::symlink_metadata(path)
+            .is_ok_and(|m| m.file_type().is_file() && m.len() == self.bytes);
+        is_plain_file
+            && crate::input::open_regular(path)
+                .ok()
+                .and_then(|f| Digest::of(f).ok())
+                .is_some_and(|d| d == *self)
+    }
+}
+
+/// An exclusive lock on a folder, held while a command replaces files in it that belong
+/// together (a report: its images, its `results.json`, and the removal of the images of the
+/// report it replaces), so that two commands writing into one folder at once take their turns
+/// there. Released when dropped.
+///
+/// On Linux it is `flock` on the folder itself: nothing is left in the folder, and the lock
+/// goes with the process however that ends. Elsewhere it is a file [`FolderLock::FILE_NAME`]
+/// in the folder, created new and removed on drop (one left by a process that crashed must
+/// be removed by hand).
+#[derive(Debug)]
+pub struct FolderLock {
+    #[cfg(target_os = "linux")]
+    _folder: File,
+    #[cfg(not(target_os = "linux"))]
+    file: PathBuf,
+}
+
+impl FolderLock {
+    /// The lock file of systems without `flock` on folders.
+    pub const FILE_NAME: &'static str = ".defocus-lock";
+
+    /// Takes the lock on the folder `dir`. When another process (or another lock in this
+    /// one) holds it, calls `waiting` once, then waits for it.
+    pub fn acquire(dir: &Path, waiting: impl FnOnce()) -> Result<FolderLock> {
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::fd::AsRawFd;
+            let folder = File::open(dir).map_err(|e| Error::io(dir, e))?;
+            let lock = |mode: libc::c_int| loop {
+                // SAFETY: the descriptor is the open folder's; flock reads no memory of ours.
+                if unsafe { libc::flock(folder.as_raw_fd(), mode) } == 0 {
+                    return Ok(());
+                }
+                let e = std::io::Error::last_os_error();
+                if e.kind() != std::io::ErrorKind::Interrupted {
+                    return Err(e);
+                }
+            };
+            match lock(libc::LOCK_EX | libc::LOCK_NB) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    waiting();
+                    lock(libc::LOCK_EX).map_err(|e| Error::io(dir, e))?;
+                }
+                Err(e) => return Err(Error::io(dir, e)),
+            }
+            Ok(FolderLock { _folder: folder })
+        }
+        #[cfg(not(target_os = "linux"))]
+        {
+            let file = dir.join(Self::FILE_NAME);
+            let mut waiting = Some(waiting);
+            loop {
+                match OpenOptions::new().write(true).create_new(true).open(&file) {
+                    Ok(_) => return Ok(FolderLock { file }),
+                    Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                        if let Some(w) = waiting.take() {
+                            w();
+                        }
+                        std::thread::sleep(std::time::Duration::from_millis(100));
+                    }
+                    Err(e) => return Err(Error::io(&file, e)),
+                }
+            }
+        }
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+impl Drop for FolderLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.file);
+    }
 }
 
 /// Distinguishes staged files of one process.

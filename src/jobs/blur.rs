@@ -18,7 +18,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use super::flags::{
-    check_output, method_parser, ExrArgs, FrameDone, TimingFormat, IMAGE_EXTENSIONS,
+    check_input, check_output, method_parser, ExrArgs, FrameDone, TimingFormat, IMAGE_EXTENSIONS,
 };
 use crate::options::{parse_aperture, PostArgs};
 
@@ -218,6 +218,10 @@ impl BlurJob {
         if let Some(c) = &a.coc_out {
             check_output(c, "--coc-out", &["exr"])?;
             io::check_distinct_outputs(&[("--out", &a.out), ("--coc-out", c)])?;
+        }
+        check_input(&a.color, "--color")?;
+        if let Some(d) = &a.depth {
+            check_input(d, "--depth")?;
         }
         for out in std::iter::once(&a.out).chain(&a.coc_out) {
             io::ensure_not_same_file(&a.color, out)?;

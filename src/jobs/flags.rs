@@ -73,6 +73,20 @@ pub fn check_output(path: &Path, flag: &str, extensions: &[&str]) -> Result<()> 
     Ok(())
 }
 
+/// Checks an input file before anything opens it: a FIFO, a device or a folder is refused,
+/// naming `flag` (opening a FIFO to read it would wait for a writer for ever). A file that does
+/// not exist, or cannot be inspected, is left to the read, whose error names it.
+pub fn check_input(path: &Path, flag: &str) -> Result<()> {
+    match std::fs::metadata(path) {
+        Ok(meta) if !meta.is_file() => bail!(
+            "invalid {flag} {}: it is {}, not a regular file: expected an image file",
+            shown(&path),
+            crate::input::kind_of(&meta)
+        ),
+        _ => Ok(()),
+    }
+}
+
 /// What one run of a method took, once its outputs are written.
 #[derive(Clone, Debug)]
 pub struct FrameDone {

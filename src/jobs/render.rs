@@ -2,7 +2,7 @@
 //! flags ([`RenderArgs`], parsed by the command line or built by a program), the validated job
 //! ([`RenderJob`]) and its run. Lines the command line shows go to a `notes` sink.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use crate::autofocus;
 use crate::error::shown;
@@ -169,7 +169,7 @@ fn load_scene(
     camera: Option<&str>,
     options: &load::LoadOptions,
     notes: &mut dyn FnMut(String),
-) -> Result<Scene> {
+) -> Result<load::SceneFile> {
     let file = load::scene_by_name_or_path(spec, camera, options)?;
     if !file.skipped_cameras.is_empty() {
         notes(format!(
@@ -183,7 +183,7 @@ fn load_scene(
             }
         ));
     }
-    Ok(file.scene)
+    Ok(file)
 }
 
 impl RenderJob {
@@ -198,7 +198,10 @@ impl RenderJob {
         let options = load::LoadOptions {
             allow_external_files: a.allow_external_files,
         };
-        let scene = load_scene(&a.scene, a.view.camera.as_deref(), &options, notes)?;
+        let file = load_scene(&a.scene, a.view.camera.as_deref(), &options, notes)?;
+        // Every file the job reads: the scene's, the aperture image, the lens preset file.
+        let mut inputs = file.files_read;
+        let scene = file.scene;
         let defaults = scene
             .defaults
             .clone()
@@ -287,13 +290,10 @@ impl RenderJob {
             seed: a.seed,
             with_depth: a.depth_out.is_some(),
         };
-        let mut inputs = Vec::new();
-        if Path::new(&a.scene).exists() {
-            inputs.push(PathBuf::from(&a.scene));
-        }
         if let Some(p) = a.aperture.as_deref().and_then(|s| s.strip_prefix("image:")) {
             inputs.push(PathBuf::from(p));
         }
+        inputs.extend(a.post.lens_file());
         Ok(Self {
             scene,
             camera,
@@ -306,6 +306,12 @@ impl RenderJob {
             timings: a.timings,
             inputs,
         })
+    }
+
+    /// Every file the job reads: the scene file and the files it refers to, the aperture
+    /// image, the lens preset file. No output may be one of them.
+    pub fn inputs(&self) -> &[PathBuf] {
+        &self.inputs
     }
 
     /// The camera, after every override.

@@ -22,7 +22,7 @@ use base64::Engine as _;
 use serde::Serialize;
 
 use super::blur::{BlurArgs, BlurJob, DepthKind};
-use super::flags::{parse_focus, ExrArgs, ExrCompressionArg, Focus};
+use super::flags::{check_input, parse_focus, ExrArgs, ExrCompressionArg, Focus};
 use super::grid;
 use super::render::{RenderArgs, RenderJob, ViewArgs};
 use crate::options::PostArgs;
@@ -258,6 +258,17 @@ struct Report {
     runs: Vec<RunResult>,
     /// With `--frontier`: `reference` at a few sample counts, fastest first.
     frontier: Vec<FrontierPoint>,
+    /// Every image file the report wrote, with its size and hash: the record by which the next
+    /// report into this folder recognises the files it may remove.
+    files: Vec<RecordedFile>,
+}
+
+/// An image file a report wrote, as recorded in its `results.json` (see [`Report::files`]).
+#[derive(Serialize)]
+struct RecordedFile {
+    name: String,
+    bytes: u64,
+    sha256: String,
 }
 
 #[derive(Serialize)]
@@ -582,6 +593,12 @@ pub fn write(
     let methods = parse_methods(&a.methods)?;
     let sweeps = parse_sweeps(&a.sweep, &methods)?;
     let runs = runs(&methods, &sweeps);
+    // No file the report writes may be one of its inputs: checked before anything is read.
+    let names = file_names(&runs);
+    let mut inputs = named_inputs(a)?;
+    for (flag, input) in &inputs {
+        check_not_written(&dir, &names, flag, input)?;
+    }
     // Every run's flags, sweep values included, are checked before anything is rendered.
     for run in &runs {
         check_run(a, run)?;
@@ -602,6 +619,13 @@ pub fn write(
         let mut args = render_args(a, scene, "reference", &dir.join("reference.exr"));
         args.samples = Some(a.reference_samples);
         let job = RenderJob::new(args, notes)?;
+        // The files the scene file refers to, known once it is loaded.
+        for input in job.inputs() {
+            if !inputs.iter().any(|(_, p)| p == input) {
+                check_not_written(&dir, &names, "--scene (a file it reads)", input)?;
+                inputs.push(("--scene".to_string(), input.clone()));
+            }
+        }
         let cam = job.camera().clone();
         let lens = cam.thin_lens()?;
         parameters.extend([
@@ -907,6 +931,19 @@ pub fn write(
     }
     files.png(GRID_PNG, &grid::contact_sheet(&tiles, grid::TILE_WIDTH_PX))?;
 
+    // The record of the images, made from the staged files: what this report wrote.
+    let mut recorded = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for name in image_names(&results) {
+        if seen.insert(name.clone()) {
+            let digest = files.set.staged_digest(&dir.join(&name))?;
+            recorded.push(RecordedFile {
+                name,
+                bytes: digest.bytes,
+                sha256: digest.sha256,
+            });
+        }
+    }
     let report = Report {
         title,
         width: truth.width(),
@@ -921,20 +958,31 @@ pub fn write(
         error_map_top: top,
         runs: results,
         frontier,
+        files: recorded,
     };
     let json = serde_json::to_string_pretty(&report)?;
     files.text("results.json", &json)?;
     let html = page(&report, &files)?;
     files.text("index.html", &html)?;
-    // The files of a report written before into this folder, to remove those this one does not
-    // replace (two runs into one folder would otherwise mix their images).
-    let before = previous_report_files(&dir);
+    // One report at a time replaces the folder's files: the one before is read, replaced and
+    // its images this one does not replace removed under the folder's lock, so that two reports
+    // into one folder never leave a `results.json` naming images the other removed.
+    let _lock = crate::output::FolderLock::acquire(&dir, || {
+        notes(format!(
+            "waiting: another report is being written into {}",
+            shown(&dir)
+        ))
+    })
+    .with_context(|| format!("could not lock the report folder {}", shown(&dir)))?;
+    let before = previous_record(&dir);
     files.set.commit()?;
-    let now = report_files(&report);
-    for name in before.iter().filter(|n| !now.contains(n)) {
+    let now: Vec<&str> = report.files.iter().map(|f| f.name.as_str()).collect();
+    for (name, digest) in before.iter().filter(|(n, _)| !now.contains(&n.as_str())) {
         let path = dir.join(name);
-        // Only regular files (never through a link), named as a report names them.
-        if std::fs::symlink_metadata(&path).is_ok_and(|m| m.file_type().is_file()) {
+        // Only a file that is still exactly what the earlier report wrote (never through a
+        // link), and never an input of this one.
+        let is_input = inputs.iter().any(|(_, i)| io::same_file(i, &path));
+        if !is_input && digest.matches_file(&path) {
             let _ = std::fs::remove_file(&path);
         }
     }
@@ -953,54 +1001,137 @@ pub fn write(
     })
 }
 
-/// The image files `report` names besides `index.html` and `results.json`.
-fn report_files(report: &Report) -> Vec<String> {
-    let mut names = vec![
-        report.reference.image_png.clone(),
-        report.reference.image_exr.clone(),
-        "error-legend.png".to_string(),
-        GRID_PNG.to_string(),
-    ];
-    for r in &report.runs {
+/// The image files a report with `results` writes, in the order written.
+fn image_names(results: &[RunResult]) -> Vec<String> {
+    let mut names = vec!["reference.exr".to_string(), "reference.png".to_string()];
+    for r in results {
         names.extend(
-            [&r.image_png, &r.image_exr, &r.error_map_png]
+            [&r.image_exr, &r.image_png, &r.error_map_png]
                 .into_iter()
                 .flatten()
                 .cloned(),
         );
     }
+    names.extend(["error-legend.png".to_string(), GRID_PNG.to_string()]);
     names
 }
 
-/// The image files of the report in `dir` before this one, from its `results.json`: only plain
-/// file names of PNG and EXR images (a planted `results.json` cannot name files elsewhere).
-fn previous_report_files(dir: &Path) -> Vec<String> {
-    let Ok(text) = std::fs::read_to_string(dir.join("results.json")) else {
+/// Every file a report of `runs` may write into its folder (each run's images whether it
+/// succeeds or not): known before anything runs.
+fn file_names(runs: &[Run]) -> Vec<String> {
+    let mut names: Vec<String> = [
+        "reference.exr",
+        "reference.png",
+        "error-legend.png",
+        GRID_PNG,
+        "results.json",
+        "index.html",
+    ]
+    .map(String::from)
+    .to_vec();
+    for run in runs {
+        let label = run.label();
+        names.extend([
+            format!("{label}.exr"),
+            format!("{label}.png"),
+            format!("{label}-error.png"),
+        ]);
+    }
+    names
+}
+
+/// The files a report reads that the flags name, each with its flag: the images of a frame,
+/// the truth, the aperture image, the lens preset file and the scene file (the files a scene
+/// refers to are known once it is loaded). Images are checked to be regular files.
+fn named_inputs(a: &CompareArgs) -> Result<Vec<(String, PathBuf)>> {
+    let mut inputs = Vec::new();
+    for (flag, path) in [
+        ("--truth", &a.truth),
+        ("--color", &a.color),
+        ("--depth", &a.depth),
+    ] {
+        if let Some(p) = path {
+            check_input(p, flag)?;
+            inputs.push((flag.to_string(), p.clone()));
+        }
+    }
+    if let Some(p) = a.aperture.as_deref().and_then(|s| s.strip_prefix("image:")) {
+        inputs.push(("--aperture image:".to_string(), PathBuf::from(p)));
+    }
+    if let Some(p) = a.post.lens_file() {
+        inputs.push(("--lens".to_string(), p));
+    }
+    if let Some(scene) = &a.scene {
+        if Path::new(scene).exists() {
+            inputs.push(("--scene".to_string(), PathBuf::from(scene)));
+        }
+    }
+    Ok(inputs)
+}
+
+/// Refuses an input (named by `flag`) that is one of the files `names` of the report folder
+/// `dir`: the report would replace it. Compared as files, not as spellings (links, `./`, hard
+/// links).
+fn check_not_written(dir: &Path, names: &[String], flag: &str, input: &Path) -> Result<()> {
+    if let Some(name) = names.iter().find(|n| io::same_file(input, &dir.join(n))) {
+        bail!(
+            "{flag} {} is the report's file {name} in --out {}: the report would replace it; \
+             choose another --out folder, or move the input out of it",
+            shown(input),
+            shown(dir)
+        );
+    }
+    Ok(())
+}
+
+/// Most bytes of a `results.json` read for its record (a report's is far smaller; a larger
+/// file is not a report's, and nothing of it is removed).
+const MAX_RESULTS_JSON_BYTES: u64 = 64 << 20;
+
+/// The image files the report before this one in `dir` recorded in its `results.json`, with
+/// their digests: only plain file names of PNG and EXR images in the folder (a planted
+/// `results.json` cannot name files elsewhere), and only those it recorded with a digest (a
+/// file is removed only if it still matches).
+fn previous_record(dir: &Path) -> Vec<(String, crate::output::Digest)> {
+    let Ok(file) = crate::input::open_regular(&dir.join("results.json")) else {
         return Vec::new();
     };
+    let mut text = String::new();
+    if std::io::Read::read_to_string(
+        &mut std::io::Read::take(file, MAX_RESULTS_JSON_BYTES + 1),
+        &mut text,
+    )
+    .is_err()
+        || text.len() as u64 > MAX_RESULTS_JSON_BYTES
+    {
+        return Vec::new();
+    }
     let Ok(value) = serde_json::from_str::<serde_json::Value>(&text) else {
         return Vec::new();
     };
-    let mut names = vec!["error-legend.png".to_string(), GRID_PNG.to_string()];
-    let mut add = |v: &serde_json::Value| {
-        if let Some(n) = v.as_str() {
-            names.push(n.to_string());
-        }
-    };
-    add(&value["reference"]["image_png"]);
-    add(&value["reference"]["image_exr"]);
-    for r in value["runs"].as_array().into_iter().flatten() {
-        add(&r["image_png"]);
-        add(&r["image_exr"]);
-        add(&r["error_map_png"]);
-    }
-    names.retain(|n| {
+    let mut record = Vec::new();
+    for f in value["files"].as_array().into_iter().flatten() {
+        let (Some(name), Some(bytes), Some(sha256)) = (
+            f["name"].as_str(),
+            f["bytes"].as_u64(),
+            f["sha256"].as_str(),
+        ) else {
+            continue;
+        };
         let plain =
-            Path::new(n).file_name().is_some_and(|f| f == n.as_str()) && !n.starts_with('.');
-        let image = n.ends_with(".png") || n.ends_with(".exr");
-        plain && image
-    });
-    names
+            Path::new(name).file_name().is_some_and(|n| n == name) && !name.starts_with('.');
+        let image = name.ends_with(".png") || name.ends_with(".exr");
+        if plain && image {
+            record.push((
+                name.to_string(),
+                crate::output::Digest {
+                    bytes,
+                    sha256: sha256.to_string(),
+                },
+            ));
+        }
+    }
+    record
 }
 
 /// Total time of the method's own passes (reading and writing files excluded).

@@ -8,7 +8,7 @@
 //! time, since each frame's passes already use every core. A failed frame does not stop the
 //! others: [`Finished`] lists it with its error.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -167,20 +167,6 @@ pub fn blur(a: &BlurArgs, events: &Events) -> Result<Finished> {
         }),
         None => None,
     };
-    for (flag, pat) in [("--out", Some(&out)), ("--coc-out", coc_out.as_ref())] {
-        let Some(pat) = pat else { continue };
-        let inputs = [Some(&color), depth.as_ref().and_then(|d| d.as_ref().ok())];
-        if inputs
-            .into_iter()
-            .flatten()
-            .any(|i| i.as_str() == pat.as_str())
-        {
-            bail!(
-                "{flag} {} is an input's pattern: outputs never overwrite inputs",
-                shown(pat.as_str())
-            );
-        }
-    }
     let frames = match &a.frames {
         Some(spec) => FrameSet::parse(spec)?.frames().to_vec(),
         None => {
@@ -202,6 +188,21 @@ pub fn blur(a: &BlurArgs, events: &Events) -> Result<Finished> {
         Some(k)
     };
     check_positive(&a.fstop, "--fstop", "an f-number")?;
+    // Every file of every frame, before any frame runs: no frame's output may be another
+    // frame's input or output.
+    let mut files = vec![Named::input("--color", Files::Frames(&color))];
+    match &depth {
+        Some(Ok(pattern)) => files.push(Named::input("--depth", Files::Frames(pattern))),
+        Some(Err(fixed)) => files.push(Named::input("--depth", Files::Each(fixed.clone()))),
+        None => {}
+    }
+    let lens_file = a.post.lens_file();
+    files.extend(fixed_inputs(Some(a.aperture.as_str()), lens_file));
+    files.push(Named::output("--out", &out));
+    if let Some(c) = &coc_out {
+        files.push(Named::output("--coc-out", c));
+    }
+    check_clashes(&frames, &files)?;
     let frame_args = |n: i64| {
         let mut f = a.clone();
         f.color = color.path(n);
@@ -267,6 +268,31 @@ pub fn render(a: RenderArgs, events: &Events) -> Result<Finished> {
     if let Some(k) = &a.fstop {
         check_positive(k, "--fstop", "an f-number")?;
     }
+    // Every file of every frame, before any frame runs: the scene file and the files it reads
+    // (it is loaded once here for their list), and each frame's outputs.
+    let mut files = Vec::new();
+    if !crate::scene::builtin::NAMES.contains(&a.scene.as_str()) {
+        let options = crate::scene::load::LoadOptions {
+            allow_external_files: a.allow_external_files,
+        };
+        let scene = crate::scene::load::scene_by_name_or_path(
+            &a.scene,
+            a.view.camera.as_deref(),
+            &options,
+        )?;
+        files.extend(
+            scene
+                .files_read
+                .into_iter()
+                .map(|p| Named::input("--scene", Files::Each(p))),
+        );
+    }
+    files.extend(fixed_inputs(a.aperture.as_deref(), a.post.lens_file()));
+    files.push(Named::output("--out", &out));
+    if let Some(d) = &depth_out {
+        files.push(Named::output("--depth-out", d));
+    }
+    check_clashes(&frames, &files)?;
     let frame_args = |n: i64| {
         let mut f = a.clone();
         f.out = out.path(n);
@@ -292,6 +318,173 @@ pub fn render(a: RenderArgs, events: &Events) -> Result<Finished> {
         let mut note = |line| (events.note)(line);
         RenderJob::new(frame_args(n), &mut note)?.execute(&mut |_, _| {}, &mut note)
     })
+}
+
+/// The files one flag of a sequence names.
+enum Files<'a> {
+    /// A frame pattern: one file per frame.
+    Frames(&'a FramePattern),
+    /// One file for every frame (the depth pass of a locked-off camera, an aperture image, a
+    /// scene file and the files it reads).
+    Each(PathBuf),
+}
+
+/// The files of one flag, and whether the sequence writes them.
+struct Named<'a> {
+    flag: &'static str,
+    files: Files<'a>,
+    output: bool,
+}
+
+impl<'a> Named<'a> {
+    fn input(flag: &'static str, files: Files<'a>) -> Self {
+        Named {
+            flag,
+            files,
+            output: false,
+        }
+    }
+
+    fn output(flag: &'static str, pattern: &'a FramePattern) -> Self {
+        Named {
+            flag,
+            files: Files::Frames(pattern),
+            output: true,
+        }
+    }
+
+    /// What the flag names, for messages: its pattern or its file.
+    fn text(&self) -> String {
+        match &self.files {
+            Files::Frames(p) => shown(p.as_str()),
+            Files::Each(p) => shown(p),
+        }
+    }
+}
+
+/// The inputs every frame reads besides its images: an `--aperture image:PATH` and a `--lens`
+/// preset file.
+fn fixed_inputs(aperture: Option<&str>, lens_file: Option<PathBuf>) -> Vec<Named<'static>> {
+    let image = aperture
+        .and_then(|s| s.strip_prefix("image:"))
+        .map(|p| Named::input("--aperture image:", Files::Each(PathBuf::from(p))));
+    let lens = lens_file.map(|p| Named::input("--lens", Files::Each(p)));
+    image.into_iter().chain(lens).collect()
+}
+
+/// `path` with its links, `.` and `..` resolved as far as it exists: two spellings of one
+/// place give one path (`./c.0001.exr`, `c.0001.exr`, a link to the folder).
+fn resolved(path: &Path) -> PathBuf {
+    let path = if path.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        path
+    };
+    if let Ok(p) = path.canonicalize() {
+        return p;
+    }
+    match (path.parent(), path.file_name()) {
+        (Some(parent), Some(name)) => resolved(parent).join(name),
+        _ => std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()),
+    }
+}
+
+/// Refuses a sequence in which a frame's output is a file that another frame reads or writes,
+/// or the same frame reads: every output file of every frame is checked against every file of
+/// every flag, by place (the folders resolved, so `./c.####.exr` and `c.%04d.exr` name
+/// `c.####.exr`'s files) and, for files that exist, as the same file (device and inode: a hard
+/// link, a link to a file). An output that would replace a file of an input pattern is refused
+/// whether or not that frame is among `frames`; one that another output also writes, when both
+/// frames are.
+fn check_clashes(frames: &[i64], files: &[Named]) -> Result<()> {
+    let mut sorted = frames.to_vec();
+    sorted.sort_unstable();
+    let asked = |m: i64| sorted.binary_search(&m).is_ok();
+    // Where each flag's files lie: a pattern's folder, or the one file.
+    let places: Vec<PathBuf> = files
+        .iter()
+        .map(|f| match &f.files {
+            Files::Frames(p) => resolved(p.folder()),
+            Files::Each(p) => resolved(p),
+        })
+        .collect();
+    let refuse = |out: &Named, n: i64, path: &Path, other: &Named, m: Option<i64>| {
+        let whose = match m {
+            Some(m) => format!("frame {m} of {} {}", other.flag, other.text()),
+            None => format!("{} {}", other.flag, other.text()),
+        };
+        let (verb, what) = if other.output {
+            ("writes", "outputs never overwrite each other")
+        } else {
+            ("reads", "outputs never overwrite inputs")
+        };
+        anyhow::anyhow!(
+            "{} {}: frame {n} would write {}, which {whose} {verb}: {what}; choose another {} \
+             pattern",
+            out.flag,
+            out.text(),
+            shown(path),
+            out.flag
+        )
+    };
+    // By place.
+    for (i, out) in files.iter().enumerate().filter(|(_, f)| f.output) {
+        let Files::Frames(pattern) = &out.files else {
+            continue;
+        };
+        for &n in frames {
+            let name = pattern.file_name(n);
+            for (j, other) in files.iter().enumerate() {
+                let clash = match &other.files {
+                    Files::Frames(q) if places[j] == places[i] => q
+                        .frame_named(&name)
+                        .filter(|&m| (j, m) != (i, n) && (!other.output || asked(m)))
+                        .map(Some),
+                    Files::Each(_) => (places[j] == places[i].join(&name)).then_some(None),
+                    Files::Frames(_) => None,
+                };
+                if let Some(m) = clash {
+                    return Err(refuse(out, n, &pattern.path(n), other, m));
+                }
+            }
+        }
+    }
+    // As files: the inputs that exist, by device and inode, against the outputs that exist.
+    #[cfg(unix)]
+    {
+        use std::collections::HashMap;
+        use std::os::unix::fs::MetadataExt;
+        let id = |p: &Path| std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
+        let mut inputs: HashMap<(u64, u64), (usize, Option<i64>)> = HashMap::new();
+        for (j, input) in files.iter().enumerate().filter(|(_, f)| !f.output) {
+            match &input.files {
+                Files::Frames(q) => {
+                    for &m in frames {
+                        if let Some(key) = id(&q.path(m)) {
+                            inputs.entry(key).or_insert((j, Some(m)));
+                        }
+                    }
+                }
+                Files::Each(p) => {
+                    if let Some(key) = id(p) {
+                        inputs.entry(key).or_insert((j, None));
+                    }
+                }
+            }
+        }
+        for out in files.iter().filter(|f| f.output) {
+            let Files::Frames(pattern) = &out.files else {
+                continue;
+            };
+            for &n in frames {
+                let path = pattern.path(n);
+                if let Some(&(j, m)) = id(&path).and_then(|key| inputs.get(&key)) {
+                    return Err(refuse(out, n, &path, &files[j], m));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Runs `job` on every frame whose outputs are not all there yet (or every frame with

@@ -91,6 +91,7 @@ pub fn scene_by_name_or_path(
             scene: crate::scene::builtin::load(spec)?,
             cameras: Vec::new(),
             skipped_cameras: Vec::new(),
+            files_read: Vec::new(),
         });
     }
     let path = Path::new(spec);
@@ -120,6 +121,11 @@ pub struct SceneFile {
     pub cameras: Vec<FileCamera>,
     /// The cameras left out (orthographic), by index and name, so that a user can be told.
     pub skipped_cameras: Vec<String>,
+    /// Every file read: the scene file as given, then the files it refers to (buffers,
+    /// images, MTL libraries and maps) with links followed. Empty for a built-in scene. A
+    /// command that writes files checks its outputs against these, so that no output replaces
+    /// a file its scene reads.
+    pub files_read: Vec<std::path::PathBuf>,
 }
 
 impl SceneFile {
@@ -191,9 +197,8 @@ pub fn read_scene_file_with(path: &Path, options: &LoadOptions) -> Result<SceneF
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
-    let mut file = match ext.as_str() {
-        "gltf" | "glb" => gltf::load(path, &external::SceneFolder::new(path, options)?)?,
-        "obj" => obj::load(path, &external::SceneFolder::new(path, options)?)?,
+    match ext.as_str() {
+        "gltf" | "glb" | "obj" => {}
         "" => {
             return Err(Error::format(
                 path,
@@ -212,7 +217,16 @@ pub fn read_scene_file_with(path: &Path, options: &LoadOptions) -> Result<SceneF
                 ),
             ))
         }
+    }
+    let folder = external::SceneFolder::new(path, options)?;
+    let mut file = if ext == "obj" {
+        obj::load(path, &folder)?
+    } else {
+        gltf::load(path, &folder)?
     };
+    file.files_read = std::iter::once(path.to_path_buf())
+        .chain(folder.files_read())
+        .collect();
     file.scene
         .validate()
         .map_err(|e| Error::format(path, e.to_string()))?;

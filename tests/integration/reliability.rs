@@ -639,3 +639,94 @@ fn no_fsync_writes_the_same_output_whole() {
     assert_eq!(files_in(&dir), ["a.exr", "b.exr", "c.exr", "z.exr"]);
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A standard error whose reader has gone (`defocus render ... 2>&1 | head -1`, a log
+/// collector that died) is no panic: each command ends with its own exit status, 0 when it
+/// succeeded and 1 when it failed.
+#[test]
+fn a_closed_standard_error_is_no_panic_and_keeps_the_exit_status() {
+    use std::os::fd::{FromRawFd, OwnedFd};
+    let dir = temp_dir("closed-stderr");
+    let (c, d) = frame(&dir);
+    let out = dir.join("o.exr");
+    let report = dir.join("report");
+    let cases: Vec<(Vec<&str>, i32)> = vec![
+        // Success, with lines on standard error (timings, the report's path).
+        (
+            vec![
+                "render",
+                "--width",
+                "8",
+                "--height",
+                "6",
+                "--samples",
+                "2",
+                "--timings",
+                "--out",
+                s(&out),
+            ],
+            0,
+        ),
+        (
+            vec![
+                "blur",
+                "--color",
+                s(&c),
+                "--depth",
+                s(&d),
+                "--focus",
+                "2",
+                "--timings",
+                "--out",
+                s(&out),
+            ],
+            0,
+        ),
+        (
+            vec![
+                "compare",
+                "--color",
+                s(&c),
+                "--depth",
+                s(&d),
+                "--truth",
+                s(&c),
+                "--methods",
+                "hammon",
+                "--out",
+                s(&report),
+            ],
+            0,
+        ),
+        // Failure: the error line itself cannot be written.
+        (
+            vec![
+                "blur",
+                "--color",
+                "missing.exr",
+                "--depth",
+                s(&d),
+                "--out",
+                s(&out),
+            ],
+            1,
+        ),
+        (vec!["render", "--width", "0", "--out", s(&out)], 1),
+    ];
+    for (args, code) in cases {
+        let mut fds = [0; 2];
+        // SAFETY: `fds` has room for the two descriptors pipe writes.
+        assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+        // SAFETY: both descriptors were just created and are owned here, once each.
+        let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+        // The reader is gone before the command starts: every write to stderr fails.
+        drop(read);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .args(&args)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::from(write))
+            .status()
+            .unwrap();
+        assert_eq!(o.code(), Some(code), "{args:?}");
+    }
+}

@@ -324,3 +324,296 @@ fn openjd_template_blurs_a_sequence_in_chunks() {
     assert!(String::from_utf8_lossy(&o.stdout).contains("c.0004.exr"));
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A sequence in which one frame's output is another frame's input or output, or an input in
+/// another spelling, is refused before any frame runs, naming both flags and frames; nothing is
+/// written and no input changes.
+#[test]
+fn a_frame_output_that_is_another_frames_file_is_refused_before_any_frame() {
+    let dir = temp_dir("seq-clash");
+    let frames: Vec<i64> = (1..=20).collect();
+    write_frames(&dir, &frames);
+    // The same frames as `s#.exr` (one digit per frame up to 9), and one depth file.
+    for &n in &frames {
+        std::fs::copy(
+            dir.join(format!("c.{n:04}.exr")),
+            dir.join(format!("s{n}.exr")),
+        )
+        .unwrap();
+    }
+    std::fs::copy(dir.join("d.0001.exr"), dir.join("z.exr")).unwrap();
+    std::fs::copy(dir.join("d.0001.exr"), dir.join("z5.exr")).unwrap();
+    let link = dir.join("alias");
+    std::os::unix::fs::symlink(&*dir, &link).unwrap();
+    let p = |name: &str| s(&dir.join(name)).to_string();
+    let dotted = format!("{}/./c.####.exr", s(&dir));
+    let aliased = s(&link.join("c.####.exr")).to_string();
+    // (flags after `blur`, what the error names)
+    let cases: Vec<(Vec<String>, Vec<&str>)> = vec![
+        (
+            vec![
+                "--color",
+                &p("s#.exr"),
+                "--depth",
+                &p("z.exr"),
+                "--frames",
+                "1-20",
+            ]
+            .into_iter()
+            .map(String::from)
+            .chain([
+                "--out".into(),
+                p("s1#.exr"),
+                "--coc-out".into(),
+                p("k#.exr"),
+            ])
+            .collect(),
+            vec![
+                "--out",
+                "frame 1 would",
+                "s11.exr",
+                "frame 11 of --color",
+                "overwrite inputs",
+            ],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("d.####.exr"),
+                "--frames".into(),
+                "1-20".into(),
+                "--out".into(),
+                p("o#.exr"),
+                "--coc-out".into(),
+                p("o1#.exr"),
+            ],
+            vec![
+                "--out",
+                "frame 11 would",
+                "o11.exr",
+                "frame 1 of --coc-out",
+                "each other",
+            ],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("d.####.exr"),
+                "--out".into(),
+                p("c.%04d.exr"),
+            ],
+            vec!["--out", "frame 1 of --color", "overwrite inputs"],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("d.####.exr"),
+                "--out".into(),
+                dotted,
+            ],
+            vec!["--out", "of --color", "overwrite inputs"],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("d.####.exr"),
+                "--out".into(),
+                aliased,
+            ],
+            vec!["--out", "of --color", "overwrite inputs"],
+        ),
+        (
+            vec![
+                "--color".into(),
+                p("c.####.exr"),
+                "--depth".into(),
+                p("z5.exr"),
+                "--frames".into(),
+                "1-9".into(),
+                "--out".into(),
+                p("z#.exr"),
+            ],
+            vec![
+                "--out",
+                "frame 5 would",
+                "z5.exr",
+                "--depth",
+                "overwrite inputs",
+            ],
+        ),
+    ];
+    let before: Vec<(String, Vec<u8>)> = std::fs::read_dir(&*dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .map(|p| (s(&p).to_string(), std::fs::read(&p).unwrap()))
+        .collect();
+    let count = before.len();
+    for (flags, expected) in &cases {
+        let mut args = vec!["blur", "--method", "hammon", "--focus", "2.4"];
+        args.extend(flags.iter().map(String::as_str));
+        let o = defocus(&args);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{flags:?}: {e}");
+        for x in expected {
+            assert!(e.contains(x), "{flags:?}: no '{x}' in {e}");
+        }
+        assert!(!e.contains("kept"), "{flags:?}: {e}");
+    }
+    // Render: a frame's image is another frame's depth pass.
+    let o = defocus(&[
+        "render",
+        "--width",
+        "16",
+        "--height",
+        "9",
+        "--frames",
+        "1-12",
+        "--out",
+        &p("r#.exr"),
+        "--depth-out",
+        &p("r1#.exr"),
+    ]);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("frame 1 of --depth-out") && e.contains("r11.exr"),
+        "{e}"
+    );
+    // Nothing was written, nothing changed.
+    let after = std::fs::read_dir(&*dir)
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().path().is_file())
+        .count();
+    assert_eq!(after, count, "a file was written");
+    for (path, bytes) in &before {
+        assert!(std::fs::read(path).unwrap() == *bytes, "{path} changed");
+    }
+}
+
+/// The farm template's task script is fixed text: no parameter is pasted into it, so none can
+/// be read as shell code.
+#[test]
+fn openjd_template_pastes_no_parameter_into_shell_text() {
+    let template = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("farm/openjd/defocus-blur.yaml"),
+    )
+    .unwrap();
+    let script = template
+        .split("data: |")
+        .nth(1)
+        .expect("the template embeds its task script");
+    assert!(
+        !script.contains("{{"),
+        "a parameter in the script: {script}"
+    );
+    for param in [
+        "Color",
+        "Depth",
+        "Out",
+        "Args",
+        "Defocus",
+        "LastFrame",
+        "ChunkSize",
+    ] {
+        assert!(
+            template.contains(&format!("- \"{{{{Param.{param}}}}}\"")),
+            "{param} is not passed as an argument of its own"
+        );
+    }
+}
+
+/// The farm template with hostile names: folders named `x'$(touch PWNED)'y` and `bob's shot`,
+/// flags holding `$(...)`, and negative frames. Every frame is written, and nothing is run.
+#[test]
+fn openjd_template_runs_no_shell_text_from_its_parameters() {
+    let Some(openjd) = openjd() else {
+        eprintln!(
+            "skipped: the Open Job Description CLI is not installed (pip install openjd-cli, or \
+             set DEFOCUS_OPENJD); scripts/test installs it"
+        );
+        return;
+    };
+    let base = temp_dir("openjd-hostile");
+    let input = base.join("x'$(touch PWNED)'y");
+    let output = base.join("bob's shot");
+    std::fs::create_dir(&input).unwrap();
+    std::fs::create_dir(&output).unwrap();
+    // Frames -3 to -1: written as 1 to 3, then named as the pattern names negative frames.
+    let frames = [-3, -2, -1];
+    write_frames(&input, &[1, 2, 3]);
+    for n in 1..=3 {
+        for stem in ["c", "d"] {
+            std::fs::rename(
+                input.join(format!("{stem}.{n:04}.exr")),
+                input.join(format!("{stem}.-{n:04}.exr")),
+            )
+            .unwrap();
+        }
+    }
+    let template = Path::new(env!("CARGO_MANIFEST_DIR")).join("farm/openjd/defocus-blur.yaml");
+    let run = |args: &str| {
+        std::process::Command::new(&openjd)
+            .current_dir(&*base)
+            .arg("run")
+            .arg(&template)
+            .args([
+                "-p",
+                &format!("Color={}", input.join("c.####.exr").display()),
+            ])
+            .args([
+                "-p",
+                &format!("Depth={}", input.join("d.####.exr").display()),
+            ])
+            .args([
+                "-p",
+                &format!("Out={}", output.join("o.####.exr").display()),
+            ])
+            .args([
+                "-p",
+                "FirstFrame=-3",
+                "-p",
+                "LastFrame=-1",
+                "-p",
+                "ChunkSize=2",
+            ])
+            .args(["-p", &format!("Args={args}")])
+            .args(["-p", &format!("Defocus={}", env!("CARGO_BIN_EXE_defocus"))])
+            .output()
+            .unwrap()
+    };
+    let o = run("--method hammon --focus 2.4");
+    let log = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{log}");
+    for n in frames {
+        assert!(
+            output.join(format!("o.-{:04}.exr", -n)).is_file(),
+            "frame {n}: {log}"
+        );
+    }
+    // A flag value that is shell code reaches defocus as text, and fails there.
+    let o = run("--method hammon --focus $(touch${IFS}PWNED2) --fstop `touch${IFS}PWNED3`");
+    assert!(
+        !o.status.success(),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    let listed = |dir: &Path| -> Vec<String> {
+        std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect()
+    };
+    for dir in [&*base, input.as_path(), output.as_path()] {
+        let names = listed(dir);
+        assert!(!names.iter().any(|n| n.starts_with("PWNED")), "{names:?}");
+    }
+}

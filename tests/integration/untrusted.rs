@@ -845,3 +845,529 @@ fn a_report_on_a_full_disk_fails_and_leaves_the_old_report() {
     assert!(before == after, "a file of the old report changed");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+// ---------------------------------------------------------------------------------------------
+// Images named on the command line
+// ---------------------------------------------------------------------------------------------
+
+/// A 32x24 frame (colour, depth) and its truth, written into `dir` as `c.exr`, `z.exr` and
+/// `truth.exr`.
+fn small_frame(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
+    let (c, z, t) = (dir.join("c.exr"), dir.join("z.exr"), dir.join("truth.exr"));
+    let color = ColorImage::from_vec(
+        32,
+        24,
+        (0..32 * 24)
+            .map(|i| {
+                let v = if (i % 32 / 4 + i / 32 / 4) % 2 == 0 {
+                    0.8
+                } else {
+                    0.1
+                };
+                [v, v, v, 1.0]
+            })
+            .collect(),
+    )
+    .unwrap();
+    io::write_color(&c, &color).unwrap();
+    io::write_depth_exr(&z, &defocus::image::GrayImage::new(32, 24, 3.0)).unwrap();
+    io::write_color(&t, &color).unwrap();
+    (c, z, t)
+}
+
+/// Runs defocus with `args` (without `--quiet`), failing the test when it takes longer than
+/// [`REFUSAL_TIMEOUT`] (it waits on a FIFO); its exit code and standard error.
+fn run_within_timeout(args: &[&str]) -> (Option<i32>, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut e = String::new();
+            std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut e).unwrap();
+            return (status.code(), e);
+        }
+        if start.elapsed() > REFUSAL_TIMEOUT {
+            let _ = child.kill();
+            panic!("{args:?} blocked");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A FIFO given where an image is read (each flag, `compare A B`, a frame of a sequence, and
+/// the library's reader, which Python calls) is refused at once, naming it and the flag, not
+/// waited on for ever.
+#[test]
+fn a_fifo_given_as_an_image_is_refused_without_blocking() {
+    let base = temp_dir("fifo-images");
+    let frame = small_frame(&base);
+    let fifo = base.join("pipe.exr");
+    if !mkfifo(&fifo) {
+        return;
+    }
+    let (c, z, t) = (s(&frame.0), s(&frame.1), s(&frame.2));
+    let p = s(&fifo);
+    let out = base.join("o.exr");
+    let o = s(&out);
+    let image = format!("image:{p}");
+    let r = base.join("R");
+    let rr = s(&r);
+    // Sequence frames 1 and 3 are files, frame 2 a FIFO.
+    std::fs::copy(&frame.0, base.join("f.0001.exr")).unwrap();
+    std::fs::copy(&frame.0, base.join("f.0003.exr")).unwrap();
+    assert!(mkfifo(&base.join("f.0002.exr")));
+    let seq = base.join("f.####.exr");
+    let seq_out = base.join("g.####.exr");
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec!["blur", "--color", p, "--depth", z, "--out", o],
+            "--color",
+        ),
+        (
+            vec!["blur", "--color", c, "--depth", p, "--out", o],
+            "--depth",
+        ),
+        (
+            vec![
+                "blur",
+                "--color",
+                c,
+                "--depth",
+                z,
+                "--aperture",
+                &image,
+                "--out",
+                o,
+            ],
+            "--aperture",
+        ),
+        (
+            vec![
+                "compare",
+                "--color",
+                c,
+                "--depth",
+                z,
+                "--truth",
+                p,
+                "--methods",
+                "hammon",
+                "--out",
+                rr,
+            ],
+            "--truth",
+        ),
+        (
+            vec![
+                "compare",
+                "--color",
+                p,
+                "--depth",
+                z,
+                "--truth",
+                t,
+                "--methods",
+                "hammon",
+                "--out",
+                rr,
+            ],
+            "--color",
+        ),
+        (vec!["compare", c, p], "pipe.exr"),
+        (vec!["compare", p, c], "pipe.exr"),
+        (
+            vec!["kernel", "--filter", p, "--filter-out", o, "--size", "9"],
+            "--filter",
+        ),
+        (
+            vec![
+                "blur",
+                "--color",
+                s(&seq),
+                "--depth",
+                z,
+                "--frames",
+                "1-3",
+                "--out",
+                s(&seq_out),
+            ],
+            "f.0002.exr",
+        ),
+    ];
+    for (args, flag) in &cases {
+        let (code, e) = run_within_timeout(args);
+        assert_eq!(code, Some(1), "{args:?}: {e}");
+        assert!(
+            e.contains(flag) && e.contains("FIFO") && !e.contains("panicked"),
+            "{args:?}: {e}"
+        );
+        assert!(!out.exists(), "{args:?}");
+    }
+    // The sequence's other frames are written.
+    assert!(base.join("g.0001.exr").is_file() && base.join("g.0003.exr").is_file());
+    // The library's readers, which the Python package calls.
+    let (tx, rx) = mpsc::channel();
+    let f = fifo.clone();
+    std::thread::spawn(move || {
+        let _ = tx.send((
+            io::read_color(&f).err().map(|e| e.to_string()),
+            io::image_size(&f).err().map(|e| e.to_string()),
+        ));
+    });
+    let (color, size) = rx
+        .recv_timeout(REFUSAL_TIMEOUT)
+        .expect("read_color blocked");
+    for e in [color, size] {
+        let e = e.expect("refused");
+        assert!(e.contains("pipe.exr") && e.contains("FIFO"), "{e}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Report folders shared with inputs, other files and other reports
+// ---------------------------------------------------------------------------------------------
+
+/// `compare` on the small frame into `out` with `methods`; `replace` gives other values to
+/// some of `--color`, `--depth` and `--truth`, or more flags.
+fn frame_report(
+    frame: &(PathBuf, PathBuf, PathBuf),
+    out: &Path,
+    methods: &str,
+    replace: &[&str],
+) -> std::process::Output {
+    let mut args = vec!["compare", "--methods", methods, "--out", s(out)];
+    for (flag, path) in [
+        ("--color", &frame.0),
+        ("--depth", &frame.1),
+        ("--truth", &frame.2),
+    ] {
+        if !replace.contains(&flag) {
+            args.extend([flag, s(path)]);
+        }
+    }
+    args.extend_from_slice(replace);
+    defocus(&args)
+}
+
+/// An input that lies in the report folder under a name the report writes (its truth as
+/// `reference.exr`, a colour image as `METHOD.png`, a lens preset as `results.json`, a texture
+/// a scene reads) is refused before anything is rendered, naming the flag, the input and the
+/// report's file, whatever the spelling; the input is left as it was.
+#[test]
+fn inputs_under_the_names_a_report_writes_are_refused_before_rendering() {
+    let base = temp_dir("report-inputs");
+    let frame = small_frame(&base);
+    let r = base.join("R");
+    std::fs::create_dir(&r).unwrap();
+    std::fs::copy(&frame.2, r.join("reference.exr")).unwrap();
+    io::write_color(&r.join("hammon.png"), &ColorImage::new(32, 24, [0.5; 4])).unwrap();
+    io::write_color(&r.join("reference.png"), &ColorImage::new(9, 9, [1.0; 4])).unwrap();
+    std::fs::copy(&frame.0, r.join("hammon-error.png")).unwrap();
+    std::fs::write(r.join("results.json"), "{\"description\": \"mine\"}").unwrap();
+    let linked = base.join("linked.exr");
+    std::fs::copy(&frame.2, &linked).unwrap();
+    std::fs::hard_link(&linked, r.join("grid.png")).unwrap();
+    std::fs::create_dir(base.join("alias")).unwrap();
+    symlink(&r, &base.join("link-to-R"));
+    let in_r = |name: &str| s(&r.join(name)).to_string();
+    let dotted = s(&base.join("alias/../R/./reference.exr")).to_string();
+    let through_link = s(&base.join("link-to-R/reference.exr")).to_string();
+    let cases: Vec<(Vec<String>, &str, &str)> = vec![
+        (
+            vec!["--truth".into(), in_r("reference.exr")],
+            "--truth",
+            "reference.exr",
+        ),
+        (vec!["--truth".into(), dotted], "--truth", "reference.exr"),
+        (
+            vec!["--truth".into(), through_link],
+            "--truth",
+            "reference.exr",
+        ),
+        (
+            vec!["--color".into(), in_r("hammon.png")],
+            "--color",
+            "hammon.png",
+        ),
+        (
+            vec!["--depth".into(), in_r("reference.exr")],
+            "--depth",
+            "reference.exr",
+        ),
+        (
+            vec![
+                "--aperture".into(),
+                format!("image:{}", in_r("reference.png")),
+            ],
+            "--aperture",
+            "reference.png",
+        ),
+        (
+            vec!["--lens".into(), in_r("results.json")],
+            "--lens",
+            "results.json",
+        ),
+        // A hard link to the truth, under the contact sheet's name.
+        (
+            vec!["--truth".into(), s(&linked).to_string()],
+            "--truth",
+            "grid.png",
+        ),
+    ];
+    let before: Vec<(String, Vec<u8>)> = files_in(&r)
+        .into_iter()
+        .filter(|f| !f.starts_with("link"))
+        .map(|f| (f.clone(), std::fs::read(r.join(&f)).unwrap()))
+        .collect();
+    for (more, flag, name) in &cases {
+        let more: Vec<&str> = more.iter().map(String::as_str).collect();
+        let o = frame_report(&frame, &r, "hammon", &more);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{more:?}: {e}");
+        assert!(
+            e.contains(flag) && e.contains(name) && e.contains("would replace"),
+            "{more:?}: {e}"
+        );
+        assert!(
+            !r.join("index.html").exists(),
+            "{more:?}: a report was written"
+        );
+    }
+    for (f, bytes) in &before {
+        assert!(
+            std::fs::read(r.join(f)).unwrap() == *bytes,
+            "{f} was changed"
+        );
+    }
+    // A scene's own files: a texture named as the report names a method's image.
+    let scene = base.join("S");
+    std::fs::create_dir(&scene).unwrap();
+    io::write_color(&scene.join("hammon.png"), &ColorImage::new(2, 2, [0.5; 4])).unwrap();
+    std::fs::write(scene.join("m.mtl"), "newmtl m\nmap_Kd hammon.png\n").unwrap();
+    std::fs::write(
+        scene.join("s.obj"),
+        format!("mtllib m.mtl\n{TRIANGLE_OBJ}usemtl m\nf 1/1 2/2 3/3\n"),
+    )
+    .unwrap();
+    let png = std::fs::read(scene.join("hammon.png")).unwrap();
+    let o = defocus(&[
+        "compare",
+        "--scene",
+        s(&scene.join("s.obj")),
+        "--methods",
+        "hammon",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--reference-samples",
+        "2",
+        "--out",
+        s(&scene),
+    ]);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("--scene") && e.contains("hammon.png"), "{e}");
+    assert_eq!(std::fs::read(scene.join("hammon.png")).unwrap(), png);
+    assert!(!scene.join("index.html").exists());
+}
+
+/// The clean-up of a report removes only images the report before it wrote and recorded, as
+/// they were written: never the user's files that a `results.json` it did not write names, nor
+/// an image changed since, nor an input of the report.
+#[test]
+fn a_report_removes_only_the_images_an_earlier_report_recorded_unchanged() {
+    let base = temp_dir("report-cleanup");
+    let frame = small_frame(&base);
+    let r = base.join("R");
+    std::fs::create_dir(&r).unwrap();
+    // The user's own images, and a results.json from elsewhere that names them.
+    io::write_color(&r.join("photo.png"), &ColorImage::new(4, 4, [0.3; 4])).unwrap();
+    io::write_color(&r.join("holiday.exr"), &ColorImage::new(4, 4, [0.6; 4])).unwrap();
+    std::fs::write(
+        r.join("results.json"),
+        serde_json::to_string(&json!({
+            "reference": {"image_png": "photo.png", "image_exr": "holiday.exr"},
+            "runs": [{"image_png": "photo.png", "image_exr": "holiday.exr",
+                      "error_map_png": "photo.png"}],
+            "files": [{"name": "photo.png", "bytes": 1, "sha256": "00"},
+                      {"name": "holiday.exr"}],
+        }))
+        .unwrap(),
+    )
+    .unwrap();
+    let o = frame_report(&frame, &r, "hammon", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(r.join("photo.png").is_file() && r.join("holiday.exr").is_file());
+    // Each image written is recorded with its size and hash.
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(r.join("results.json")).unwrap()).unwrap();
+    let recorded: Vec<&str> = results["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["name"].as_str().unwrap())
+        .collect();
+    for name in [
+        "reference.exr",
+        "hammon.png",
+        "hammon-error.png",
+        "grid.png",
+    ] {
+        assert!(
+            recorded.contains(&name),
+            "{name} not recorded: {recorded:?}"
+        );
+    }
+    let hammon = results["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["name"] == "hammon.exr")
+        .unwrap();
+    assert_eq!(
+        hammon["bytes"].as_u64(),
+        Some(std::fs::metadata(r.join("hammon.exr")).unwrap().len())
+    );
+    assert_eq!(hammon["sha256"].as_str().unwrap().len(), 64);
+    // A recorded image changed since is kept; one as written is removed; an input is kept.
+    io::write_color(&r.join("hammon.png"), &ColorImage::new(4, 4, [0.9; 4])).unwrap();
+    let o = frame_report(
+        &frame,
+        &r,
+        "gaussian",
+        &["--color", s(&r.join("hammon.exr"))],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let files = files_in(&r);
+    for kept in [
+        "photo.png",
+        "holiday.exr",
+        "hammon.png",
+        "hammon.exr",
+        "gaussian.png",
+    ] {
+        assert!(files.iter().any(|f| f == kept), "{kept} is gone: {files:?}");
+    }
+    assert!(
+        !files.iter().any(|f| f == "hammon-error.png"),
+        "hammon-error.png is left: {files:?}"
+    );
+}
+
+/// Every image a report folder's `results.json` names exists, and every image in the folder
+/// is one it names (the report is whole).
+fn assert_whole_report(dir: &Path) {
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("results.json")).unwrap()).unwrap();
+    let named: Vec<String> = results["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["name"].as_str().unwrap().to_string())
+        .collect();
+    let files = files_in(dir);
+    for n in &named {
+        assert!(
+            files.contains(n),
+            "results.json names {n}, which is gone: {files:?}"
+        );
+    }
+    for f in files
+        .iter()
+        .filter(|f| f.ends_with(".png") || f.ends_with(".exr"))
+    {
+        assert!(named.contains(f), "{f} is not in results.json: {named:?}");
+    }
+}
+
+/// A report waits while another holds the folder's lock (it says so), and finishes whole once
+/// the lock is released.
+#[test]
+fn a_report_waits_for_the_lock_of_its_folder() {
+    use std::io::BufRead;
+    let base = temp_dir("report-lock");
+    let frame = small_frame(&base);
+    let r = base.join("R");
+    std::fs::create_dir(&r).unwrap();
+    let lock = defocus::output::FolderLock::acquire(&r, || panic!("the folder is free")).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args([
+            "compare",
+            "--color",
+            s(&frame.0),
+            "--depth",
+            s(&frame.1),
+            "--truth",
+            s(&frame.2),
+            "--methods",
+            "hammon",
+            "--quiet",
+            "--out",
+            s(&r),
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (tx, rx) = mpsc::channel();
+    let err = child.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(err).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let said_waiting = |rx: &mpsc::Receiver<String>| loop {
+        match rx.recv_timeout(Duration::from_secs(120)) {
+            Ok(line) if line.contains("waiting") => break line,
+            Ok(_) => {}
+            Err(_) => panic!("the report did not say it waits for the locked folder"),
+        }
+    };
+    let waiting = said_waiting(&rx);
+    assert!(waiting.contains(s(&r)), "{waiting}");
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(child.try_wait().unwrap().is_none(), "it did not wait");
+    assert!(!r.join("results.json").exists());
+    drop(lock);
+    assert!(child.wait().unwrap().success());
+    assert_whole_report(&r);
+}
+
+/// Reports run at once into one folder, each with other methods, leave one whole report.
+#[test]
+fn reports_run_at_once_into_one_folder_leave_one_whole_report() {
+    let base = temp_dir("report-race");
+    let frame = small_frame(&base);
+    let r = base.join("R");
+    for _ in 0..3 {
+        let spawn = |methods: &str| {
+            Command::new(env!("CARGO_BIN_EXE_defocus"))
+                .args([
+                    "compare",
+                    "--color",
+                    s(&frame.0),
+                    "--depth",
+                    s(&frame.1),
+                    "--truth",
+                    s(&frame.2),
+                    "--methods",
+                    methods,
+                    "--quiet",
+                    "--out",
+                    s(&r),
+                ])
+                .stderr(std::process::Stdio::null())
+                .spawn()
+                .unwrap()
+        };
+        let mut a = spawn("hammon,gaussian");
+        let mut b = spawn("poisson");
+        assert!(a.wait().unwrap().success() && b.wait().unwrap().success());
+        assert_whole_report(&r);
+    }
+}

@@ -411,8 +411,9 @@ def report(
     Parameters
     ----------
     out : str or os.PathLike
-        The report's folder, created if absent; files of an earlier report that this one does
-        not replace are removed.
+        The report's folder, created if absent; images an earlier report wrote and recorded
+        in its ``results.json``, unchanged since, that this one does not replace are removed.
+        An input that lies in it under a name the report writes is refused (``ValueError``).
     scene : str or os.PathLike or None, default None
         A built-in scene name or a scene file (.gltf, .glb, .obj); ``reference`` is rendered
         from it with ``reference_samples`` lens samples, unless ``truth`` is given.

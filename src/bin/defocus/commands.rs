@@ -13,7 +13,7 @@ use defocus::jobs::report::{self, CompareArgs};
 
 use crate::args::{Cli, Command};
 use crate::common::{
-    check_output, print_note, progress_bar, report_done, IMAGE_EXTENSIONS, MAX_THREADS,
+    check_output, eprint_line, print_note, progress_bar, report_done, IMAGE_EXTENSIONS, MAX_THREADS,
 };
 
 /// Runs the parsed command line.
@@ -92,7 +92,7 @@ fn write_report(args: &CompareArgs, quiet: bool) -> Result<()> {
     );
     bar.finish_and_clear();
     let written = written?;
-    eprintln!("report: {}", shown(&written.index_html));
+    eprint_line(&format!("report: {}", shown(&written.index_html)));
     if !written.failed.is_empty() {
         bail!(
             "{} of {} runs failed: {} (their errors are in the report)",

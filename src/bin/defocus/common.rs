@@ -20,9 +20,20 @@ pub fn report_done(format: Option<TimingFormat>, done: &FrameDone) -> anyhow::Re
     )
 }
 
-/// Prints a line a job notes (a warning or a remark about its input) on standard error.
+/// Prints `text` and a newline on standard error. A standard error that cannot be written (its
+/// reader has gone, as in `defocus render ... 2>&1 | head -1`, or a log collector died) drops
+/// the line: never a panic, never a failure of its own, so the command keeps its exit status.
+/// Every line the command line prints on standard error goes through here.
+pub fn eprint_line(text: &str) {
+    use std::io::Write as _;
+    let mut err = std::io::stderr().lock();
+    let _ = writeln!(err, "{text}");
+}
+
+/// Prints a line a job notes (a warning or a remark about its input) on standard error (see
+/// [`eprint_line`]).
 pub fn print_note(line: String) {
-    eprintln!("{line}");
+    eprint_line(&line);
 }
 
 pub fn progress_bar(quiet: bool, total: u64, unit: &str) -> ProgressBar {
@@ -80,22 +91,33 @@ pub fn report_timings(
                 .max()
                 .unwrap_or(4)
                 .max(5);
-            eprintln!("{method} {width}x{height}");
-            eprintln!("{:<name_width$} {:>10}", "pass", "ms");
+            let mut table = vec![
+                format!("{method} {width}x{height}"),
+                format!("{:<name_width$} {:>10}", "pass", "ms"),
+            ];
             for p in &timings.passes {
-                eprintln!("{:<name_width$} {:>10.2}", p.name, p.ms);
+                table.push(format!("{:<name_width$} {:>10.2}", p.name, p.ms));
             }
-            eprintln!("{:<name_width$} {:>10.2}", "total", timings.total_ms());
+            table.push(format!(
+                "{:<name_width$} {:>10.2}",
+                "total",
+                timings.total_ms()
+            ));
             if let Some(b) = memory_bytes {
-                eprintln!("{:<name_width$} {:>10.1}", "peak MiB", b as f64 / 1048576.0);
+                table.push(format!(
+                    "{:<name_width$} {:>10.1}",
+                    "peak MiB",
+                    b as f64 / 1048576.0
+                ));
             }
             if let Some(b) = resident_peak_bytes() {
-                eprintln!(
+                table.push(format!(
                     "{:<name_width$} {:>10.1}",
                     "max RSS MiB",
                     b as f64 / 1048576.0
-                );
+                ));
             }
+            eprint_line(&table.join("\n"));
         }
         Some(TimingFormat::Json) => {
             let value = serde_json::json!({

@@ -10,7 +10,7 @@ use defocus::methods::lowrank::filter::{filter_separable_with, Channels, Schedul
 use defocus::methods::lowrank::{decompose, filter_full_2d, kernel_image, KernelSpec};
 use defocus::metrics;
 
-use crate::common::{check_output, parse_aperture, IMAGE_EXTENSIONS};
+use crate::common::{check_input, check_output, eprint_line, parse_aperture, IMAGE_EXTENSIONS};
 
 /// Flags of `kernel`.
 #[derive(Debug, Args)]
@@ -117,6 +117,9 @@ pub fn run(a: &KernelArgs) -> Result<()> {
                 io::ensure_not_same_file(input, p)?;
             }
         }
+    }
+    if let Some(input) = &a.filter {
+        check_input(input, "--filter")?;
     }
     let named: Vec<(&str, &std::path::Path)> = outputs
         .iter()
@@ -250,10 +253,10 @@ fn filter_image(
     if a.sanitize {
         let n = io::sanitize_color(&mut img);
         if n > 0 {
-            eprintln!(
+            eprint_line(&format!(
                 "--sanitize: {n} pixel(s) of {} had NaN or infinite values, set to 0",
                 defocus::error::shown(input)
-            );
+            ));
         }
     } else {
         io::check_finite_color(input, &img)?;

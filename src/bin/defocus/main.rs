@@ -24,7 +24,10 @@ fn main() -> ExitCode {
             let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();
             // Paths are escaped where they are formatted; this also catches names read from
             // files (materials, objects), so nothing reaches the terminal raw.
-            eprintln!("error: {}", defocus::error::shown(&chain.join(": ")));
+            common::eprint_line(&format!(
+                "error: {}",
+                defocus::error::shown(&chain.join(": "))
+            ));
             ExitCode::FAILURE
         }
     }

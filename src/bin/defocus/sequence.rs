@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use defocus::jobs::blur::BlurArgs;
 use defocus::jobs::render::RenderArgs;
 
-use crate::common::{print_note, resident_peak_bytes, FrameDone, TimingFormat};
+use crate::common::{eprint_line, print_note, resident_peak_bytes, FrameDone, TimingFormat};
 
 pub use defocus::jobs::sequence::{is_blur_sequence, is_render_sequence};
 
@@ -57,12 +57,12 @@ fn shown_run(
         start: &|todo, kept| {
             if !kept.is_empty() && !quiet {
                 bar.suspend(|| {
-                    eprintln!(
+                    eprint_line(&format!(
                         "{command}: {} of {} frames have their outputs already and are kept \
                          (--overwrite replaces them)",
                         kept.len(),
                         todo.len() + kept.len()
-                    )
+                    ))
                 });
             }
             if todo.is_empty() {
@@ -74,7 +74,7 @@ fn shown_run(
         },
         frame: &|n, r| {
             if let Err(e) = r {
-                bar.suspend(|| eprintln!("error: frame {n}: {}", describe(e)));
+                bar.suspend(|| eprint_line(&format!("error: frame {n}: {}", describe(e))));
             }
             bar.inc(1);
         },
@@ -87,7 +87,7 @@ fn shown_run(
         return Ok(());
     }
     if !quiet {
-        eprintln!(
+        eprint_line(&format!(
             "{}: {} frame(s) written, {} kept, {} failed, in {:.1} s ({:.2} frames/s)",
             done.command,
             done.written.len(),
@@ -95,7 +95,7 @@ fn shown_run(
             done.failed.len(),
             done.wall_s,
             done.frames_per_second()
-        );
+        ));
     }
     if let (Some(format), Some(last)) = (timings, &done.last) {
         report_sequence_timings(format, last, &done.timings, done.written.len(), done.wall_s)?;
@@ -136,11 +136,11 @@ fn report_sequence_timings(
                 total,
                 None,
             )?;
-            eprintln!(
+            eprint_line(&format!(
                 "{written} frames (passes summed over them), wall {:.1} s, {:.2} frames/s",
                 wall_s,
                 written as f64 / wall_s.max(1e-9)
-            );
+            ));
         }
         TimingFormat::Json => {
             let value = serde_json::json!({

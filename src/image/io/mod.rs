@@ -240,24 +240,31 @@ fn file_format(path: &Path, role: &'static str) -> Result<FileFormat> {
 }
 
 /// The format of an existing file from its first bytes (PNG signature, OpenEXR magic number,
-/// PFM header), or `None` when it is none of them or cannot be read.
-fn sniff(path: &Path) -> Option<FileFormat> {
+/// PFM header), or `None` when it is none of them or cannot be read. A FIFO, a device or a
+/// folder is refused here, naming it, before anything waits on it.
+fn sniff(path: &Path) -> Result<Option<FileFormat>> {
+    let mut f = match open(path) {
+        Ok(f) => f,
+        Err(e @ Error::Format { .. }) => return Err(e),
+        Err(_) => return Ok(None),
+    };
     let mut head = [0u8; 4];
-    let mut f = File::open(path).ok()?;
-    let n = f.read(&mut head).ok()?;
-    match &head[..n] {
+    let Ok(n) = f.read(&mut head) else {
+        return Ok(None);
+    };
+    Ok(match &head[..n] {
         [0x89, b'P', b'N', b'G'] => Some(FileFormat::Png),
         [0x76, 0x2f, 0x31, 0x01] => Some(FileFormat::Exr),
         [b'P', b'F' | b'f', c, _] if c.is_ascii_whitespace() => Some(FileFormat::Pfm),
         [0xFF, 0xD8, 0xFF, _] => Some(FileFormat::Jpeg),
         _ => None,
-    }
+    })
 }
 
 /// The format of an input file: from its content when recognised (a PNG named `.exr` is read
 /// as the PNG it is), else from its extension.
 fn input_format(path: &Path, role: &'static str) -> Result<FileFormat> {
-    match sniff(path) {
+    match sniff(path)? {
         Some(f) => Ok(f),
         None => file_format(path, role),
     }
@@ -285,9 +292,17 @@ fn check_file_size(path: &Path, width: usize, height: usize) -> Result<()> {
     )
 }
 
-/// Opens a file for reading; a missing or unreadable file is an [`Error::Io`] naming it.
+/// Opens an image file for reading; a missing or unreadable file is an [`Error::Io`] naming
+/// it, and anything but a regular file (a FIFO, a device, a folder) is refused before it is
+/// read, without blocking ([`crate::input::open_regular`]).
 fn open(path: &Path) -> Result<File> {
-    File::open(path).map_err(|e| Error::io(path, e))
+    crate::input::open_regular(path).map_err(|e| match e {
+        crate::input::OpenError::Io(e) => Error::io(path, e),
+        crate::input::OpenError::NotRegular(kind) => Error::format(
+            path,
+            format!("it is {kind}, not a regular file: expected an image file"),
+        ),
+    })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -353,30 +368,29 @@ pub fn image_size(path: &Path) -> Result<(usize, usize)> {
     Ok((w as usize, h as usize))
 }
 
-/// Refuses an output path that names the same file as an input (which the write would
-/// destroy). Paths are compared after canonicalisation (and, on Unix, by device and inode, which
-/// also catches hard links); an output that does not exist yet is always fine.
-pub fn ensure_not_same_file(input: &Path, output: &Path) -> Result<()> {
-    let Ok(out_meta) = std::fs::metadata(output) else {
-        return Ok(());
-    };
-    let same_path = match (input.canonicalize(), output.canonicalize()) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => false,
+/// Whether `a` and `b` name one existing file: the same path once canonicalised (links and
+/// `./` or `../` resolved), or, on Unix, the same device and inode (which also catches hard
+/// links). A path that does not exist is the same as nothing.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    let (Ok(meta_a), Ok(meta_b)) = (std::fs::metadata(a), std::fs::metadata(b)) else {
+        return false;
     };
     #[cfg(unix)]
-    let same_inode = {
+    {
         use std::os::unix::fs::MetadataExt;
-        std::fs::metadata(input)
-            .map(|m| m.dev() == out_meta.dev() && m.ino() == out_meta.ino())
-            .unwrap_or(false)
-    };
+        if meta_a.dev() == meta_b.dev() && meta_a.ino() == meta_b.ino() {
+            return true;
+        }
+    }
     #[cfg(not(unix))]
-    let same_inode = {
-        let _ = out_meta;
-        false
-    };
-    if same_path || same_inode {
+    let _ = (meta_a, meta_b);
+    matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
+}
+
+/// Refuses an output path that names the same file as an input (which the write would
+/// destroy), compared by [`same_file`]; an output that does not exist yet is always fine.
+pub fn ensure_not_same_file(input: &Path, output: &Path) -> Result<()> {
+    if same_file(input, output) {
         return Err(Error::invalid(
             "output path",
             format!(

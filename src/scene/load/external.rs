@@ -14,6 +14,7 @@ use std::path::{Component, Path, PathBuf};
 
 use super::LoadOptions;
 use crate::error::shown;
+use crate::input::OpenError;
 use crate::{Error, Result};
 
 /// Most bytes read from an image file a scene refers to: far more than the largest image
@@ -43,6 +44,8 @@ pub(super) struct SceneFolder {
     /// That folder with every link followed.
     root: PathBuf,
     allow_external: bool,
+    /// The files read so far through this folder, as resolved (links followed).
+    read: std::sync::Mutex<Vec<PathBuf>>,
 }
 
 /// Why a referenced file is not read.
@@ -70,7 +73,24 @@ impl SceneFolder {
             dir,
             root,
             allow_external: options.allow_external_files,
+            read: std::sync::Mutex::new(Vec::new()),
         })
+    }
+
+    /// The files read through this folder so far (resolved, each once), in the order first
+    /// read.
+    pub(super) fn files_read(&self) -> Vec<PathBuf> {
+        self.read.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Reads `path` (already resolved) and records it among [`Self::files_read`].
+    fn read_recorded(&self, path: &Path, limit: Limit) -> std::result::Result<Vec<u8>, Refusal> {
+        let bytes = read_regular(path, limit)?;
+        let mut read = self.read.lock().unwrap_or_else(|e| e.into_inner());
+        if !read.iter().any(|p| p == path) {
+            read.push(path.to_path_buf());
+        }
+        Ok(bytes)
     }
 
     /// Reads the file `reference` (a path as the scene wrote it, after URI decoding) names,
@@ -79,7 +99,7 @@ impl SceneFolder {
     /// reference.
     pub(super) fn read(&self, field: &str, reference: &Path, limit: Limit) -> Result<Vec<u8>> {
         self.resolve(reference)
-            .and_then(|path| read_regular(&path, limit))
+            .and_then(|path| self.read_recorded(&path, limit))
             .map_err(|why| self.refused(field, reference, why))
     }
 
@@ -91,7 +111,8 @@ impl SceneFolder {
         path: &Path,
         limit: Limit,
     ) -> Result<Vec<u8>> {
-        read_regular(path, limit).map_err(|why| self.refused(field, reference, why))
+        self.read_recorded(path, limit)
+            .map_err(|why| self.refused(field, reference, why))
     }
 
     /// The file `reference` names, with links followed, or the error [`Self::read`] would give.
@@ -156,17 +177,13 @@ impl SceneFolder {
     }
 }
 
-/// Reads `path`, which must be a regular file, as far as `limit` says. The type is checked
-/// before opening (opening a FIFO would block) and again on the open file.
+/// Reads `path`, which must be a regular file, as far as `limit` says (opened by
+/// [`crate::input::open_regular`]: a FIFO or a device is refused without blocking).
 fn read_regular(path: &Path, limit: Limit) -> std::result::Result<Vec<u8>, Refusal> {
-    let meta = std::fs::metadata(path).map_err(Refusal::Unreadable)?;
-    if !meta.is_file() {
-        return Err(Refusal::NotRegular);
-    }
-    let file = std::fs::File::open(path).map_err(Refusal::Unreadable)?;
-    if !file.metadata().map_err(Refusal::Unreadable)?.is_file() {
-        return Err(Refusal::NotRegular);
-    }
+    let file = crate::input::open_regular(path).map_err(|e| match e {
+        OpenError::NotRegular(_) => Refusal::NotRegular,
+        OpenError::Io(e) => Refusal::Unreadable(e),
+    })?;
     let (take, cap) = match limit {
         Limit::Cap(cap) => (cap.saturating_add(1), Some(cap)),
         Limit::Prefix(n) => (n, None),

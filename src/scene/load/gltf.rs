@@ -486,6 +486,7 @@ impl<'a> Loader<'a> {
             scene: self.scene,
             cameras,
             skipped_cameras,
+            files_read: Vec::new(),
         })
     }
 

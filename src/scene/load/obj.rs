@@ -311,6 +311,7 @@ pub(super) fn load(path: &Path, folder: &SceneFolder) -> Result<SceneFile> {
         scene,
         cameras: Vec::new(),
         skipped_cameras: Vec::new(),
+        files_read: Vec::new(),
     })
 }
 
