@@ -100,6 +100,14 @@ pub struct PostArgs {
     )]
     pub max_coc: Option<f32>,
 
+    /// hammon, lowrank, gaussian, poisson, splat (one layer): what near blur uncovers. `none`:
+    /// the frame blurred as one layer, as the papers; `fill`: split into a near layer (CoC at
+    /// least 2 px in front of the focus) and a back layer filled where the near one hides it
+    /// (pull-push, after Kraus and Strengert 2007), each blurred, the near one composited over
+    /// the back. The methods that read a scene's hidden surfaces ignore it.
+    #[arg(long, value_name = "none|fill", default_value = "none", value_parser = parse_occlusion)]
+    pub occlusion: crate::methods::fill::Occlusion,
+
     /// hammon: depth to blur amount: `physical` (thin lens) or `artist` (fig. 28-6 curve).
     #[arg(long, value_enum, default_value_t = HammonCoc::Physical)]
     pub coc: HammonCoc,
@@ -767,4 +775,9 @@ pub fn parse_triple(s: &str) -> std::result::Result<(f32, f32, f32), String> {
         Some([a, b, c]) => Ok((*a, *b, *c)),
         _ => Err(format!("'{s}': expected three numbers A,B,C")),
     }
+}
+
+/// `--occlusion`: `none` or `fill`.
+fn parse_occlusion(s: &str) -> std::result::Result<crate::methods::fill::Occlusion, String> {
+    crate::methods::fill::Occlusion::parse(s).map_err(|e| e.to_string())
 }

@@ -626,6 +626,7 @@ fn render(
             frame_samples: samples.unwrap_or(DEFAULT_FRAME_SAMPLES),
             seed,
             with_depth,
+            occlusion: post.occlusion,
         };
         registry::run_scene(&settings, &scene, &cam, &options, &mut |_, _| {})
     });

@@ -10,6 +10,7 @@ use crate::frames::Keyed;
 use crate::image::io::{self, DepthRead, Placement};
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::ThinLens;
+use crate::methods::fill::{self, FillSettings, Occlusion};
 use crate::methods::lowrank::{self, tilt_shift_coc_in_frame, TiltShift};
 use crate::methods::registry::{self, Frame, MethodSettings};
 use crate::methods::MethodOutput;
@@ -201,6 +202,8 @@ pub struct BlurJob {
     color: ColorImage,
     input: Input,
     settings: MethodSettings,
+    /// What near blur uncovers (`--occlusion`).
+    occlusion: Occlusion,
     /// Time spent reading the inputs.
     read_timings: Timings,
     /// How EXR outputs are written.
@@ -320,6 +323,7 @@ impl BlurJob {
                 color,
                 input: Input::TiltShift { coc_px },
                 settings,
+                occlusion: a.post.occlusion,
                 read_timings,
                 exr,
                 out: a.out.clone(),
@@ -427,6 +431,7 @@ impl BlurJob {
             color,
             input: Input::Depth { depth, lens },
             settings,
+            occlusion: a.post.occlusion,
             read_timings,
             exr,
             out: a.out.clone(),
@@ -438,14 +443,17 @@ impl BlurJob {
     /// Runs the method: its output, with the time spent reading the inputs in its timings.
     pub fn compute(&self) -> Result<MethodOutput> {
         let mut output: MethodOutput = match (&self.input, &self.settings) {
-            (Input::Depth { depth, lens }, settings) => registry::run_frame(
-                settings,
-                &Frame {
+            (Input::Depth { depth, lens }, settings) => {
+                let frame = Frame {
                     color: &self.color,
                     depth,
                     lens,
-                },
-            )?,
+                };
+                match self.occlusion {
+                    Occlusion::None => registry::run_frame(settings, &frame)?,
+                    Occlusion::Fill => fill::run_frame(settings, &frame, &FillSettings::default())?,
+                }
+            }
             (Input::TiltShift { coc_px }, MethodSettings::Lowrank(s)) => {
                 lowrank::render_coc(&self.color, coc_px, s)?
             }

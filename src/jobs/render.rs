@@ -289,6 +289,7 @@ impl RenderJob {
             frame_samples: a.samples.unwrap_or(DEFAULT_FRAME_SAMPLES),
             seed: a.seed,
             with_depth: a.depth_out.is_some(),
+            occlusion: a.post.occlusion,
         };
         if let Some(p) = a.aperture.as_deref().and_then(|s| s.strip_prefix("image:")) {
             inputs.push(PathBuf::from(p));

@@ -16,6 +16,7 @@
 //! | `multiview` | [`multiview`] | the scene's CoC-spaced depth layers (multiview synthesis, Lee et al. 2009) |
 
 pub mod coc_map;
+pub mod fill;
 pub mod gaussian;
 pub mod hammon;
 pub mod highlights;

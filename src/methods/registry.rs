@@ -400,6 +400,9 @@ pub struct SceneOptions {
     pub seed: u64,
     /// Also return the pinhole depth at pixel centres.
     pub with_depth: bool,
+    /// What the post-process methods do where near blur uncovers what the frame hides
+    /// ([`super::fill`]).
+    pub occlusion: super::fill::Occlusion,
 }
 
 /// Samples per pixel of the anti-aliased pinhole frame the post-process methods blur when they
@@ -413,6 +416,7 @@ impl Default for SceneOptions {
             frame_samples: DEFAULT_FRAME_SAMPLES,
             seed: 0,
             with_depth: false,
+            occlusion: super::fill::Occlusion::None,
         }
     }
 }
@@ -481,7 +485,12 @@ pub fn run_scene(
                 depth: &depth,
                 lens: &lens,
             };
-            let out = run_frame(post, &frame)?;
+            let out = match options.occlusion {
+                super::fill::Occlusion::None => run_frame(post, &frame)?,
+                super::fill::Occlusion::Fill => {
+                    super::fill::run_frame(post, &frame, &super::fill::FillSettings::default())?
+                }
+            };
             let mut timings = pin.timings;
             timings.extend(&out.timings);
             Ok(MethodOutput {

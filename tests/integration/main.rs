@@ -3,6 +3,7 @@
 mod cli;
 mod cli_post;
 mod docs;
+mod fill;
 mod fuzz;
 mod hammon;
 mod highlights;

@@ -1,0 +1,362 @@
+//! One image, two layers: what a post-process method sees behind near blur (`--occlusion
+//! fill`), after Kraus and Strengert, *Depth-of-Field Rendering by Pyramidal Image Processing*
+//! (Eurographics 2007): decompose the frame by depth, fill each layer where nearer ones hide
+//! it by pyramidal interpolation (pull-push), blur each layer with its own CoC, and composite
+//! them front to back.
+//!
+//! A frame and its depth pass hold one surface a pixel. Blurred as one layer, a near
+//! out-of-focus object (a railing, a branch) spreads over what lies behind it, but where its
+//! blur turns transparent the method can only show the object's own smear: the surface behind
+//! it is not in the frame. Here the frame is split in two:
+//! - the **near layer**: the pixels whose CoC radius is at least `near_coc_px` in front of the
+//!   focus, with their colour; transparent elsewhere, its depth there filled from the near
+//!   pixels around, so that its blur spreads past its silhouette with the near CoC;
+//! - the **back layer**: every other pixel, and where the near layer (widened by
+//!   `dilate_px` pixels, whose anti-aliased edge colours mix both layers) hides it, colour and
+//!   depth filled by pull-push from the back layer's own pixels around the hole.
+//!
+//! Passes: `fill/decompose` (masks and pull-push), then the method's own passes on each layer
+//! (their times summed under the method's pass names), then `fill/composite` (the near layer's
+//! blur over the back layer's: `near + (1 - near alpha) back`). A frame with no near pixel is
+//! the method's own result, unchanged.
+//!
+//! The fill is a smooth interpolation: texture hidden behind a near object does not come back,
+//! only its colours. Measured against Blender Cycles' truth (see the method pages).
+
+use rayon::prelude::*;
+
+use super::registry::{self, Frame, MethodSettings};
+use super::MethodOutput;
+use crate::image::{ColorImage, GrayImage, Rgba};
+use crate::timing::Timings;
+use crate::{Error, Result};
+
+/// How a post-process method treats what near blur uncovers (`--occlusion`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Occlusion {
+    /// One layer: the frame blurred as it is (the methods as their papers describe them).
+    #[default]
+    None,
+    /// Two layers, the back one filled where the near one hides it (this module).
+    Fill,
+}
+
+impl Occlusion {
+    /// Parses `none` or `fill`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "none" => Ok(Self::None),
+            "fill" => Ok(Self::Fill),
+            other => Err(Error::invalid(
+                "occlusion",
+                format!("{other:?}: expected none or fill"),
+            )),
+        }
+    }
+
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Fill => "fill",
+        }
+    }
+}
+
+/// Settings of the decomposition.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FillSettings {
+    /// Pixels at least this CoC radius in front of the focus (pixels) form the near layer.
+    pub near_coc_px: f32,
+    /// The hole left in the back layer is the near layer widened by this many pixels.
+    pub dilate_px: usize,
+}
+
+impl Default for FillSettings {
+    fn default() -> Self {
+        Self {
+            near_coc_px: 2.0,
+            dilate_px: 1,
+        }
+    }
+}
+
+/// Pass names of the decomposition.
+pub mod pass {
+    /// Masks and pull-push of both layers.
+    pub const DECOMPOSE: &str = "fill/decompose";
+    /// The near layer's blur over the back layer's.
+    pub const COMPOSITE: &str = "fill/composite";
+}
+
+/// Runs the post-process method `settings` on `frame` decomposed into a near and a filled back
+/// layer (see the module documentation). A frame with no near pixel gives
+/// [`registry::run_frame`]'s result.
+pub fn run_frame(
+    settings: &MethodSettings,
+    frame: &Frame,
+    fill: &FillSettings,
+) -> Result<MethodOutput> {
+    let (w, h) = (frame.color.width(), frame.color.height());
+    let mut timings = Timings::default();
+    let start = std::time::Instant::now();
+    let near: Vec<bool> = frame
+        .depth
+        .pixels()
+        .par_iter()
+        .map(|&z| frame.lens.coc_px(z) <= -fill.near_coc_px)
+        .collect();
+    if !near.iter().any(|&n| n) {
+        return registry::run_frame(settings, frame);
+    }
+    let hole = dilate(&near, w, h, fill.dilate_px);
+    // The back layer: its own pixels, and the hole filled from them.
+    let back_known: Vec<f32> = hole.iter().map(|&hd| f32::from(u8::from(!hd))).collect();
+    let back_color = pull_push_color(frame.color, &back_known);
+    let back_depth = pull_push_depth(frame.depth, &back_known);
+    // The near layer: its pixels, transparent elsewhere, its depth spread from its pixels.
+    let near_known: Vec<f32> = near.iter().map(|&n| f32::from(u8::from(n))).collect();
+    let near_depth = pull_push_depth(frame.depth, &near_known);
+    let near_color = ColorImage::from_vec(
+        w,
+        h,
+        frame
+            .color
+            .pixels()
+            .iter()
+            .zip(&near)
+            .map(|(&c, &n)| if n { c } else { [0.0; 4] })
+            .collect(),
+    )?;
+    timings.add(pass::DECOMPOSE, start.elapsed().as_secs_f64() * 1e3);
+    let back = registry::run_frame(
+        settings,
+        &Frame {
+            color: &back_color,
+            depth: &back_depth,
+            lens: frame.lens,
+        },
+    )?;
+    let front = registry::run_frame(
+        settings,
+        &Frame {
+            color: &near_color,
+            depth: &near_depth,
+            lens: frame.lens,
+        },
+    )?;
+    timings.extend(&back.timings);
+    timings.extend(&front.timings);
+    let image = timings.time(pass::COMPOSITE, || over(&front.image, &back.image))?;
+    Ok(MethodOutput {
+        image,
+        depth: None,
+        timings,
+        memory_bytes: None,
+    })
+}
+
+/// `front` over `back`, premultiplied: `front + (1 - front alpha) back`.
+fn over(front: &ColorImage, back: &ColorImage) -> Result<ColorImage> {
+    let pixels: Vec<Rgba> = front
+        .pixels()
+        .par_iter()
+        .zip(back.pixels())
+        .map(|(f, b)| {
+            let t = 1.0 - f[3].clamp(0.0, 1.0);
+            [
+                f[0] + t * b[0],
+                f[1] + t * b[1],
+                f[2] + t * b[2],
+                f[3] + t * b[3],
+            ]
+        })
+        .collect();
+    ColorImage::from_vec(front.width(), front.height(), pixels)
+}
+
+/// `mask` widened by `r` pixels (a square window).
+fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    if r == 0 {
+        return mask.to_vec();
+    }
+    let mut rows = vec![false; w * h];
+    rows.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
+        let src = &mask[y * w..(y + 1) * w];
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = src[x.saturating_sub(r)..(x + r + 1).min(w)]
+                .iter()
+                .any(|&m| m);
+        }
+    });
+    let mut out = vec![false; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, o)| {
+        for y2 in y.saturating_sub(r)..(y + r + 1).min(h) {
+            for (a, &b) in o.iter_mut().zip(&rows[y2 * w..(y2 + 1) * w]) {
+                *a |= b;
+            }
+        }
+    });
+    out
+}
+
+/// The colour of `image` where `known` is 1, filled by pull-push elsewhere.
+fn pull_push_color(image: &ColorImage, known: &[f32]) -> ColorImage {
+    let (w, h) = (image.width(), image.height());
+    let values: Vec<[f32; 4]> = image.pixels().to_vec();
+    let filled = pull_push(values, known.to_vec(), w, h);
+    ColorImage::from_vec(w, h, filled).expect("sizes agree by construction")
+}
+
+/// The depth of `depth` where `known` is 1, filled by pull-push elsewhere: inverse depth is
+/// interpolated (so that a far or infinite background does not swamp a near one), then turned
+/// back into depth.
+fn pull_push_depth(depth: &GrayImage, known: &[f32]) -> GrayImage {
+    let (w, h) = (depth.width(), depth.height());
+    let values: Vec<[f32; 1]> = depth.pixels().iter().map(|&z| [1.0 / z]).collect();
+    let filled = pull_push(values, known.to_vec(), w, h);
+    let data = filled
+        .into_iter()
+        .zip(depth.pixels())
+        .zip(known)
+        .map(|((v, &z), &k)| {
+            if k >= 1.0 {
+                z
+            } else if v[0] > 0.0 {
+                1.0 / v[0]
+            } else {
+                f32::INFINITY
+            }
+        })
+        .collect();
+    GrayImage::from_vec(w, h, data).expect("sizes agree by construction")
+}
+
+/// Pyramidal interpolation (pull-push, Gortler et al. 1996; Kraus and Strengert 2007): the
+/// values whose weight is 1 are kept, the others are filled from coarser and coarser averages
+/// of the weighted values around them, each level blended into the next finer one bilinearly.
+fn pull_push<const N: usize>(
+    values: Vec<[f32; N]>,
+    weights: Vec<f32>,
+    w: usize,
+    h: usize,
+) -> Vec<[f32; N]> {
+    // Pull: each level the weighted mean of 2x2 cells of the finer one, weights capped at 1.
+    let mut levels: Vec<(Vec<[f32; N]>, Vec<f32>, usize, usize)> = vec![(values, weights, w, h)];
+    while {
+        let (_, _, lw, lh) = levels.last().expect("one level at least");
+        *lw > 1 || *lh > 1
+    } {
+        let (v, wt, lw, lh) = levels.last().expect("one level at least");
+        let (cw, ch) = (lw.div_ceil(2), lh.div_ceil(2));
+        let mut cv = vec![[0.0f32; N]; cw * ch];
+        let mut cwt = vec![0.0f32; cw * ch];
+        cv.par_chunks_mut(cw)
+            .zip(cwt.par_chunks_mut(cw))
+            .enumerate()
+            .for_each(|(cy, (row_v, row_w))| {
+                for cx in 0..cw {
+                    let (mut sum, mut sw) = ([0.0f32; N], 0.0f32);
+                    for y in 2 * cy..(2 * cy + 2).min(*lh) {
+                        for x in 2 * cx..(2 * cx + 2).min(*lw) {
+                            let i = y * lw + x;
+                            for k in 0..N {
+                                sum[k] += v[i][k] * wt[i];
+                            }
+                            sw += wt[i];
+                        }
+                    }
+                    if sw > 0.0 {
+                        row_v[cx] = sum.map(|s| s / sw);
+                    }
+                    row_w[cx] = sw.min(1.0);
+                }
+            });
+        levels.push((cv, cwt, cw, ch));
+    }
+    // Push: from the coarsest, each level's partly known values blended with the coarser
+    // level read bilinearly at their centres.
+    for l in (0..levels.len() - 1).rev() {
+        let (upper, lower) = levels.split_at_mut(l + 1);
+        let (v, wt, lw, _) = &mut upper[l];
+        let (cv, _, cw, ch) = &lower[0];
+        let (lw, cw, ch) = (*lw, *cw, *ch);
+        v.par_chunks_mut(lw)
+            .zip(wt.par_chunks_mut(lw))
+            .enumerate()
+            .for_each(|(y, (row_v, row_w))| {
+                for x in 0..lw {
+                    if row_w[x] >= 1.0 {
+                        continue;
+                    }
+                    // The centre of (x, y) in the coarser level's pixels, less a half.
+                    let fx = ((x as f32 + 0.5) * 0.5 - 0.5).clamp(0.0, (cw - 1) as f32);
+                    let fy = ((y as f32 + 0.5) * 0.5 - 0.5).clamp(0.0, (ch - 1) as f32);
+                    let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+                    let (x1, y1) = ((x0 + 1).min(cw - 1), (y0 + 1).min(ch - 1));
+                    let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+                    let at = |x: usize, y: usize| cv[y * cw + x];
+                    let (a, b, c, d) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+                    let own = row_w[x];
+                    for k in 0..N {
+                        let top = a[k] + (b[k] - a[k]) * tx;
+                        let bottom = c[k] + (d[k] - c[k]) * tx;
+                        let coarse = top + (bottom - top) * ty;
+                        row_v[x][k] = own * row_v[x][k] + (1.0 - own) * coarse;
+                    }
+                    row_w[x] = 1.0;
+                }
+            });
+    }
+    levels.swap_remove(0).0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pull_push_keeps_known_values_and_fills_a_hole_between_two_values_smoothly() {
+        let (w, h) = (16, 4);
+        // Left half 0, right half 1, the middle four columns unknown.
+        let values: Vec<[f32; 1]> = (0..w * h)
+            .map(|i| [if i % w < w / 2 { 0.0 } else { 1.0 }])
+            .collect();
+        let weights: Vec<f32> = (0..w * h)
+            .map(|i| if (6..10).contains(&(i % w)) { 0.0 } else { 1.0 })
+            .collect();
+        let out = pull_push(values.clone(), weights.clone(), w, h);
+        for i in 0..w * h {
+            if weights[i] == 1.0 {
+                assert_eq!(out[i], values[i], "known value {i} kept");
+            } else {
+                assert!(out[i][0] > 0.0 && out[i][0] < 1.0, "{i}: {:?}", out[i]);
+            }
+        }
+        // Filled values rise from left to right along a row.
+        for x in 6..9 {
+            assert!(out[x][0] <= out[x + 1][0], "{x}: {:?}", &out[5..11]);
+        }
+        // A constant image stays constant whatever is unknown.
+        let flat = pull_push(vec![[0.3f32; 1]; w * h], weights, w, h);
+        assert!(flat.iter().all(|v| (v[0] - 0.3).abs() < 1e-6));
+    }
+
+    #[test]
+    fn dilate_widens_by_the_radius() {
+        let (w, h) = (7, 5);
+        let mut m = vec![false; w * h];
+        m[2 * w + 3] = true;
+        let d = dilate(&m, w, h, 1);
+        let count = d.iter().filter(|&&b| b).count();
+        assert_eq!(count, 9);
+        assert!(d[w + 2] && d[3 * w + 4] && !d[3]);
+    }
+
+    #[test]
+    fn occlusion_parses_its_two_names() {
+        assert_eq!(Occlusion::parse("fill").unwrap(), Occlusion::Fill);
+        assert_eq!(Occlusion::parse(" None ").unwrap(), Occlusion::None);
+        assert!(Occlusion::parse("fil").is_err());
+    }
+}
