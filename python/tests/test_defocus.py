@@ -314,3 +314,16 @@ def test_focus_pixel_alone_focuses_there_and_a_distance_with_it_is_refused():
     assert np.abs(by_pixel[near] - img[near]).max() < 1e-3
     with pytest.raises(ValueError, match="focus"):
         defocus.blur(img, depth, "lowrank", focus=2.0, focus_pixel=(1, 1))
+
+
+def test_occlusion_fill_reaches_python_and_keeps_a_constant_image():
+    depth = two_planes(near=0.5, far=4.0)
+    img = np.full((H, W, 3), 0.37, dtype=np.float32)
+    out = defocus.blur(img, depth, "lowrank", focus=4.0, fstop=1.4, occlusion="fill")
+    assert np.abs(out - 0.37).max() < 2e-3
+    board = checkerboard()
+    a = defocus.blur(board, depth, "lowrank", focus=4.0, fstop=1.4, occlusion="fill")
+    b = defocus.blur(board, depth, "lowrank", focus=4.0, fstop=1.4)
+    assert np.abs(a - b).max() > 0.01
+    with pytest.raises(ValueError, match="occlusion"):
+        defocus.blur(board, depth, "lowrank", focus=4.0, occlusion="fil")

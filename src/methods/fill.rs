@@ -116,7 +116,23 @@ pub fn run_frame(
     let back_depth = pull_push_depth(frame.depth, &back_known);
     // The near layer: its pixels, transparent elsewhere, its depth spread from its pixels.
     let near_known: Vec<f32> = near.iter().map(|&n| f32::from(u8::from(n))).collect();
-    let near_depth = pull_push_depth(frame.depth, &near_known);
+    let mut near_depth = pull_push_depth(frame.depth, &near_known);
+    // Beyond the reach of the nearest blur the near layer is empty and its blur adds nothing:
+    // in focus there, so that the method's gather is a single tap.
+    let reach = frame
+        .depth
+        .pixels()
+        .iter()
+        .zip(&near)
+        .filter(|(_, &n)| n)
+        .map(|(&z, _)| frame.lens.coc_px(z).abs())
+        .fold(0.0f32, f32::max);
+    let reached = dilate(&near, w, h, reach.ceil() as usize + 2);
+    for (z, &r) in near_depth.pixels_mut().iter_mut().zip(&reached) {
+        if !r {
+            *z = frame.lens.focus_m;
+        }
+    }
     let near_color = ColorImage::from_vec(
         w,
         h,
@@ -175,28 +191,49 @@ fn over(front: &ColorImage, back: &ColorImage) -> Result<ColorImage> {
     ColorImage::from_vec(front.width(), front.height(), pixels)
 }
 
-/// `mask` widened by `r` pixels (a square window).
+/// `mask` widened by `r` pixels (a square window), in time independent of `r` (running counts
+/// along rows, then columns).
 fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
     if r == 0 {
         return mask.to_vec();
     }
+    // Along each row: whether any of the pixels within r is set.
     let mut rows = vec![false; w * h];
-    rows.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
-        let src = &mask[y * w..(y + 1) * w];
-        for (x, o) in out.iter_mut().enumerate() {
-            *o = src[x.saturating_sub(r)..(x + r + 1).min(w)]
-                .iter()
-                .any(|&m| m);
-        }
-    });
+    rows.par_chunks_mut(w)
+        .zip(mask.par_chunks(w))
+        .for_each(|(out, src)| {
+            let mut prefix = vec![0u32; w + 1];
+            for x in 0..w {
+                prefix[x + 1] = prefix[x] + u32::from(src[x]);
+            }
+            for (x, o) in out.iter_mut().enumerate() {
+                *o = prefix[(x + r + 1).min(w)] > prefix[x.saturating_sub(r)];
+            }
+        });
+    // Down each column, a band of rows at a time.
+    let mut count = vec![0u32; w];
     let mut out = vec![false; w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(y, o)| {
-        for y2 in y.saturating_sub(r)..(y + r + 1).min(h) {
-            for (a, &b) in o.iter_mut().zip(&rows[y2 * w..(y2 + 1) * w]) {
-                *a |= b;
+    let row = |y: usize| &rows[y * w..(y + 1) * w];
+    for y in 0..r.min(h) {
+        for (c, &b) in count.iter_mut().zip(row(y)) {
+            *c += u32::from(b);
+        }
+    }
+    for y in 0..h {
+        if y + r < h {
+            for (c, &b) in count.iter_mut().zip(row(y + r)) {
+                *c += u32::from(b);
             }
         }
-    });
+        if y > r {
+            for (c, &b) in count.iter_mut().zip(row(y - r - 1)) {
+                *c -= u32::from(b);
+            }
+        }
+        for (o, &c) in out[y * w..(y + 1) * w].iter_mut().zip(&count) {
+            *o = c > 0;
+        }
+    }
     out
 }
 
