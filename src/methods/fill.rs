@@ -269,6 +269,9 @@ fn pull_push_depth(depth: &GrayImage, known: &[f32]) -> GrayImage {
     GrayImage::from_vec(w, h, data).expect("sizes agree by construction")
 }
 
+/// One level of the pull-push pyramid: values, weights, width, height.
+type Level<const N: usize> = (Vec<[f32; N]>, Vec<f32>, usize, usize);
+
 /// Pyramidal interpolation (pull-push, Gortler et al. 1996; Kraus and Strengert 2007): the
 /// values whose weight is 1 are kept, the others are filled from coarser and coarser averages
 /// of the weighted values around them, each level blended into the next finer one bilinearly.
@@ -279,7 +282,7 @@ fn pull_push<const N: usize>(
     h: usize,
 ) -> Vec<[f32; N]> {
     // Pull: each level the weighted mean of 2x2 cells of the finer one, weights capped at 1.
-    let mut levels: Vec<(Vec<[f32; N]>, Vec<f32>, usize, usize)> = vec![(values, weights, w, h)];
+    let mut levels: Vec<Level<N>> = vec![(values, weights, w, h)];
     while {
         let (_, _, lw, lh) = levels.last().expect("one level at least");
         *lw > 1 || *lh > 1
