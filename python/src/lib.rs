@@ -23,6 +23,7 @@ use defocus::jobs::blur::BlurArgs;
 use defocus::jobs::report::CompareArgs;
 use defocus::jobs::sequence::Events;
 use defocus::lens::SamplerKind;
+use defocus::methods::fill::{self, FillSettings, Occlusion};
 use defocus::methods::registry::{self, Frame, SceneOptions, DEFAULT_FRAME_SAMPLES, METHODS};
 use defocus::options::{parse_aperture, PostArgs};
 use defocus::scene::load;
@@ -355,14 +356,15 @@ fn blur_one(
     let settings = p
         .post
         .settings(&p.method, &aperture, p.seed, h, Some(&fl.lens))?;
-    let mut out = registry::run_frame(
-        &settings,
-        &Frame {
-            color: &color,
-            depth: &fl.depth,
-            lens: &fl.lens,
-        },
-    )?;
+    let frame = Frame {
+        color: &color,
+        depth: &fl.depth,
+        lens: &fl.lens,
+    };
+    let mut out = match p.post.occlusion {
+        Occlusion::None => registry::run_frame(&settings, &frame)?,
+        Occlusion::Fill => fill::run_frame(&settings, &frame, &FillSettings::default())?,
+    };
     // The whole library call, its passes and the work between them, as the last row.
     out.timings
         .add(METHOD_WALL, start.elapsed().as_secs_f64() * 1e3);
