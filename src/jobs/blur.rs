@@ -70,7 +70,7 @@ pub struct BlurArgs {
         long,
         default_value = "auto",
         value_name = "M|auto|F:M,...",
-        allow_negative_numbers = true
+        allow_hyphen_values = true
     )]
     pub focus: String,
     /// Focus on the depth at pixel X,Y (column, row from the top left of the frame: for an EXR,
@@ -85,7 +85,7 @@ pub struct BlurArgs {
         default_value = "2.8",
         value_name = "N|F:N,...",
         value_parser = super::flags::parse_fstop,
-        allow_negative_numbers = true
+        allow_hyphen_values = true
     )]
     pub fstop: Keyed,
     /// Focal length in millimetres.
@@ -126,7 +126,7 @@ pub struct BlurArgs {
     /// of --color's pattern found on disk]. Frames run side by side within the memory budget;
     /// a frame whose outputs exist is kept (an interrupted run resumes) unless --overwrite is
     /// given; a missing or bad frame is named and the others still finish.
-    #[arg(long, value_name = "FRAMES")]
+    #[arg(long, value_name = "FRAMES", allow_hyphen_values = true)]
     pub frames: Option<String>,
     /// In a sequence: blur frames whose outputs exist again, replacing them.
     #[arg(long)]

@@ -617,3 +617,123 @@ fn openjd_template_runs_no_shell_text_from_its_parameters() {
         assert!(!names.iter().any(|n| n.starts_with("PWNED")), "{names:?}");
     }
 }
+
+#[test]
+fn frames_and_keys_beyond_nine_digits_are_refused_naming_the_range() {
+    let dir = temp_dir("seq-range");
+    write_frames(&dir, &[1]);
+    let (c, d, out) = (
+        dir.join("c.####.exr"),
+        dir.join("d.####.exr"),
+        dir.join("o.####.exr"),
+    );
+    let blur = |more: &[&str]| {
+        let mut a = vec!["blur", "--color", s(&c), "--depth", s(&d), "--out", s(&out)];
+        a.extend_from_slice(more);
+        defocus(&a)
+    };
+    for (more, flag) in [
+        (
+            &["--frames=-9223372036854775808-9223372036854775807"][..],
+            "--frames",
+        ),
+        (&["--frames", "1000000000"], "--frames"),
+        (
+            &[
+                "--frames",
+                "1",
+                "--focus=-9223372036854775808:2,9223372036854775807:3",
+            ],
+            "--focus",
+        ),
+        (
+            &["--frames", "1", "--fstop", "-1000000000:2,1:4"],
+            "--fstop",
+        ),
+    ] {
+        let o = blur(more);
+        // Refused (1, or 2 where the flag's own parser refuses it), not run nor a panic.
+        assert!(
+            matches!(o.status.code(), Some(1 | 2)),
+            "{more:?}: {}",
+            stderr(&o)
+        );
+        let err = stderr(&o);
+        assert!(
+            err.contains(flag) && err.contains("-999999999 to 999999999"),
+            "{more:?}: {err}"
+        );
+    }
+    // A file on disk whose number is beyond the range, found without --frames.
+    std::fs::copy(dir.join("c.0001.exr"), dir.join("c.12345678901.exr")).unwrap();
+    let o = blur(&[]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("c.12345678901.exr") && err.contains("-999999999 to 999999999"),
+        "{err}"
+    );
+    // A padding of more digits than a frame could have.
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.%99999999999999999999d.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.exr")),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("more than 32 digits"), "{}", stderr(&o));
+    assert!(!dir.join("o.0001.exr").exists());
+}
+
+#[test]
+fn negative_frames_and_keys_are_taken_as_the_docs_write_them() {
+    let dir = temp_dir("seq-negative");
+    let o = defocus(&[
+        "render",
+        "--scene",
+        "lights",
+        "--method",
+        "pinhole",
+        "--width",
+        "16",
+        "--height",
+        "9",
+        "--frames",
+        "-5--1",
+        "--focus",
+        "-2:2,-1:3",
+        "--fstop",
+        "-5:2,-1:4",
+        "--out",
+        s(&dir.join("r.####.png")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for n in 1..=5 {
+        assert!(dir.join(format!("r.-{n:04}.png")).is_file(), "frame -{n}");
+    }
+    write_frames(&dir, &[1, 2]);
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.####.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.exr")),
+        "--frames",
+        "-1-2",
+        "--focus",
+        "-1:2,2:3",
+    ]);
+    // Frames -1 and 0 have no input: they fail, named; 1 and 2 are written.
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("2 of 4 frames failed"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(dir.join("o.0001.exr").is_file() && dir.join("o.0002.exr").is_file());
+}
