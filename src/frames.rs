@@ -20,7 +20,6 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
 
 use crate::error::{shown, Error, Result};
 
@@ -457,23 +456,16 @@ pub enum FrameStatus {
 }
 
 /// Runs `job` on every frame, up to `workers` frames at a time (each job may itself use the
-/// rayon pool), and calls `done` after each, in the order they finish. A failed frame does not
-/// stop the others. Returns each frame's result, in the order of `frames`.
-pub fn run_frames<T, E, J, D>(
-    frames: &[i64],
-    workers: usize,
-    job: J,
-    done: D,
-) -> Vec<(i64, Result<T, E>)>
+/// rayon pool), and hands each frame's result to `done` as it finishes, with the frame's index
+/// in `frames`, in the order they finish. A failed frame does not stop the others. Nothing is
+/// kept here: `done` decides what to keep of a result, so a long sequence holds no more than
+/// that.
+pub fn run_frames<T, E, J, D>(frames: &[i64], workers: usize, job: J, done: D)
 where
-    T: Send,
-    E: Send,
     J: Fn(i64) -> Result<T, E> + Sync,
-    D: Fn(i64, &Result<T, E>) + Sync,
+    D: Fn(usize, i64, Result<T, E>) + Sync,
 {
     let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<Result<T, E>>>> =
-        Mutex::new((0..frames.len()).map(|_| None).collect());
     let workers = workers.clamp(1, frames.len().max(1));
     std::thread::scope(|s| {
         for _ in 0..workers {
@@ -482,24 +474,16 @@ where
                 let Some(&frame) = frames.get(i) else {
                     break;
                 };
-                let r = job(frame);
-                done(frame, &r);
-                if let Ok(mut all) = results.lock() {
-                    all[i] = Some(r);
-                }
+                done(i, frame, job(frame));
             });
         }
     });
-    let all = results.into_inner().unwrap_or_else(|p| p.into_inner());
-    frames
-        .iter()
-        .zip(all)
-        .filter_map(|(&f, r)| r.map(|r| (f, r)))
-        .collect()
 }
 
 #[cfg(test)]
 mod tests {
+    use std::sync::Mutex;
+
     use super::*;
 
     #[test]
@@ -652,18 +636,21 @@ mod tests {
     #[test]
     fn every_frame_runs_once_and_failures_do_not_stop_the_others() {
         let frames: Vec<i64> = (1..=40).collect();
-        let count = AtomicUsize::new(0);
-        let results = run_frames(
+        let results = Mutex::new(Vec::new());
+        run_frames(
             &frames,
             3,
             |f| if f % 7 == 0 { Err(f) } else { Ok(f * 2) },
-            |_, _| {
-                count.fetch_add(1, Ordering::Relaxed);
+            |i, f, r| {
+                assert_eq!(frames[i], f);
+                results.lock().unwrap().push((f, r));
             },
         );
-        assert_eq!(count.load(Ordering::Relaxed), 40);
+        let mut results = results.into_inner().unwrap();
+        results.sort_by_key(|r| r.0);
         assert_eq!(results.len(), 40);
-        for (f, r) in results {
+        for (k, (f, r)) in results.into_iter().enumerate() {
+            assert_eq!(f, k as i64 + 1);
             match r {
                 Ok(v) => assert_eq!(v, f * 2),
                 Err(e) => assert!(e == f && f % 7 == 0),

@@ -702,8 +702,9 @@ struct BlurFlags {
     args: BlurArgs,
 }
 
-/// Blurs a sequence of frame files (see `defocus.blur_sequence`): the frames written, kept and
-/// failed (each with its error), and the frames per second.
+/// Blurs a sequence of frame files (see `defocus.blur_sequence`): the frames written and kept,
+/// the first failed frames (each with its error), how many failed in all, and the frames per
+/// second.
 #[pyfunction]
 #[expect(
     clippy::type_complexity,
@@ -712,7 +713,7 @@ struct BlurFlags {
 fn blur_sequence(
     py: Python<'_>,
     flags: Vec<String>,
-) -> PyResult<(Vec<i64>, Vec<i64>, Vec<(i64, String)>, f64)> {
+) -> PyResult<(Vec<i64>, Vec<i64>, Vec<(i64, String)>, usize, f64)> {
     let args = BlurFlags::try_parse_from(flags)
         .map(|f| f.args)
         .map_err(|e| flag_error("blur", &e))?;
@@ -736,7 +737,7 @@ fn blur_sequence(
         })
         .collect();
     let fps = done.frames_per_second();
-    Ok((done.written, done.kept, failed, fps))
+    Ok((done.written, done.kept, failed, done.failed_count, fps))
 }
 
 /// MSE (linear), PSNR (dB, sRGB) and SSIM of `a` against `b` (see `defocus.compare`).

@@ -730,3 +730,34 @@ fn a_closed_standard_error_is_no_panic_and_keeps_the_exit_status() {
         assert_eq!(o.code(), Some(code), "{args:?}");
     }
 }
+
+#[test]
+fn an_invalid_memory_budget_in_the_environment_is_refused_naming_it() {
+    let dir = temp_dir("budget-env");
+    let out = dir.join("o.png");
+    let run = |value: &str, extra: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .env("DEFOCUS_MEMORY_BUDGET_GIB", value)
+            .args(extra)
+            .args(["render", "--width", "8", "--height", "6", "--out", s(&out)])
+            .arg("--quiet")
+            .output()
+            .unwrap()
+    };
+    for value in ["0", "-1", "nan", "inf", "abc", "", "1e7"] {
+        let o = run(value, &[]);
+        assert_eq!(o.status.code(), Some(1), "{value:?}");
+        let err = stderr(&o);
+        assert!(
+            err.contains("DEFOCUS_MEMORY_BUDGET_GIB")
+                && err.contains("expected a number of GiB greater than 0"),
+            "{value:?}: {err}"
+        );
+        assert!(!out.exists(), "{value:?}");
+    }
+    // A good value, and --memory-budget over a bad one, run.
+    let o = run(" 0.5 ", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = run("abc", &["--memory-budget", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}

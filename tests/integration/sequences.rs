@@ -737,3 +737,71 @@ fn negative_frames_and_keys_are_taken_as_the_docs_write_them() {
     );
     assert!(dir.join("o.0001.exr").is_file() && dir.join("o.0002.exr").is_file());
 }
+
+/// A sequence may have ten million frames: it keeps the first failures' errors, not all of
+/// them, and counts the rest.
+#[test]
+fn a_sequence_keeps_the_first_hundred_errors_and_counts_the_rest() {
+    let dir = temp_dir("seq-errors");
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.####.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.exr")),
+        "--frames",
+        "1-150",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    // Each error as it happens, then the summary of the first hundred and a count.
+    assert_eq!(
+        err.lines()
+            .filter(|l| l.starts_with("error: frame "))
+            .count(),
+        150
+    );
+    let last = err.lines().last().unwrap();
+    let first_hundred: Vec<String> = (1..=100).map(|n| n.to_string()).collect();
+    assert!(
+        last.contains("150 of 150 frames failed")
+            && last.contains(&format!(
+                "frames {}, and 50 more;",
+                first_hundred.join(", ")
+            )),
+        "{last}"
+    );
+    let done = defocus::jobs::sequence::blur(
+        &blur_args(&dir, "1-150"),
+        &defocus::jobs::sequence::Events::none(),
+    )
+    .unwrap();
+    assert_eq!(done.failed_count, 150);
+    assert_eq!(done.failed.len(), defocus::jobs::sequence::ERRORS_KEPT);
+    let frames: Vec<i64> = done.failed.iter().map(|(n, _)| *n).collect();
+    assert_eq!(frames, (1..=100).collect::<Vec<i64>>());
+}
+
+/// `blur`'s flags for a sequence of `c.####.exr` and `d.####.exr` in `dir` into `o.####.exr`.
+fn blur_args(dir: &Path, frames: &str) -> defocus::jobs::blur::BlurArgs {
+    use clap::Parser;
+    #[derive(Parser)]
+    struct Flags {
+        #[command(flatten)]
+        args: defocus::jobs::blur::BlurArgs,
+    }
+    Flags::parse_from([
+        "blur",
+        "--color",
+        s(&dir.join("c.####.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.exr")),
+        "--frames",
+        frames,
+    ])
+    .args
+}

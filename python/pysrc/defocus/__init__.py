@@ -549,8 +549,9 @@ def blur_sequence(
     -------
     dict
         ``{"written": [frame, ...], "kept": [frame, ...], "failed": {frame: message},
-        "frames_per_second": float}``: the frame numbers written and kept, each failed frame's
-        error (a missing or bad input file), and the rate of the frames written.
+        "failed_count": int, "frames_per_second": float}``: the frame numbers written and
+        kept, the errors of the first 100 failed frames (a missing or bad input file), how many
+        frames failed in all, and the rate of the frames written.
 
     Raises
     ------
@@ -571,11 +572,12 @@ def blur_sequence(
     flags.append(f"--focus={_keyed(focus)}")
     flags.append(f"--fstop={_keyed(fstop)}")
     flags.extend(_flags(options))
-    written, kept, failed, fps = _defocus.blur_sequence(flags)
+    written, kept, failed, failed_count, fps = _defocus.blur_sequence(flags)
     return {
         "written": list(written),
         "kept": list(kept),
         "failed": {int(n): message for n, message in failed},
+        "failed_count": int(failed_count),
         "frames_per_second": fps,
     }
 
