@@ -496,7 +496,26 @@ fn check_clashes(frames: &[i64], files: &[Named]) -> Result<()> {
     Ok(())
 }
 
-/// Runs `job` on every frame whose outputs are not all there yet (or every frame with
+/// Whether frame `n` is finished: each of its outputs exists and is a whole image
+/// ([`io::check_whole`]: its header reads and the file is as long as the header says). An
+/// output that exists but is not whole (empty, truncated by a full disk or a copy that
+/// stopped) is noted, and its frame runs again.
+fn finished(n: i64, outputs: &[PathBuf], events: &Events) -> bool {
+    outputs.iter().all(|p| {
+        if std::fs::symlink_metadata(p).is_err() {
+            return false;
+        }
+        match io::check_whole(p) {
+            Ok(()) => true,
+            Err(e) => {
+                (events.note)(format!("note: frame {n}: {e}; the frame runs again"));
+                false
+            }
+        }
+    })
+}
+
+/// Runs `job` on every frame whose outputs are not all there yet and whole (or every frame with
 /// `overwrite`), `workers` at a time, reporting to `events`.
 fn run(
     command: &'static str,
@@ -509,7 +528,7 @@ fn run(
 ) -> Result<Finished> {
     let (todo, kept): (Vec<i64>, Vec<i64>) = frames
         .iter()
-        .partition(|&&n| overwrite || !outputs(n).iter().all(|p| p.is_file()));
+        .partition(|&&n| overwrite || !finished(n, &outputs(n), events));
     (events.start)(&todo, &kept);
     let start = Instant::now();
     // What is kept of each frame as it finishes: the indices of the written ones, the last one

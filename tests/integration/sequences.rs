@@ -112,16 +112,81 @@ fn blur_sequence_finds_its_frames_on_disk_and_resumes() {
     for n in 7..=9 {
         assert!(io::read_color(&dir.join(format!("o.{n:04}.exr"))).is_ok());
     }
-    // A finished frame is kept as it is: here, a marker file in place of frame 8's output.
+    // A finished frame is kept as it is: here, another whole image in place of frame 8's
+    // output.
     let marker = dir.join("o.0008.exr");
-    std::fs::write(&marker, b"kept").unwrap();
+    io::write_color(&marker, &ColorImage::new(2, 1, [0.25, 0.5, 0.75, 1.0])).unwrap();
+    let kept = std::fs::read(&marker).unwrap();
     let o = run(&[]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert_eq!(std::fs::read(&marker).unwrap(), b"kept");
+    assert_eq!(std::fs::read(&marker).unwrap(), kept);
     // --overwrite renders it again.
     let o = run(&["--overwrite"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(io::read_color(&marker).is_ok());
+    assert_eq!(io::image_size(&marker).unwrap(), (W, H));
+}
+
+/// Each output format, cut short in the ways a full disk, a killed copy or a crash after
+/// `--no-fsync` leave it: a resumed sequence makes such a frame again and keeps the whole ones.
+#[test]
+fn a_resumed_sequence_makes_empty_and_truncated_outputs_again() {
+    use std::os::unix::fs::MetadataExt;
+    for ext in ["exr", "png", "pfm"] {
+        let dir = temp_dir(&format!("seq-truncated-{ext}"));
+        write_frames(&dir, &[1, 2, 3, 4, 5]);
+        let out = |n: i64| dir.join(format!("o.{n:04}.{ext}"));
+        let coc = |n: i64| dir.join(format!("k.{n:04}.exr"));
+        let run = || {
+            defocus(&[
+                "blur",
+                "--color",
+                s(&dir.join("c.####.exr")),
+                "--depth",
+                s(&dir.join("d.####.exr")),
+                "--out",
+                s(&dir.join(format!("o.####.{ext}"))),
+                "--coc-out",
+                s(&dir.join("k.####.exr")),
+                "--focus",
+                "2",
+            ])
+        };
+        let o = run();
+        assert!(o.status.success(), "{ext}: {}", stderr(&o));
+        let whole = std::fs::metadata(out(5)).unwrap().len();
+        let whole_coc = std::fs::metadata(coc(5)).unwrap().len();
+        // Frame 1: an empty output; 2: half of it; 3: all but its last byte; 4: its CoC map
+        // without its last byte. Frame 5 stays whole.
+        std::fs::write(out(1), b"").unwrap();
+        for (path, len) in [
+            (out(2), whole / 2),
+            (out(3), whole - 1),
+            (coc(4), whole_coc - 1),
+        ] {
+            let f = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+            f.set_len(len).unwrap();
+        }
+        let kept = std::fs::metadata(out(5)).unwrap().ino();
+        let o = run();
+        assert!(o.status.success(), "{ext}: {}", stderr(&o));
+        let err = stderr(&o);
+        for n in 1..=5 {
+            assert_eq!(io::image_size(&out(n)).unwrap(), (W, H), "{ext} frame {n}");
+            io::check_whole(&out(n)).unwrap();
+            io::check_whole(&coc(n)).unwrap();
+            assert!(io::read_color(&out(n)).is_ok(), "{ext} frame {n}");
+            assert!(io::read_coc(&coc(n), None).is_ok(), "{ext} frame {n}");
+        }
+        for n in 1..=4 {
+            assert!(
+                err.contains(&format!("note: frame {n}: ")) && err.contains("not a whole image"),
+                "{ext} frame {n}: {err}"
+            );
+        }
+        assert!(!err.contains("frame 5"), "{ext}: {err}");
+        // Frame 5 was kept, not written again (a write renames a new file into place).
+        assert_eq!(std::fs::metadata(out(5)).unwrap().ino(), kept, "{ext}");
+    }
 }
 
 #[test]

@@ -40,7 +40,7 @@ use {depth::*, openexr::*, pfm::*, png::*, write::*};
 #[allow(unused_imports)]
 use std::fs::File;
 #[allow(unused_imports)]
-use std::io::{BufReader, Read, Write};
+use std::io::{BufReader, Read, Seek, Write};
 #[allow(unused_imports)]
 use std::path::{Path, PathBuf};
 
@@ -366,6 +366,56 @@ pub fn image_size(path: &Path) -> Result<(usize, usize)> {
         }
     };
     Ok((w as usize, h as usize))
+}
+
+/// Checks that an existing image file is whole, as a finished output must be before a sequence
+/// keeps it: its header reads, and the file is as long as the header says. A PNG must end with
+/// its `IEND` chunk, a PFM must hold every sample its header gives, and an OpenEXR file's offset
+/// tables must point inside it and its last chunk (by the header's line order) must read to its
+/// end. Reads the header and at most one chunk of each part, never the whole image. The error
+/// names the file and what is missing.
+pub fn check_whole(path: &Path) -> Result<()> {
+    let short = |what: String| Error::format(path, format!("not a whole image: {what}"));
+    let len = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .len();
+    if len == 0 {
+        return Err(short("the file is empty".into()));
+    }
+    match input_format(path, "output path")? {
+        FileFormat::Png => {
+            image_size(path)?;
+            /// A PNG's last chunk: no data, the type `IEND` and its CRC.
+            const IEND: [u8; 12] = [0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xAE, 0x42, 0x60, 0x82];
+            let mut f = open(path)?;
+            let mut tail = [0u8; 12];
+            let read = len >= 12
+                && f.seek(std::io::SeekFrom::End(-12)).is_ok()
+                && f.read_exact(&mut tail).is_ok();
+            if !read || tail != IEND {
+                return Err(short(format!(
+                    "the PNG does not end with its IEND chunk ({len} bytes: truncated?)"
+                )));
+            }
+        }
+        FileFormat::Pfm => {
+            let h = read_pfm_header(path)?;
+            if !h.expected.is_some_and(|e| h.available >= e) {
+                return Err(short(format!(
+                    "the PFM header gives {}x{}x{} floats, {} bytes, but {} follow it (truncated?)",
+                    h.width,
+                    h.height,
+                    h.channels,
+                    h.expected.map_or("too many".to_string(), |e| e.to_string()),
+                    h.available
+                )));
+            }
+        }
+        FileFormat::Exr => check_exr_whole(path)?,
+        // Never written: not an output a sequence could have finished.
+        FileFormat::Jpeg => return Err(short("a JPEG is no output of defocus".into())),
+    }
+    Ok(())
 }
 
 /// Whether `a` and `b` name one existing file: the same path once canonicalised (links and
