@@ -457,31 +457,37 @@ pub fn ensure_not_same_file(input: &Path, output: &Path) -> Result<()> {
 /// colour image read from `path` (an HDR render can hold them after a bad sample; every method
 /// would spread them over their blur).
 pub fn check_finite_color(path: &Path, img: &ColorImage) -> Result<()> {
+    match non_finite_color(img) {
+        Some(why) => Err(Error::format(
+            path,
+            format!("{why} (--sanitize replaces them with 0)"),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Describes the first NaN or infinite value of a colour image (its channel, pixel and value,
+/// and how many pixels have one) and what was expected; `None` when every value is finite.
+pub fn non_finite_color(img: &ColorImage) -> Option<String> {
     let w = img.width().max(1);
-    if let Some((i, p)) = img
+    let (i, p) = img
         .pixels()
         .iter()
         .enumerate()
-        .find(|(_, p)| p.iter().any(|v| !v.is_finite()))
-    {
-        let bad = img
-            .pixels()
-            .iter()
-            .filter(|p| p.iter().any(|v| !v.is_finite()))
-            .count();
-        let k = p.iter().position(|v| !v.is_finite()).unwrap_or(0);
-        return Err(Error::format(
-            path,
-            format!(
-                "channel {} at pixel ({}, {}) is {} ({bad} pixel(s) not finite): expected finite colour values (--sanitize replaces them with 0)",
-                ["R", "G", "B", "A"][k],
-                i % w,
-                i / w,
-                p[k]
-            ),
-        ));
-    }
-    Ok(())
+        .find(|(_, p)| p.iter().any(|v| !v.is_finite()))?;
+    let bad = img
+        .pixels()
+        .iter()
+        .filter(|p| p.iter().any(|v| !v.is_finite()))
+        .count();
+    let k = p.iter().position(|v| !v.is_finite()).unwrap_or(0);
+    Some(format!(
+        "channel {} at pixel ({}, {}) is {} ({bad} pixel(s) not finite): expected finite colour values",
+        ["R", "G", "B", "A"][k],
+        i % w,
+        i / w,
+        p[k]
+    ))
 }
 
 /// Replaces every NaN or infinite value of `img` by 0; returns how many pixels had one.
