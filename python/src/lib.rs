@@ -43,10 +43,13 @@ struct MethodFlags {
 }
 
 /// A library error as the Python exception it is: files are `OSError`, the rest `ValueError`.
+/// The message is escaped as the command line prints it ([`defocus::error::shown`]): names
+/// read from files (a scene's, a material's, a channel's) may hold control characters.
 fn py_err(e: defocus::Error) -> PyErr {
+    let text = defocus::error::shown(&e.to_string());
     match e {
-        defocus::Error::Io { .. } => PyOSError::new_err(e.to_string()),
-        other => PyValueError::new_err(other.to_string()),
+        defocus::Error::Io { .. } => PyOSError::new_err(text),
+        _ => PyValueError::new_err(text),
     }
 }
 

@@ -211,6 +211,34 @@ def test_huge_and_zero_stride_arrays_are_refused_before_any_copy():
     assert np.abs(out - 0.37).max() < 1e-3
 
 
+def test_names_read_from_a_scene_file_reach_python_errors_escaped(tmp_path):
+    import json
+    import struct
+
+    positions = struct.pack("<9f", 0, 0, -1, 1, 0, -1, 0, 1, -1)
+    (tmp_path / "t.bin").write_bytes(positions)
+    evil = "cam\x1b]0;pwned\x07\nerror: forged"
+    gltf = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [{"mesh": 0}, {"camera": 0, "name": evil}],
+        "cameras": [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, -1], "max": [1, 1, -1]}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "buffers": [{"byteLength": 36, "uri": "t.bin"}],
+    }
+    path = tmp_path / "t.gltf"
+    path.write_text(json.dumps(gltf))
+    with pytest.raises(ValueError) as e:
+        defocus.render(str(path), method="pinhole", width=8, height=6, camera="no-such-camera")
+    message = str(e.value)
+    assert "cam\\x1b]0;pwned\\x07\\nerror: forged" in message, message
+    assert not any(ord(c) < 32 or ord(c) == 127 for c in message), repr(message)
+
+
 def test_render_returns_colour_and_depth_of_the_asked_size():
     color, depth = defocus.render("glass", method="pinhole", width=64, height=36, return_depth=True)
     assert color.shape == (36, 64, 4) and depth.shape == (36, 64)

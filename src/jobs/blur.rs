@@ -263,7 +263,7 @@ impl BlurJob {
                 notes(format!(
                     "colour: {} channels {}",
                     shown(&a.color),
-                    names.join(", ")
+                    shown(&names.join(", "))
                 ));
             }
         }
@@ -339,7 +339,11 @@ impl BlurJob {
         {
             let (_, depth) = io::exr_channel_choice(depth_path, a.depth_channel.as_deref())?;
             if let Ok(name) = depth {
-                notes(format!("depth: {} channel {name}", shown(&depth_path)));
+                notes(format!(
+                    "depth: {} channel {}",
+                    shown(&depth_path),
+                    shown(&name)
+                ));
             }
         }
         let opts = DepthRead {

@@ -1371,3 +1371,95 @@ fn reports_run_at_once_into_one_folder_leave_one_whole_report() {
         assert_whole_report(&r);
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Names from files in notes, and inputs that are no file
+// ---------------------------------------------------------------------------------------------
+
+/// A name that would retitle the terminal, ring its bell and forge a line: as read from a file.
+const EVIL_NAME: &str = "x\u{1b}]0;pwned\u{7}\nerror: forged";
+
+/// Its escaped form, as every message must show it.
+const EVIL_SHOWN: &str = "x\\x1b]0;pwned\\x07\\nerror: forged";
+
+fn assert_escaped(what: &str, err: &str) {
+    assert!(err.contains(EVIL_SHOWN), "{what}: {err}");
+    assert!(
+        !err.chars().any(|c| c.is_control() && c != '\n'),
+        "{what}: {err:?}"
+    );
+    assert!(
+        !err.lines().any(|l| l.starts_with("error: forged")),
+        "{what}: {err}"
+    );
+}
+
+#[test]
+fn names_read_from_files_are_escaped_in_notes() {
+    let dir = temp_dir("names-in-notes");
+    // A glTF orthographic camera's name, in the note that says it is skipped (shown even with
+    // --quiet).
+    std::fs::write(dir.join("t.bin"), triangle_buffer()).unwrap();
+    let mut gltf: serde_json::Value = serde_json::from_str(&triangle_gltf("t.bin", None)).unwrap();
+    gltf["scenes"][0]["nodes"] = json!([0, 1]);
+    gltf["nodes"] = json!([{"mesh": 0}, {"camera": 0, "name": EVIL_NAME}]);
+    gltf["cameras"] = json!([{"type": "orthographic",
+        "orthographic": {"xmag": 1.0, "ymag": 1.0, "znear": 0.1, "zfar": 10.0}}]);
+    let scene = dir.join("ortho.gltf");
+    std::fs::write(&scene, gltf.to_string()).unwrap();
+    let o = defocus(&[
+        "render",
+        "--scene",
+        s(&scene),
+        "--width",
+        "8",
+        "--height",
+        "6",
+        "--out",
+        s(&dir.join("o.png")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_escaped("orthographic camera", &stderr(&o));
+    // EXR channel names, in --verbose's notes: a colour layer and a depth channel.
+    let (w, h) = (8, 6);
+    let v = vec![0.5f32; w * h];
+    let z = vec![2.0f32; w * h];
+    let (r, g, b) = (
+        format!("{EVIL_NAME}.R"),
+        format!("{EVIL_NAME}.G"),
+        format!("{EVIL_NAME}.B"),
+    );
+    let depth_name = format!("{EVIL_NAME}.Z");
+    let exr = dir.join("layers.exr");
+    io::write_exr_layers(
+        &exr,
+        w,
+        h,
+        &[
+            (r.as_str(), &v),
+            (g.as_str(), &v),
+            (b.as_str(), &v),
+            (depth_name.as_str(), &z),
+        ],
+    )
+    .unwrap();
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&exr),
+        "--depth",
+        s(&exr),
+        "--focus",
+        "2",
+        "--verbose",
+        "--out",
+        s(&dir.join("b.exr")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("channels") && err.contains("channel "),
+        "{err}"
+    );
+    assert_escaped("EXR channel names", &err);
+}
