@@ -1463,3 +1463,101 @@ fn names_read_from_files_are_escaped_in_notes() {
     );
     assert_escaped("EXR channel names", &err);
 }
+
+#[test]
+fn a_lens_path_that_is_no_file_is_named_as_what_it_is() {
+    let dir = temp_dir("lens-kinds");
+    let folder = dir.join("lens.json");
+    std::fs::create_dir(&folder).unwrap();
+    let dangling = dir.join("dangling.json");
+    symlink(&dir.join("gone.json"), &dangling);
+    let fifo = dir.join("fifo.json");
+    let mut cases = vec![
+        (folder, "a folder"),
+        (PathBuf::from("/dev/null"), "a device"),
+        (dangling, "a link to nothing"),
+    ];
+    if mkfifo(&fifo) {
+        cases.push((fifo, "a FIFO"));
+    }
+    for (path, kind) in cases {
+        let (code, err) = run_within_timeout(&[
+            "render",
+            "--width",
+            "8",
+            "--height",
+            "6",
+            "--lens",
+            s(&path),
+            "--out",
+            s(&dir.join("o.png")),
+        ]);
+        assert_eq!(code, Some(1), "{kind}: {err}");
+        assert!(
+            err.contains("--lens") && err.contains(s(&path)) && err.contains(kind),
+            "{kind}: {err}"
+        );
+        assert!(!err.contains("unknown lens preset"), "{kind}: {err}");
+    }
+    // A name that is nothing on disk is still an unknown preset, with the presets listed.
+    let (code, err) = run_within_timeout(&[
+        "render",
+        "--lens",
+        "no-such-lens",
+        "--out",
+        s(&dir.join("o.png")),
+    ]);
+    assert_eq!(code, Some(1));
+    assert!(
+        err.contains("unknown lens preset") && err.contains("anamorphic-2x"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_refused_report_leaves_no_folder_it_made() {
+    let base = temp_dir("report-refused-folder");
+    let (c, z, _) = small_frame(&base);
+    // A truth of another size is refused once the report has read it, after its folder had
+    // to exist for the runs' checks.
+    let truth = base.join("small-truth.exr");
+    io::write_color(&truth, &ColorImage::new(4, 4, [0.5, 0.5, 0.5, 1.0])).unwrap();
+    let out = base.join("new").join("report");
+    let o = defocus(&[
+        "compare",
+        "--color",
+        s(&c),
+        "--depth",
+        s(&z),
+        "--truth",
+        s(&truth),
+        "--methods",
+        "hammon",
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("expected the same size"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!base.join("new").exists(), "{:?}", files_in(&base));
+    // A folder that was there before stays, empty as it was.
+    std::fs::create_dir(base.join("mine")).unwrap();
+    let o = defocus(&[
+        "compare",
+        "--color",
+        s(&c),
+        "--depth",
+        s(&z),
+        "--truth",
+        s(&truth),
+        "--methods",
+        "hammon",
+        "--out",
+        s(&base.join("mine")),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(base.join("mine").is_dir());
+}
