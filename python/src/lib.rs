@@ -446,14 +446,14 @@ fn blur_one(
     let (w, h) = (color.width(), color.height());
     let source = Path::new("depth array");
     let depth = if p.kind == DepthKind::Coc {
-        if let Some(i) = values.iter().position(|v| !(v * p.depth_scale).is_finite()) {
+        let radii: Vec<f32> = values.iter().map(|v| v * p.depth_scale).collect();
+        if let Some(why) = io::bad_coc_radii(&radii, w) {
             return Err(defocus::Error::Option(format!(
-                "depth (depth_kind coc): the CoC radius at (x {}, y {}) times depth_scale is not finite: expected finite radii in pixels",
-                i % w,
-                i / w
+                "depth (depth_kind coc), times depth_scale {}: {why}",
+                p.depth_scale
             )));
         }
-        GrayImage::from_vec(w, h, values.iter().map(|v| v * p.depth_scale).collect())?
+        GrayImage::from_vec(w, h, radii)?
     } else {
         let opts = DepthRead {
             scale: p.depth_scale,

@@ -365,9 +365,9 @@ impl BlurJob {
             }
             let coc = io::read_coc(depth_path, a.depth_channel.as_deref())?;
             let coc = coc.map(|c| c * a.depth_scale);
-            if let Some(c) = coc.pixels().iter().find(|c| !c.is_finite()) {
+            if let Some(why) = io::bad_coc_radii(coc.pixels(), coc.width()) {
                 bail!(
-                    "{}: a CoC radius times --depth-scale {} is {c}: expected finite radii",
+                    "{}: the CoC radii times --depth-scale {}: {why}",
                     shown(&depth_path),
                     a.depth_scale
                 );

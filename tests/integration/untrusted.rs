@@ -1561,3 +1561,35 @@ fn a_refused_report_leaves_no_folder_it_made() {
     assert_eq!(o.status.code(), Some(1));
     assert!(base.join("mine").is_dir());
 }
+
+#[test]
+fn a_coc_map_beyond_any_blur_is_refused_naming_the_file_and_the_value() {
+    let dir = temp_dir("coc-huge");
+    let (c, _, _) = small_frame(&dir);
+    let mut radii = vec![1.0f32; 32 * 24];
+    radii[3 * 32 + 5] = 3.4e38;
+    let map = dir.join("coc.exr");
+    io::write_exr_layers(&map, 32, 24, &[("CoC", &radii)]).unwrap();
+    for method in ["hammon", "lowrank", "gaussian", "poisson", "splat"] {
+        let o = defocus(&[
+            "blur",
+            "--color",
+            s(&c),
+            "--depth",
+            s(&map),
+            "--depth-kind",
+            "coc",
+            "--method",
+            method,
+            "--out",
+            s(&dir.join("o.exr")),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{method}");
+        let err = stderr(&o);
+        assert!(
+            err.contains(s(&map)) && err.contains("(x 5, y 3) = 3.4e38"),
+            "{method}: {err}"
+        );
+        assert!(!err.contains("NaN"), "{method}: {err}");
+    }
+}

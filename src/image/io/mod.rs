@@ -24,8 +24,8 @@ mod write;
 mod zip;
 
 pub use depth::{
-    depth_from_values, radial_to_view_depth, radial_to_view_depth_about, read_coc, read_depth,
-    DepthRead,
+    bad_coc_radii, depth_from_values, radial_to_view_depth, radial_to_view_depth_about, read_coc,
+    read_depth, DepthRead, MAX_COC_MAP_PX,
 };
 pub use openexr::{exr_channel_choice, read_exr_channels, read_exr_placement, ExrChannels};
 pub use png::{color_from_srgb8, png8_samples};
