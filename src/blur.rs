@@ -127,6 +127,11 @@ pub fn frame_lens(
         // every radius of the map is that of some depth, which the methods turn back into it.
         // Only the CoC function of this lens means anything: it is built directly, not from
         // the lens flags (it may focus closer than any real focal length).
+        // The readers refuse such maps, naming their file; a map from elsewhere too, before
+        // its largest radius overflows the lens below.
+        if let Some(why) = crate::image::io::bad_coc_radii(depth.pixels(), w) {
+            return Err(Error::invalid("CoC map", format!("of {image}: {why}")));
+        }
         let max_far_px = depth.pixels().iter().fold(1.0f32, |m, &c| m.max(c));
         let lens = ThinLens {
             width_px: w,

@@ -14,16 +14,37 @@
 //! - **Keyframes.** `V` (one value for every frame) or `F:V,F:V,...`: the value at frame `F`,
 //!   held before the first key and after the last, and interpolated between keys in a space
 //!   chosen per quantity ([`Interpolation`]).
+//! - **Frame numbers** lie from `-FRAME_LIMIT` to [`FRAME_LIMIT`] (nine digits), in frame sets,
+//!   keys and the files a sequence finds on disk; a number beyond is refused, naming it and
+//!   the range, so that no arithmetic on frames can overflow.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
 
 use crate::error::{shown, Error, Result};
 
 /// Most frames one frame set may hold (a day of film at 24 frames a second is 2 million; a
 /// typo such as `1-1000000000` is refused instead of filling memory).
 pub const MAX_FRAMES: usize = 10_000_000;
+
+/// The largest frame number (and, negated, the smallest) of a frame set, a key or a file found
+/// on disk: nine digits, far beyond any shot, so that differences of frames and their ratios are
+/// exact.
+pub const FRAME_LIMIT: i64 = 999_999_999;
+
+/// The widest padding of a frame number, in digits (`%032d`, or 32 `#`).
+pub const MAX_PADDING: usize = 32;
+
+/// Refuses a frame number outside `-FRAME_LIMIT..=FRAME_LIMIT`; `what` says where it came from.
+fn check_frame(frame: i64, what: &str) -> std::result::Result<i64, String> {
+    if (-FRAME_LIMIT..=FRAME_LIMIT).contains(&frame) {
+        Ok(frame)
+    } else {
+        Err(format!(
+            "{what} {frame} is outside the frames accepted, -{FRAME_LIMIT} to {FRAME_LIMIT}"
+        ))
+    }
+}
 
 /// A file name with a frame number in it: `shot.####.exr`, `shot.%04d.exr`, `shot.@.exr`.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -73,6 +94,17 @@ impl FramePattern {
             ));
         }
         let (start, end, padding) = tokens[0];
+        let padding = padding.filter(|p| *p <= MAX_PADDING).ok_or_else(|| {
+            Error::invalid(
+                "frame pattern",
+                format!(
+                    "{}: the frame number '{}' asks for more than {MAX_PADDING} digits; expected \
+                     a run of up to {MAX_PADDING} # or @, or %0Nd with N up to {MAX_PADDING}",
+                    shown(&text),
+                    shown(&name[start..end])
+                ),
+            )
+        })?;
         Ok(Some(FramePattern {
             folder,
             prefix: name[..start].to_string(),
@@ -144,7 +176,17 @@ impl FramePattern {
         let mut frames = Vec::new();
         for entry in entries {
             let entry = entry.map_err(|e| Error::io(folder, e))?;
-            if let Some(f) = entry.file_name().to_str().and_then(|n| self.frame_of(n)) {
+            let name = entry.file_name();
+            if let Some(f) = name.to_str().and_then(|n| self.frame_of(n)) {
+                check_frame(f, "frame").map_err(|why| {
+                    Error::invalid(
+                        "frame pattern",
+                        format!(
+                            "{}: {why}: give the frames to run (--frames)",
+                            shown(&folder.join(&name))
+                        ),
+                    )
+                })?;
                 frames.push(f);
             }
         }
@@ -154,8 +196,9 @@ impl FramePattern {
     }
 }
 
-/// The frame tokens of a file name: (start byte, end byte, padding digits).
-fn tokens(name: &str) -> Vec<(usize, usize, usize)> {
+/// The frame tokens of a file name: (start byte, end byte, padding digits), the padding `None`
+/// when `%Nd`'s N is too large to be read.
+fn tokens(name: &str) -> Vec<(usize, usize, Option<usize>)> {
     let bytes = name.as_bytes();
     let mut found = Vec::new();
     let mut i = 0;
@@ -166,7 +209,7 @@ fn tokens(name: &str) -> Vec<(usize, usize, usize)> {
                 while i < bytes.len() && bytes[i] == c {
                     i += 1;
                 }
-                found.push((start, i, i - start));
+                found.push((start, i, Some(i - start)));
             }
             b'%' => {
                 // %d or %0Nd (or %Nd, padded with spaces in printf: taken as N digits).
@@ -176,8 +219,14 @@ fn tokens(name: &str) -> Vec<(usize, usize, usize)> {
                     j += 1;
                 }
                 if j < bytes.len() && bytes[j] == b'd' {
-                    let width: usize = name[start + 1..j].parse().unwrap_or(0);
-                    found.push((start, j + 1, width.clamp(1, 32)));
+                    // No digits, or %0d: no padding (one digit at least).
+                    let digits = &name[start + 1..j];
+                    let width = if digits.is_empty() {
+                        Some(1)
+                    } else {
+                        digits.parse::<usize>().ok().map(|w| w.max(1))
+                    };
+                    found.push((start, j + 1, width));
                     i = j + 1;
                 } else {
                     i += 1;
@@ -231,20 +280,27 @@ impl FrameSet {
             };
             let (first, last) = split_range(range)
                 .ok_or_else(|| bad(format!("'{item}' is not a frame or a range A-B")))?;
+            let first = check_frame(first, "frame").map_err(&bad)?;
+            let last = check_frame(last, "frame").map_err(&bad)?;
             if step.is_some() && first == last && !range.contains('-') {
                 return Err(bad(format!("'{item}': a step needs a range A-BxS")));
             }
             let step = step.unwrap_or(1);
-            let count = (first.abs_diff(last) / step as u64) as usize + 1;
-            if frames.len() + count > MAX_FRAMES {
+            // Both ends lie within FRAME_LIMIT: their distance and the count fit easily.
+            let count = first.abs_diff(last) / step.unsigned_abs() + 1;
+            if frames.len() as u64 + count > MAX_FRAMES as u64 {
                 return Err(bad(format!("more than {MAX_FRAMES} frames")));
             }
-            let dir = if last >= first { 1 } else { -1 };
-            for k in 0..count as i64 {
-                let f = first + dir * k * step;
+            let step = if last >= first { step } else { -step };
+            let mut f = first;
+            for _ in 0..count {
                 if seen.insert(f) {
                     frames.push(f);
                 }
+                let Some(next) = f.checked_add(step) else {
+                    break;
+                };
+                f = next;
             }
         }
         Ok(FrameSet { frames })
@@ -330,6 +386,7 @@ impl Keyed {
                 .trim()
                 .parse()
                 .map_err(|_| bad(format!("frame '{}' is not a whole number", f.trim())))?;
+            let f = check_frame(f, "key frame").map_err(&bad)?;
             if let Some((Some(prev), _)) = keys.last() {
                 if f <= *prev {
                     return Err(bad(format!(
@@ -375,7 +432,9 @@ impl Keyed {
         };
         let ((f0, v0), (f1, v1)) = (self.keys[i0], self.keys[i1]);
         let (f0, f1) = (f0.unwrap_or(frame), f1.unwrap_or(frame));
-        let t = (frame - f0) as f64 / (f1 - f0) as f64;
+        // In i128: frames from anywhere (a file's number) cannot overflow the differences.
+        let span = |a: i64, b: i64| (i128::from(b) - i128::from(a)) as f64;
+        let t = span(f0, frame) / span(f0, f1);
         let (v0, v1) = (f64::from(v0), f64::from(v1));
         let positive = v0 > 0.0 && v1 > 0.0;
         let v = match how {
@@ -397,23 +456,16 @@ pub enum FrameStatus {
 }
 
 /// Runs `job` on every frame, up to `workers` frames at a time (each job may itself use the
-/// rayon pool), and calls `done` after each, in the order they finish. A failed frame does not
-/// stop the others. Returns each frame's result, in the order of `frames`.
-pub fn run_frames<T, E, J, D>(
-    frames: &[i64],
-    workers: usize,
-    job: J,
-    done: D,
-) -> Vec<(i64, Result<T, E>)>
+/// rayon pool), and hands each frame's result to `done` as it finishes, with the frame's index
+/// in `frames`, in the order they finish. A failed frame does not stop the others. Nothing is
+/// kept here: `done` decides what to keep of a result, so a long sequence holds no more than
+/// that.
+pub fn run_frames<T, E, J, D>(frames: &[i64], workers: usize, job: J, done: D)
 where
-    T: Send,
-    E: Send,
     J: Fn(i64) -> Result<T, E> + Sync,
-    D: Fn(i64, &Result<T, E>) + Sync,
+    D: Fn(usize, i64, Result<T, E>) + Sync,
 {
     let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<Result<T, E>>>> =
-        Mutex::new((0..frames.len()).map(|_| None).collect());
     let workers = workers.clamp(1, frames.len().max(1));
     std::thread::scope(|s| {
         for _ in 0..workers {
@@ -422,24 +474,16 @@ where
                 let Some(&frame) = frames.get(i) else {
                     break;
                 };
-                let r = job(frame);
-                done(frame, &r);
-                if let Ok(mut all) = results.lock() {
-                    all[i] = Some(r);
-                }
+                done(i, frame, job(frame));
             });
         }
     });
-    let all = results.into_inner().unwrap_or_else(|p| p.into_inner());
-    frames
-        .iter()
-        .zip(all)
-        .filter_map(|(&f, r)| r.map(|r| (f, r)))
-        .collect()
 }
 
 #[cfg(test)]
 mod tests {
+    use std::sync::Mutex;
+
     use super::*;
 
     #[test]
@@ -522,6 +566,53 @@ mod tests {
     }
 
     #[test]
+    fn frames_beyond_nine_digits_are_refused_with_the_range() {
+        let f = |s: &str| FrameSet::parse(s).unwrap().frames().to_vec();
+        assert_eq!(f("-999999999--999999998"), [-999_999_999, -999_999_998]);
+        assert_eq!(f("999999998-999999999x5"), [999_999_998]);
+        for bad in [
+            "-9223372036854775808-9223372036854775807",
+            "9223372036854775807",
+            "1000000000",
+            "0-1000000000x1000000",
+        ] {
+            let e = FrameSet::parse(bad).unwrap_err().to_string();
+            assert!(e.contains("-999999999 to 999999999"), "{bad}: {e}");
+        }
+        let e = Keyed::parse("-9223372036854775808:2,9223372036854775807:3", "--focus")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("--focus") && e.contains("-999999999 to 999999999"),
+            "{e}"
+        );
+        // Keys at the ends of the range, and frames from anywhere, interpolate without overflow.
+        let k = Keyed::parse("-999999999:2,999999999:3", "--focus").unwrap();
+        assert_eq!(k.at(-999_999_999, Interpolation::Linear), 2.0);
+        assert!((k.at(0, Interpolation::Linear) - 2.5).abs() < 1e-6);
+        assert_eq!(k.at(i64::MAX, Interpolation::Linear), 3.0);
+        assert_eq!(k.at(i64::MIN, Interpolation::Linear), 2.0);
+    }
+
+    #[test]
+    fn absurd_paddings_are_refused() {
+        for name in ["f%99999999999999999999d.exr", "f%33d.exr"] {
+            let e = FramePattern::parse(Path::new(name))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("more than 32 digits"), "{name}: {e}");
+        }
+        let long = format!("f{}.exr", "#".repeat(33));
+        assert!(FramePattern::parse(Path::new(&long)).is_err());
+        let p = FramePattern::parse(Path::new("f%032d.exr"))
+            .unwrap()
+            .unwrap();
+        assert_eq!(p.file_name(7).len(), "f.exr".len() + 32);
+        let p = FramePattern::parse(Path::new("f%0d.exr")).unwrap().unwrap();
+        assert_eq!(p.file_name(7), "f7.exr");
+    }
+
+    #[test]
     fn keyed_focus_moves_linearly_in_inverse_distance() {
         let k = Keyed::parse("1001:2.0,1101:5.0", "--focus").unwrap();
         assert!(k.is_keyed());
@@ -545,18 +636,21 @@ mod tests {
     #[test]
     fn every_frame_runs_once_and_failures_do_not_stop_the_others() {
         let frames: Vec<i64> = (1..=40).collect();
-        let count = AtomicUsize::new(0);
-        let results = run_frames(
+        let results = Mutex::new(Vec::new());
+        run_frames(
             &frames,
             3,
             |f| if f % 7 == 0 { Err(f) } else { Ok(f * 2) },
-            |_, _| {
-                count.fetch_add(1, Ordering::Relaxed);
+            |i, f, r| {
+                assert_eq!(frames[i], f);
+                results.lock().unwrap().push((f, r));
             },
         );
-        assert_eq!(count.load(Ordering::Relaxed), 40);
+        let mut results = results.into_inner().unwrap();
+        results.sort_by_key(|r| r.0);
         assert_eq!(results.len(), 40);
-        for (f, r) in results {
+        for (k, (f, r)) in results.into_iter().enumerate() {
+            assert_eq!(f, k as i64 + 1);
             match r {
                 Ok(v) => assert_eq!(v, f * 2),
                 Err(e) => assert!(e == f && f % 7 == 0),

@@ -18,6 +18,10 @@
 //! 7. Files that belong together in one folder (a report) are replaced under a [`FolderLock`],
 //!    and what was written is recorded by [`Digest`], so that a later run removes only files
 //!    that are still exactly what it wrote.
+//! 8. A process killed outright (SIGKILL, a power loss) cannot remove its staged files. On Unix
+//!    each staged file is locked (`flock`) by its writer until it is renamed or removed, and the
+//!    first file this process stages in a folder first removes the staged files there whose
+//!    process no longer runs and which no one holds locked ([`remove_stale_staged`]).
 
 use std::ffi::OsString;
 use std::fs::{File, OpenOptions};
@@ -134,8 +138,9 @@ impl std::io::Seek for StagedFile {
 /// The outputs of one command as one transaction (see the module documentation).
 #[derive(Debug, Default)]
 pub struct OutputSet {
-    /// (staged file, target), in the order written.
-    staged: Vec<(PathBuf, PathBuf)>,
+    /// (staged file, target, the staged file's lock), in the order written. The lock is an
+    /// open handle of the staged file that holds its `flock` until the entry is dropped.
+    staged: Vec<(PathBuf, PathBuf, Option<File>)>,
 }
 
 impl OutputSet {
@@ -155,7 +160,8 @@ impl OutputSet {
         check_target(target)?;
         let (temp, file) = create_staged(target)?;
         // Recorded at once, so that a failure below removes it (on drop).
-        self.staged.push((temp, target.to_path_buf()));
+        let lock = file.try_clone().ok();
+        self.staged.push((temp, target.to_path_buf(), lock));
         let mut out = BufWriter::new(StagedFile::new(file));
         fill(&mut out)?;
         let staged = out
@@ -176,11 +182,11 @@ impl OutputSet {
 
     /// The [`Digest`] of what has been staged for `target` (written, not yet committed).
     pub fn staged_digest(&self, target: &Path) -> Result<Digest> {
-        let (temp, _) = self
+        let (temp, _, _) = self
             .staged
             .iter()
             .rev()
-            .find(|(_, t)| t == target)
+            .find(|(_, t, _)| t == target)
             .ok_or_else(|| {
                 Error::invalid(
                     "output path",
@@ -196,12 +202,12 @@ impl OutputSet {
     /// staging lock, so an interrupt waits until they are done. A rename that still fails
     /// leaves the earlier targets replaced and the later staged files removed.
     pub fn commit(mut self) -> Result<()> {
-        for (_, target) in &self.staged {
+        for (_, target, _) in &self.staged {
             check_target(target)?;
         }
         let mut pending = pending();
         let mut result = Ok(());
-        for (temp, target) in self.staged.drain(..) {
+        for (temp, target, _lock) in self.staged.drain(..) {
             if result.is_ok() {
                 result = std::fs::rename(&temp, &target).map_err(|e| Error::io(&target, e));
             }
@@ -220,7 +226,7 @@ impl Drop for OutputSet {
             return;
         }
         let mut pending = pending();
-        for (temp, _) in self.staged.drain(..) {
+        for (temp, _, _lock) in self.staged.drain(..) {
             let _ = std::fs::remove_file(&temp);
             pending.retain(|p| *p != temp);
         }
@@ -419,12 +425,105 @@ fn random_u64() -> u64 {
     h.finish()
 }
 
-/// Creates a new, empty staged file in `target`'s folder, registered as pending.
+/// The process id in a staged file's name (`.defocus-<pid>-<16 hex digits>.tmp`), if `name` is
+/// one.
+fn staged_pid(name: &str) -> Option<u32> {
+    let (pid, random) = name
+        .strip_prefix(".defocus-")?
+        .strip_suffix(".tmp")?
+        .split_once('-')?;
+    let is_digits = |s: &str, base: u32| !s.is_empty() && s.chars().all(|c| c.is_digit(base));
+    (is_digits(pid, 10) && random.len() == 16 && is_digits(random, 16))
+        .then(|| pid.parse().ok())
+        .flatten()
+}
+
+/// Takes the `flock` of an open staged file without waiting: `true` when it is now held by
+/// `file` (no other writer holds it). Elsewhere than on Unix, staged files are not locked.
+fn lock_staged(file: &File) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsRawFd;
+        // SAFETY: the descriptor is this open file's; flock reads no memory of ours.
+        unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) == 0 }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = file;
+        false
+    }
+}
+
+/// Whether the process `pid` runs on this machine (or may: only "no such process" says no).
+#[cfg(unix)]
+fn process_runs(pid: u32) -> bool {
+    let Ok(pid) = libc::pid_t::try_from(pid) else {
+        return true;
+    };
+    // SAFETY: signal 0 checks that the process exists and sends nothing.
+    let found = unsafe { libc::kill(pid, 0) } == 0;
+    found || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+}
+
+/// Folders whose stale staged files this process has removed: each is looked at once.
+static SWEPT: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// Removes the staged files in `dir` that a process killed outright left: named
+/// `.defocus-<pid>-<16 hex digits>.tmp`, a regular file (never a link), of another process that
+/// no longer runs on this machine, and not locked (a writer on another machine that shares the
+/// folder holds its staged file's lock while it lives). Once per folder per process; what
+/// cannot be read or removed is left.
+#[cfg(unix)]
+pub fn remove_stale_staged(dir: &Path) {
+    {
+        let mut swept = SWEPT.lock().unwrap_or_else(|e| e.into_inner());
+        if swept.iter().any(|d| d == dir) {
+            return;
+        }
+        swept.push(dir.to_path_buf());
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let own = std::process::id();
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name.to_str().and_then(staged_pid) else {
+            continue;
+        };
+        if pid == own || process_runs(pid) {
+            continue;
+        }
+        let path = entry.path();
+        if !std::fs::symlink_metadata(&path).is_ok_and(|m| m.file_type().is_file()) {
+            continue;
+        }
+        let mut options = OpenOptions::new();
+        options.read(true);
+        {
+            use std::os::unix::fs::OpenOptionsExt;
+            options.custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
+        }
+        let Ok(file) = options.open(&path) else {
+            continue;
+        };
+        // Removed while its lock is held here: no writer can be using it.
+        if file.metadata().is_ok_and(|m| m.is_file()) && lock_staged(&file) {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
+}
+
+/// Creates a new, empty staged file in `target`'s folder, registered as pending and locked
+/// ([`lock_staged`]); stale staged files of processes that are gone are removed from the folder
+/// first ([`remove_stale_staged`]).
 fn create_staged(target: &Path) -> Result<(PathBuf, File)> {
     let dir = match target.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
+    #[cfg(unix)]
+    remove_stale_staged(dir);
     let mut attempts = 0;
     loop {
         let name = OsString::from(format!(
@@ -438,6 +537,7 @@ fn create_staged(target: &Path) -> Result<(PathBuf, File)> {
         match OpenOptions::new().write(true).create_new(true).open(&temp) {
             Ok(file) => {
                 pending.push(temp.clone());
+                lock_staged(&file);
                 return Ok((temp, file));
             }
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && attempts < 8 => {
@@ -466,6 +566,45 @@ mod tests {
             std::fs::remove_file(p).unwrap();
         }
         pending().retain(|p| *p != a && *p != b);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn staged_names_give_their_process() {
+        assert_eq!(staged_pid(".defocus-4242-0123456789abcdef.tmp"), Some(4242));
+        for name in [
+            ".defocus-4242-0123456789abcde.tmp",
+            ".defocus-x-0123456789abcdef.tmp",
+            ".defocus-4242-0123456789abcdeg.tmp",
+            "defocus-4242-0123456789abcdef.tmp",
+            ".defocus-4242-0123456789abcdef.exr",
+            ".defocus-lock",
+        ] {
+            assert_eq!(staged_pid(name), None, "{name}");
+        }
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_locked_staged_file_of_a_process_gone_from_this_machine_is_kept() {
+        let dir = std::env::temp_dir().join(format!("defocus-stale-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        // A process id that ran and is gone.
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let gone = child.id();
+        child.wait().unwrap();
+        let locked = dir.join(format!(".defocus-{gone}-00000000000000aa.tmp"));
+        let stale = dir.join(format!(".defocus-{gone}-00000000000000bb.tmp"));
+        std::fs::write(&stale, b"left").unwrap();
+        std::fs::write(&locked, b"being written elsewhere").unwrap();
+        // The writer on another machine holds its lock (another open file description).
+        let writer = File::open(&locked).unwrap();
+        assert!(lock_staged(&writer));
+        remove_stale_staged(&dir);
+        assert!(!stale.exists());
+        assert!(locked.exists());
+        drop(writer);
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -44,10 +44,13 @@ struct MethodFlags {
 }
 
 /// A library error as the Python exception it is: files are `OSError`, the rest `ValueError`.
+/// The message is escaped as the command line prints it ([`defocus::error::shown`]): names
+/// read from files (a scene's, a material's, a channel's) may hold control characters.
 fn py_err(e: defocus::Error) -> PyErr {
+    let text = defocus::error::shown(&e.to_string());
     match e {
-        defocus::Error::Io { .. } => PyOSError::new_err(e.to_string()),
-        other => PyValueError::new_err(other.to_string()),
+        defocus::Error::Io { .. } => PyOSError::new_err(text),
+        _ => PyValueError::new_err(text),
     }
 }
 
@@ -106,6 +109,100 @@ enum Samples<'a> {
     U8(Cow<'a, [u8]>),
 }
 
+/// The images an array holds, from its shape alone: `n` images of `h` x `w` pixels with `c`
+/// channels (1 for depth).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Layout {
+    n: usize,
+    h: usize,
+    w: usize,
+    c: usize,
+    /// Whether the array has a batch axis.
+    batched: bool,
+}
+
+impl Layout {
+    /// The layout of a colour array (`HxWxC` or `NxHxWxC`, C = 3 or 4) or, without `color`, a
+    /// depth array (`HxW` or `NxHxW`), `name` in errors. Each image's size is checked against
+    /// the library's limits ([`defocus::image::check_size`]), before anything reads or copies
+    /// the array: a broadcast array's shape can be far larger than its memory.
+    fn of(shape: &[usize], color: bool, name: &str) -> PyResult<Layout> {
+        let layout = match (shape, color) {
+            (&[h, w, c], true) if c == 3 || c == 4 => (1, h, w, c, false),
+            (&[n, h, w, c], true) if c == 3 || c == 4 => (n, h, w, c, true),
+            (&[h, w], false) => (1, h, w, 1, false),
+            (&[n, h, w], false) => (n, h, w, 1, true),
+            _ => {
+                return Err(PyValueError::new_err(if color {
+                    format!(
+                        "{name}: shape {shape:?}: expected HxWx3 or HxWx4 (or NxHxWxC for a batch)"
+                    )
+                } else {
+                    format!("{name}: shape {shape:?}: expected HxW (or NxHxW for a batch)")
+                }))
+            }
+        };
+        let (n, h, w, c, batched) = layout;
+        defocus::image::check_size(w, h).map_err(|e| {
+            PyValueError::new_err(format!("{name}: shape {shape:?}: {}", shown_error(&e)))
+        })?;
+        Ok(Layout {
+            n,
+            h,
+            w,
+            c,
+            batched,
+        })
+    }
+
+    /// Samples of the whole array (saturating: a shape's product may exceed any memory).
+    fn samples(&self) -> u64 {
+        [self.n, self.h, self.w, self.c]
+            .iter()
+            .fold(1u64, |a, &b| a.saturating_mul(b as u64))
+    }
+
+    /// Pixels of one image.
+    fn pixels(&self) -> u64 {
+        self.h as u64 * self.w as u64
+    }
+}
+
+/// A library error's message, escaped for the terminal.
+fn shown_error(e: &defocus::Error) -> String {
+    defocus::error::shown(&e.to_string())
+}
+
+/// Refuses work whose memory (`bytes`, for `what`) exceeds the budget
+/// ([`defocus::budget`]), before anything is allocated.
+fn check_memory(bytes: u64, what: &str) -> PyResult<()> {
+    defocus::budget::check(bytes, what, "the batch or the image size").map_err(py_err)
+}
+
+/// Bytes of the copy of an array that is not C-contiguous (its samples gathered in C order),
+/// 0 for one that is read in place.
+fn gathered_bytes<T: numpy::Element>(a: &PyReadonlyArrayDyn<'_, T>, layout: &Layout) -> u64 {
+    if a.is_c_contiguous() {
+        0
+    } else {
+        layout
+            .samples()
+            .saturating_mul(std::mem::size_of::<T>() as u64)
+    }
+}
+
+/// Checks an array's shape before the Python layer converts it (`defocus._as_color`,
+/// `_as_depth`): its layout, each image's size against the library's limit, and its samples as
+/// float32 against the memory budget. `color` tells a colour array from a depth array.
+#[pyfunction]
+fn check_array(name: &str, shape: Vec<usize>, color: bool) -> PyResult<()> {
+    let layout = Layout::of(&shape, color, name)?;
+    check_memory(
+        layout.samples().saturating_mul(4),
+        &format!("{name} as float32 (shape {shape:?})"),
+    )
+}
+
 /// A batch of colour images: `n` images of `h` x `w` pixels with `c` channels (3 or 4).
 struct ColorBatch<'a> {
     n: usize,
@@ -118,33 +215,51 @@ struct ColorBatch<'a> {
 }
 
 impl<'a> ColorBatch<'a> {
-    /// Reads `array` (`name` in errors): `HxWxC` or `NxHxWxC`, C = 3 or 4.
-    fn new(array: &'a ColorArray<'_>, name: &str) -> PyResult<Self> {
-        let (shape, samples) = match array {
-            ColorArray::F32(a) => (a.shape(), Samples::F32(samples_of(a))),
-            ColorArray::U8(a) => (a.shape(), Samples::U8(samples_of(a))),
-        };
-        let (n, h, w, c, batched) = match *shape {
-            [h, w, c] if c == 3 || c == 4 => (1, h, w, c, false),
-            [n, h, w, c] if c == 3 || c == 4 => (n, h, w, c, true),
-            _ => {
-                return Err(PyValueError::new_err(format!(
-                    "{name}: shape {shape:?}: expected HxWx3 or HxWx4 (or NxHxWxC for a batch)"
-                )))
+    /// The layout of `array` (`name` in errors: `HxWxC` or `NxHxWxC`, C = 3 or 4, each image
+    /// within the size limit) and the bytes a copy of it takes when it must be gathered, from
+    /// its shape alone.
+    fn layout(array: &ColorArray<'_>, name: &str) -> PyResult<(Layout, u64)> {
+        Ok(match array {
+            ColorArray::F32(a) => {
+                let l = Layout::of(a.shape(), true, name)?;
+                (l, gathered_bytes(a, &l))
             }
-        };
-        Ok(Self {
-            n,
-            h,
-            w,
-            c,
-            batched,
-            samples,
+            ColorArray::U8(a) => {
+                let l = Layout::of(a.shape(), true, name)?;
+                (l, gathered_bytes(a, &l))
+            }
         })
     }
 
-    /// Image `i` as the library's linear premultiplied RGBA.
-    fn image(&self, i: usize) -> defocus::Result<ColorImage> {
+    /// Reads `array`, whose layout [`ColorBatch::layout`] gave (and whose memory the caller
+    /// checked): NumPy's buffer, or its samples gathered once in C order.
+    fn new(array: &'a ColorArray<'_>, layout: Layout) -> Self {
+        let samples = match array {
+            ColorArray::F32(a) => Samples::F32(samples_of(a)),
+            ColorArray::U8(a) => Samples::U8(samples_of(a)),
+        };
+        Self {
+            n: layout.n,
+            h: layout.h,
+            w: layout.w,
+            c: layout.c,
+            batched: layout.batched,
+            samples,
+        }
+    }
+
+    /// Bytes of a sample of the array and of the output made like it.
+    fn sample_bytes(array: &ColorArray<'_>) -> u64 {
+        match array {
+            ColorArray::F32(_) => 4,
+            ColorArray::U8(_) => 1,
+        }
+    }
+
+    /// Image `i` as the library's linear premultiplied RGBA. Float colour must be finite, as
+    /// the command line requires of the images it reads: the error names the channel, the
+    /// pixel and the value (`name` names the array).
+    fn image(&self, i: usize, name: &str) -> defocus::Result<ColorImage> {
         let len = self.h * self.w * self.c;
         match &self.samples {
             Samples::F32(s) => {
@@ -155,7 +270,13 @@ impl<'a> ColorBatch<'a> {
                     s.par_chunks_exact(c)
                         .map(|p| [p[0], p[1], p[2], if c == 4 { p[3] } else { 1.0 }]),
                 );
-                ColorImage::from_vec(self.w, self.h, pixels)
+                let image = ColorImage::from_vec(self.w, self.h, pixels)?;
+                if let Some(why) = io::non_finite_color(&image) {
+                    return Err(defocus::Error::Option(format!(
+                        "{name}: {why} (numpy.nan_to_num replaces them)"
+                    )));
+                }
+                Ok(image)
             }
             Samples::U8(s) => {
                 io::color_from_srgb8(self.w, self.h, self.c, &s[i * len..(i + 1) * len])
@@ -326,14 +447,14 @@ fn blur_one(
     let (w, h) = (color.width(), color.height());
     let source = Path::new("depth array");
     let depth = if p.kind == DepthKind::Coc {
-        if let Some(i) = values.iter().position(|v| !(v * p.depth_scale).is_finite()) {
+        let radii: Vec<f32> = values.iter().map(|v| v * p.depth_scale).collect();
+        if let Some(why) = io::bad_coc_radii(&radii, w) {
             return Err(defocus::Error::Option(format!(
-                "depth (depth_kind coc): the CoC radius at (x {}, y {}) times depth_scale is not finite: expected finite radii in pixels",
-                i % w,
-                i / w
+                "depth (depth_kind coc), times depth_scale {}: {why}",
+                p.depth_scale
             )));
         }
-        GrayImage::from_vec(w, h, values.iter().map(|v| v * p.depth_scale).collect())?
+        GrayImage::from_vec(w, h, radii)?
     } else {
         let opts = DepthRead {
             scale: p.depth_scale,
@@ -434,7 +555,9 @@ fn blur(
     timings: bool,
 ) -> PyResult<Py<PyAny>> {
     let color = ColorArray::of(color, "color")?;
-    let batch = ColorBatch::new(&color, "color")?;
+    // Shapes first: nothing is read, copied or converted before they and the memory they need
+    // are checked.
+    let (layout, color_copy) = ColorBatch::layout(&color, "color")?;
     let highlights = highlights
         .as_deref()
         .map(Highlights::parse)
@@ -442,24 +565,25 @@ fn blur(
         .map_err(py_err)?;
     let depth = depth_array(depth)?;
     let dshape = depth.shape().to_vec();
-    let dvalues = samples_of(&depth);
-    let want: Vec<usize> = if batch.batched {
-        vec![batch.n, batch.h, batch.w]
+    let want: Vec<usize> = if layout.batched {
+        vec![layout.n, layout.h, layout.w]
     } else {
-        vec![batch.h, batch.w]
+        vec![layout.h, layout.w]
     };
     if dshape != want {
         return Err(PyValueError::new_err(format!(
             "size mismatch: color is {}x{}{} but depth has shape {dshape:?}: expected {want:?}",
-            batch.w,
-            batch.h,
-            if batch.batched {
-                format!(" (batch of {})", batch.n)
+            layout.w,
+            layout.h,
+            if layout.batched {
+                format!(" (batch of {})", layout.n)
             } else {
                 String::new()
             }
         )));
     }
+    let depth_layout = Layout::of(&dshape, false, "depth")?;
+    let depth_copy = gathered_bytes(&depth, &depth_layout);
     let kind = match depth_kind.as_str() {
         "depth" | "view" => DepthKind::View,
         "radial" => DepthKind::Radial,
@@ -478,6 +602,29 @@ fn blur(
             info.input.describe()
         )));
     }
+    // The whole call: the copies of arrays that are not C-contiguous, the output array, and
+    // the images in flight (one per worker thread), each its colour and depth as the library
+    // holds them (16 + 4 bytes a pixel) and the method's frame.
+    let settings = registry::MethodSettings::default_for(&method).map_err(py_err)?;
+    let in_flight = layout.n.min(rayon::current_num_threads()) as u64;
+    let image_bytes = layout
+        .pixels()
+        .saturating_mul(20 + registry::peak_bytes_per_pixel(&settings));
+    let needed = registry::FIXED_PEAK_BYTES
+        .saturating_add(color_copy)
+        .saturating_add(depth_copy)
+        .saturating_add(
+            layout
+                .samples()
+                .saturating_mul(ColorBatch::sample_bytes(&color)),
+        )
+        .saturating_add(in_flight.saturating_mul(image_bytes));
+    check_memory(
+        needed,
+        &format!("blur of {} {}x{} image(s)", layout.n, layout.w, layout.h),
+    )?;
+    let batch = ColorBatch::new(&color, layout);
+    let dvalues = samples_of(&depth);
     let params = BlurParams {
         method,
         kind,
@@ -498,13 +645,16 @@ fn blur(
         (0..batch.n)
             .into_par_iter()
             .map(|i| {
-                let mut values = recycled::depths().take(per_image);
-                values.extend_from_slice(&dvalues[i * per_image..(i + 1) * per_image]);
-                let mut image = batch.image(i)?;
-                if let Some(h) = &highlights {
-                    h.apply(&mut image);
-                }
-                blur_one(image, values, &params).map_err(|e| match e {
+                let one = || {
+                    let mut values = recycled::depths().take(per_image);
+                    values.extend_from_slice(&dvalues[i * per_image..(i + 1) * per_image]);
+                    let mut image = batch.image(i, "color")?;
+                    if let Some(h) = &highlights {
+                        h.apply(&mut image);
+                    }
+                    blur_one(image, values, &params)
+                };
+                one().map_err(|e| match e {
                     e if batch.batched => {
                         defocus::Error::Option(format!("image {i} of the batch: {e}"))
                     }
@@ -705,8 +855,9 @@ struct BlurFlags {
     args: BlurArgs,
 }
 
-/// Blurs a sequence of frame files (see `defocus.blur_sequence`): the frames written, kept and
-/// failed (each with its error), and the frames per second.
+/// Blurs a sequence of frame files (see `defocus.blur_sequence`): the frames written and kept,
+/// the first failed frames (each with its error), how many failed in all, and the frames per
+/// second.
 #[pyfunction]
 #[expect(
     clippy::type_complexity,
@@ -715,7 +866,7 @@ struct BlurFlags {
 fn blur_sequence(
     py: Python<'_>,
     flags: Vec<String>,
-) -> PyResult<(Vec<i64>, Vec<i64>, Vec<(i64, String)>, f64)> {
+) -> PyResult<(Vec<i64>, Vec<i64>, Vec<(i64, String)>, usize, f64)> {
     let args = BlurFlags::try_parse_from(flags)
         .map(|f| f.args)
         .map_err(|e| flag_error("blur", &e))?;
@@ -739,7 +890,7 @@ fn blur_sequence(
         })
         .collect();
     let fps = done.frames_per_second();
-    Ok((done.written, done.kept, failed, fps))
+    Ok((done.written, done.kept, failed, done.failed_count, fps))
 }
 
 /// MSE (linear), PSNR (dB, sRGB) and SSIM of `a` against `b` (see `defocus.compare`).
@@ -750,13 +901,29 @@ fn compare<'py>(
     b: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let (a, b) = (ColorArray::of(a, "a")?, ColorArray::of(b, "b")?);
-    let (a, b) = (ColorBatch::new(&a, "a")?, ColorBatch::new(&b, "b")?);
-    if a.batched || b.batched {
+    let (la, copy_a) = ColorBatch::layout(&a, "a")?;
+    let (lb, copy_b) = ColorBatch::layout(&b, "b")?;
+    if la.batched || lb.batched {
         return Err(PyValueError::new_err(
             "compare takes two images, not batches",
         ));
     }
-    let (ia, ib) = (a.image(0).map_err(py_err)?, b.image(0).map_err(py_err)?);
+    // The copies of arrays that are not C-contiguous and the two images as the library holds
+    // them (16 bytes a pixel); the comparison checks its own memory.
+    check_memory(
+        copy_a
+            .saturating_add(copy_b)
+            .saturating_add((la.pixels() + lb.pixels()).saturating_mul(16)),
+        &format!(
+            "comparing a {}x{} and a {}x{} image",
+            la.w, la.h, lb.w, lb.h
+        ),
+    )?;
+    let (a, b) = (ColorBatch::new(&a, la), ColorBatch::new(&b, lb));
+    let (ia, ib) = (
+        a.image(0, "a").map_err(py_err)?,
+        b.image(0, "b").map_err(py_err)?,
+    );
     if !ia.same_size(&ib) {
         return Err(PyValueError::new_err(format!(
             "size mismatch: a is {}x{} but b is {}x{}",
@@ -866,6 +1033,7 @@ fn _defocus(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(blur_sequence, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;
     m.add_function(wrap_pyfunction!(scenes, m)?)?;
+    m.add_function(wrap_pyfunction!(check_array, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

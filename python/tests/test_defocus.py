@@ -163,6 +163,82 @@ def test_bad_arguments_raise_value_error_with_the_flag_named():
         defocus.blur(img, depth, "lowrank", focus=1.5, aperture="image:no-such-aperture.png")
 
 
+def test_nan_and_infinite_colour_are_refused_with_the_pixel_named_as_the_command_line_does():
+    depth = two_planes()
+    for bad in (np.nan, np.inf, -np.inf):
+        img = checkerboard()
+        img[5, 7, 1] = bad
+        with pytest.raises(ValueError, match=r"color: channel G at pixel \(7, 5\) is"):
+            defocus.blur(img, depth, "hammon", focus=1.5)
+        with pytest.raises(ValueError, match=r"image 1 of the batch: color: channel G"):
+            defocus.blur(np.stack([checkerboard(), img]), np.stack([depth, depth]), "hammon",
+                         focus=1.5)
+        with pytest.raises(ValueError, match=r"b: channel G at pixel \(7, 5\)"):
+            defocus.compare(checkerboard(), img)
+
+
+def test_huge_and_zero_stride_arrays_are_refused_before_any_copy():
+    from defocus import _defocus
+
+    # A broadcast array of 70000x70000 RGBA floats takes 16 bytes of memory and names 78 GB.
+    huge = np.broadcast_to(np.float32(0.5), (70000, 70000, 4))
+    huge_depth = np.broadcast_to(np.float32(2.0), (70000, 70000))
+    for call in (
+        lambda: defocus.blur(huge, huge_depth, "hammon", focus=1.5),
+        lambda: _defocus.blur(huge, huge_depth, "hammon", "depth", 1.0, False, 1.5, None, 2.8,
+                              50.0, 36.0, "disc", 0, []),
+        lambda: defocus.compare(huge, huge),
+        lambda: _defocus.compare(huge, huge),
+    ):
+        with pytest.raises(ValueError, match="larger than the limit"):
+            call()
+    # Images within the size limit, but a batch far beyond the memory budget.
+    many = np.broadcast_to(np.float32(0.5), (1 << 20, 1024, 1024, 4))
+    many_depth = np.broadcast_to(np.float32(2.0), (1 << 20, 1024, 1024))
+    for call in (
+        lambda: defocus.blur(many, many_depth, "hammon", focus=1.5),
+        lambda: _defocus.blur(many, many_depth, "hammon", "depth", 1.0, False, 1.5, None, 2.8,
+                              50.0, 36.0, "disc", 0, []),
+    ):
+        with pytest.raises(ValueError, match="budget"):
+            call()
+    # An empty image is refused too, by its shape.
+    with pytest.raises(ValueError, match="at least 1 pixel"):
+        defocus.blur(np.zeros((0, 4, 3), np.float32), np.zeros((0, 4), np.float32), "hammon")
+    # A zero-stride array within the limits is read as the values it shows.
+    flat = np.broadcast_to(np.float32(0.37), (H, W, 3))
+    out = defocus.blur(flat, two_planes(), "hammon", focus=1.5)
+    assert np.abs(out - 0.37).max() < 1e-3
+
+
+def test_names_read_from_a_scene_file_reach_python_errors_escaped(tmp_path):
+    import json
+    import struct
+
+    positions = struct.pack("<9f", 0, 0, -1, 1, 0, -1, 0, 1, -1)
+    (tmp_path / "t.bin").write_bytes(positions)
+    evil = "cam\x1b]0;pwned\x07\nerror: forged"
+    gltf = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [{"mesh": 0}, {"camera": 0, "name": evil}],
+        "cameras": [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.1}}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, -1], "max": [1, 1, -1]}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "buffers": [{"byteLength": 36, "uri": "t.bin"}],
+    }
+    path = tmp_path / "t.gltf"
+    path.write_text(json.dumps(gltf))
+    with pytest.raises(ValueError) as e:
+        defocus.render(str(path), method="pinhole", width=8, height=6, camera="no-such-camera")
+    message = str(e.value)
+    assert "cam\\x1b]0;pwned\\x07\\nerror: forged" in message, message
+    assert not any(ord(c) < 32 or ord(c) == 127 for c in message), repr(message)
+
+
 def test_render_returns_colour_and_depth_of_the_asked_size():
     color, depth = defocus.render("glass", method="pinhole", width=64, height=36, return_depth=True)
     assert color.shape == (36, 64, 4) and depth.shape == (36, 64)

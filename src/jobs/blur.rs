@@ -71,7 +71,7 @@ pub struct BlurArgs {
         long,
         default_value = "auto",
         value_name = "M|auto|F:M,...",
-        allow_negative_numbers = true
+        allow_hyphen_values = true
     )]
     pub focus: String,
     /// Focus on the depth at pixel X,Y (column, row from the top left of the frame: for an EXR,
@@ -86,7 +86,7 @@ pub struct BlurArgs {
         default_value = "2.8",
         value_name = "N|F:N,...",
         value_parser = super::flags::parse_fstop,
-        allow_negative_numbers = true
+        allow_hyphen_values = true
     )]
     pub fstop: Keyed,
     /// Focal length in millimetres.
@@ -127,7 +127,7 @@ pub struct BlurArgs {
     /// of --color's pattern found on disk]. Frames run side by side within the memory budget;
     /// a frame whose outputs exist is kept (an interrupted run resumes) unless --overwrite is
     /// given; a missing or bad frame is named and the others still finish.
-    #[arg(long, value_name = "FRAMES")]
+    #[arg(long, value_name = "FRAMES", allow_hyphen_values = true)]
     pub frames: Option<String>,
     /// In a sequence: blur frames whose outputs exist again, replacing them.
     #[arg(long)]
@@ -266,7 +266,7 @@ impl BlurJob {
                 notes(format!(
                     "colour: {} channels {}",
                     shown(&a.color),
-                    names.join(", ")
+                    shown(&names.join(", "))
                 ));
             }
         }
@@ -343,7 +343,11 @@ impl BlurJob {
         {
             let (_, depth) = io::exr_channel_choice(depth_path, a.depth_channel.as_deref())?;
             if let Ok(name) = depth {
-                notes(format!("depth: {} channel {name}", shown(&depth_path)));
+                notes(format!(
+                    "depth: {} channel {}",
+                    shown(&depth_path),
+                    shown(&name)
+                ));
             }
         }
         let opts = DepthRead {
@@ -365,9 +369,9 @@ impl BlurJob {
             }
             let coc = io::read_coc(depth_path, a.depth_channel.as_deref())?;
             let coc = coc.map(|c| c * a.depth_scale);
-            if let Some(c) = coc.pixels().iter().find(|c| !c.is_finite()) {
+            if let Some(why) = io::bad_coc_radii(coc.pixels(), coc.width()) {
                 bail!(
-                    "{}: a CoC radius times --depth-scale {} is {c}: expected finite radii",
+                    "{}: the CoC radii times --depth-scale {}: {why}",
                     shown(&depth_path),
                     a.depth_scale
                 );

@@ -50,11 +50,11 @@ pub struct RenderArgs {
     /// (median of a small window of a pinhole render; the distance is printed)
     /// [default: the scene's]. With --frames, keyframes FRAME:M,... for a rack focus
     /// (`1:2.0,48:5.0`), interpolated linearly in 1/distance and held outside the keys.
-    #[arg(long, value_name = "M|auto|F:M,...", value_parser = parse_focus, allow_negative_numbers = true)]
+    #[arg(long, value_name = "M|auto|F:M,...", value_parser = parse_focus, allow_hyphen_values = true)]
     pub focus: Option<Focus>,
     /// f-number N; the lens radius is focal length / (2 N) [default: the scene's]. With
     /// --frames, keyframes FRAME:N,... interpolated in stops (linearly in log N).
-    #[arg(long, value_name = "N|F:N,...", value_parser = parse_fstop, allow_negative_numbers = true)]
+    #[arg(long, value_name = "N|F:N,...", value_parser = parse_fstop, allow_hyphen_values = true)]
     pub fstop: Option<Keyed>,
     /// Focal length in millimetres [default: the scene's, 50 mm for built-in scenes]. When the
     /// field of view comes from the scene file's camera or --fov, that field of view sets the
@@ -93,7 +93,7 @@ pub struct RenderArgs {
     /// Render a sequence: these frames (`1-48`, `1001-1100x2`, `1,5,10-20`) into the frame
     /// pattern of --out, with --focus and --fstop keyframed over them. Frames whose outputs
     /// exist are kept (an interrupted run resumes) unless --overwrite is given.
-    #[arg(long, value_name = "FRAMES")]
+    #[arg(long, value_name = "FRAMES", allow_hyphen_values = true)]
     pub frames: Option<String>,
     /// With --frames: render frames whose outputs exist again, replacing them.
     #[arg(long, requires = "frames")]

@@ -333,7 +333,18 @@ fn parse_sweeps(specs: &[String], methods: &[&'static MethodInfo]) -> Result<Vec
             );
         };
         let method = match method {
-            None => None,
+            None => {
+                // A key that no run takes would change nothing: refused, not ignored.
+                if !methods.iter().any(|info| ids.contains(&info.id)) {
+                    bail!(
+                        "invalid --sweep '{spec}': no method among --methods ({}) takes '{k}' \
+                         (it is a setting of: {})",
+                        methods.iter().map(|i| i.id).collect::<Vec<_>>().join(","),
+                        ids.join(", ")
+                    );
+                }
+                None
+            }
             Some(m) => {
                 let Some(&id) = ids.iter().find(|id| **id == m) else {
                     bail!(
@@ -603,7 +614,8 @@ pub fn write(
     for run in &runs {
         check_run(a, run)?;
     }
-    std::fs::create_dir_all(&dir)
+    // Made now (the runs' checks need it), and removed again if the report fails after all.
+    let made = MadeFolders::create(&dir)
         .with_context(|| format!("could not create the report folder {}", shown(&dir)))?;
     let total = runs.len() as u64 + 1;
     let mut done = 0;
@@ -986,6 +998,7 @@ pub fn write(
             let _ = std::fs::remove_file(&path);
         }
     }
+    made.keep();
     let failed = report
         .runs
         .iter()
@@ -999,6 +1012,49 @@ pub fn write(
         failed,
         runs: report.runs.len(),
     })
+}
+
+/// The folders a report made for its `--out`: the folder and the parents it lacked, innermost
+/// first. Dropped before [`MadeFolders::keep`] (the report failed), it removes those that are
+/// still empty, so a refused report leaves no empty folder behind; a folder that existed before
+/// is never removed.
+struct MadeFolders {
+    made: Vec<PathBuf>,
+}
+
+impl MadeFolders {
+    /// Creates `dir` and its missing parents.
+    fn create(dir: &Path) -> std::io::Result<MadeFolders> {
+        let mut made = Vec::new();
+        let mut next = Some(dir);
+        while let Some(d) = next.filter(|d| !d.as_os_str().is_empty()) {
+            if std::fs::symlink_metadata(d).is_ok() {
+                break;
+            }
+            made.push(d.to_path_buf());
+            next = d.parent();
+        }
+        // Built first: a creation that fails half-way removes what it made.
+        let folders = MadeFolders { made };
+        std::fs::create_dir_all(dir)?;
+        Ok(folders)
+    }
+
+    /// Keeps the folders: the report is written.
+    fn keep(mut self) {
+        self.made.clear();
+    }
+}
+
+impl Drop for MadeFolders {
+    fn drop(&mut self) {
+        for d in &self.made {
+            // Only an empty folder is removed.
+            if std::fs::remove_dir(d).is_err() {
+                break;
+            }
+        }
+    }
 }
 
 /// The image files a report with `results` writes, in the order written.

@@ -6,9 +6,10 @@
 //! runs frames side by side, as many as the worker threads and the memory budget allow, so that
 //! one frame's reading and writing overlap another's filtering; `render` runs one frame at a
 //! time, since each frame's passes already use every core. A failed frame does not stop the
-//! others: [`Finished`] lists it with its error.
+//! others: [`Finished`] counts it, and keeps the errors of the first [`ERRORS_KEPT`].
 
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -55,8 +56,11 @@ pub struct Finished {
     pub kept: Vec<i64>,
     /// The frames written.
     pub written: Vec<i64>,
-    /// The frames that failed, each with its error.
+    /// The first frames that failed in the order of `frames`, at most [`ERRORS_KEPT`], each
+    /// with its error (every error was also handed to [`Events::frame`] as it happened).
     pub failed: Vec<(i64, anyhow::Error)>,
+    /// How many frames failed, those beyond `failed` included.
+    pub failed_count: usize,
     /// Each pass summed over the written frames.
     pub timings: Timings,
     /// The last frame written (its method and size).
@@ -71,6 +75,11 @@ impl Finished {
         self.written.len() as f64 / self.wall_s.max(1e-9)
     }
 }
+
+/// The most failed frames whose errors a sequence keeps (the first ones): a sequence may have
+/// [`frames::MAX_FRAMES`] frames, and keeping every error of a run whose input is missing would
+/// take gigabytes.
+pub const ERRORS_KEPT: usize = 100;
 
 /// Bytes a frame of `blur` may take at its peak, per pixel: the largest frame method's
 /// estimate (`lowrank`, 100) and the decoder's (32).
@@ -234,7 +243,7 @@ pub fn blur(a: &BlurArgs, events: &Events) -> Result<Finished> {
     let per_frame = first_size.map_or(0, |(w, h)| {
         crate::methods::registry::FIXED_PEAK_BYTES + (w * h) as u64 * BLUR_FRAME_BYTES_PER_PIXEL
     });
-    let by_memory = crate::budget::budget_bytes() / per_frame.max(1);
+    let by_memory = crate::budget::budget_bytes()? / per_frame.max(1);
     let workers = rayon::current_num_threads().min(by_memory.max(1) as usize);
     run(
         "blur",
@@ -487,7 +496,26 @@ fn check_clashes(frames: &[i64], files: &[Named]) -> Result<()> {
     Ok(())
 }
 
-/// Runs `job` on every frame whose outputs are not all there yet (or every frame with
+/// Whether frame `n` is finished: each of its outputs exists and is a whole image
+/// ([`io::check_whole`]: its header reads and the file is as long as the header says). An
+/// output that exists but is not whole (empty, truncated by a full disk or a copy that
+/// stopped) is noted, and its frame runs again.
+fn finished(n: i64, outputs: &[PathBuf], events: &Events) -> bool {
+    outputs.iter().all(|p| {
+        if std::fs::symlink_metadata(p).is_err() {
+            return false;
+        }
+        match io::check_whole(p) {
+            Ok(()) => true,
+            Err(e) => {
+                (events.note)(format!("note: frame {n}: {e}; the frame runs again"));
+                false
+            }
+        }
+    })
+}
+
+/// Runs `job` on every frame whose outputs are not all there yet and whole (or every frame with
 /// `overwrite`), `workers` at a time, reporting to `events`.
 fn run(
     command: &'static str,
@@ -500,29 +528,55 @@ fn run(
 ) -> Result<Finished> {
     let (todo, kept): (Vec<i64>, Vec<i64>) = frames
         .iter()
-        .partition(|&&n| overwrite || !outputs(n).iter().all(|p| p.is_file()));
+        .partition(|&&n| overwrite || !finished(n, &outputs(n), events));
     (events.start)(&todo, &kept);
     let start = Instant::now();
-    let results = frames::run_frames(&todo, workers, &job, |n, r| (events.frame)(n, r));
-    let mut done = Finished {
+    // What is kept of each frame as it finishes: the indices of the written ones, the last one
+    // written, the first failures and their count, the timings summed.
+    let tally = Mutex::new(Tally::default());
+    frames::run_frames(&todo, workers, &job, |i, n, r| {
+        (events.frame)(n, &r);
+        let mut t = tally.lock().unwrap_or_else(|p| p.into_inner());
+        match r {
+            Ok(frame) => {
+                t.timings.extend(&frame.timings);
+                t.written.push(i);
+                if !t.last.as_ref().is_some_and(|(j, _)| *j > i) {
+                    t.last = Some((i, frame));
+                }
+            }
+            Err(e) => {
+                t.failed_count += 1;
+                let at = t.failed.partition_point(|(j, _)| *j < i);
+                if at < ERRORS_KEPT {
+                    t.failed.insert(at, (i, e));
+                    t.failed.truncate(ERRORS_KEPT);
+                }
+            }
+        }
+    });
+    let mut t = tally.into_inner().unwrap_or_else(|p| p.into_inner());
+    t.written.sort_unstable();
+    Ok(Finished {
         command,
         frames: frames.to_vec(),
         kept,
-        written: Vec::new(),
-        failed: Vec::new(),
-        timings: Timings::default(),
-        last: None,
+        written: t.written.into_iter().map(|i| todo[i]).collect(),
+        failed: t.failed.into_iter().map(|(i, e)| (todo[i], e)).collect(),
+        failed_count: t.failed_count,
+        timings: t.timings,
+        last: t.last.map(|(_, frame)| frame),
         wall_s: start.elapsed().as_secs_f64(),
-    };
-    for (n, r) in results {
-        match r {
-            Ok(frame) => {
-                done.timings.extend(&frame.timings);
-                done.written.push(n);
-                done.last = Some(frame);
-            }
-            Err(e) => done.failed.push((n, e)),
-        }
-    }
-    Ok(done)
+    })
+}
+
+/// What a sequence keeps of its frames' results while they run; frames by their index in the
+/// frames to run.
+#[derive(Default)]
+struct Tally {
+    written: Vec<usize>,
+    last: Option<(usize, FrameDone)>,
+    failed: Vec<(usize, anyhow::Error)>,
+    failed_count: usize,
+    timings: Timings,
 }

@@ -27,6 +27,7 @@
 use glam::Vec2;
 
 use super::ThinLens;
+use crate::error::shown;
 use crate::{Error, Result};
 
 /// Departures from the ideal thin lens (see the module doc). [`LensEffects::default`] is the
@@ -105,17 +106,44 @@ impl LensEffects {
             ),
             None => {
                 let path = std::path::Path::new(spec);
-                if !path.is_file() {
+                let expected = || {
+                    format!(
+                        "{}, or a preset file (.json)",
+                        PRESETS.iter().map(|p| p.0).collect::<Vec<_>>().join(", ")
+                    )
+                };
+                // Nothing there: a name that is no preset. Something that is no file (a
+                // folder, a FIFO, a device, a link to nothing) is named as what it is.
+                let Ok(entry) = std::fs::symlink_metadata(path) else {
                     return Err(Error::Unknown {
                         kind: "lens preset",
                         name: spec.to_string(),
-                        expected: format!(
-                            "{}, or a preset file (.json)",
-                            PRESETS.iter().map(|p| p.0).collect::<Vec<_>>().join(", ")
-                        ),
+                        expected: expected(),
                     });
-                }
-                let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+                };
+                let not_a_file = |what: &str| {
+                    Error::invalid(
+                        "--lens",
+                        format!(
+                            "{}: {what}, not a preset file: expected {}",
+                            shown(path),
+                            expected()
+                        ),
+                    )
+                };
+                let mut file = match crate::input::open_regular(path) {
+                    Ok(f) => f,
+                    Err(crate::input::OpenError::NotRegular(kind)) => {
+                        return Err(not_a_file(&format!("it is {kind}")))
+                    }
+                    Err(crate::input::OpenError::Io(_)) if entry.file_type().is_symlink() => {
+                        return Err(not_a_file("it is a link to nothing"))
+                    }
+                    Err(crate::input::OpenError::Io(e)) => return Err(Error::io(path, e)),
+                };
+                let mut text = String::new();
+                std::io::Read::read_to_string(&mut file, &mut text)
+                    .map_err(|e| Error::io(path, e))?;
                 (path.to_path_buf(), text)
             }
         };

@@ -147,12 +147,12 @@ impl SceneFile {
             expected: if self.cameras.is_empty() {
                 format!(
                     "none: scene '{}' has no perspective camera",
-                    self.scene.name
+                    crate::error::shown(&self.scene.name)
                 )
             } else {
                 self.cameras
                     .iter()
-                    .map(|c| format!("{} '{}'", c.index, c.name))
+                    .map(|c| format!("{} '{}'", c.index, crate::error::shown(&c.name)))
                     .collect::<Vec<_>>()
                     .join(", ")
             },

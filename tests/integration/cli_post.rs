@@ -1107,7 +1107,11 @@ fn blur_takes_a_coc_map_as_the_blur_itself() {
     io::write_color(&png, &ColorImage::new(W, H, [0.5, 0.5, 0.5, 1.0])).unwrap();
     let no = dir.join("no.exr");
     let refusals: [(&Path, &[&str], &str); 3] = [
-        (&coc, &["--depth-scale", "1e38"], "expected finite radii"),
+        (
+            &coc,
+            &["--depth-scale", "1e38"],
+            "expected finite signed radii",
+        ),
         (&coc, &["--focus", "3"], "--depth-kind coc"),
         (&png, &[], "signed radii"),
     ];

@@ -730,3 +730,82 @@ fn a_closed_standard_error_is_no_panic_and_keeps_the_exit_status() {
         assert_eq!(o.code(), Some(code), "{args:?}");
     }
 }
+
+#[test]
+fn an_invalid_memory_budget_in_the_environment_is_refused_naming_it() {
+    let dir = temp_dir("budget-env");
+    let out = dir.join("o.png");
+    let run = |value: &str, extra: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_defocus"))
+            .env("DEFOCUS_MEMORY_BUDGET_GIB", value)
+            .args(extra)
+            .args(["render", "--width", "8", "--height", "6", "--out", s(&out)])
+            .arg("--quiet")
+            .output()
+            .unwrap()
+    };
+    for value in ["0", "-1", "nan", "inf", "abc", "", "1e7"] {
+        let o = run(value, &[]);
+        assert_eq!(o.status.code(), Some(1), "{value:?}");
+        let err = stderr(&o);
+        assert!(
+            err.contains("DEFOCUS_MEMORY_BUDGET_GIB")
+                && err.contains("expected a number of GiB greater than 0"),
+            "{value:?}: {err}"
+        );
+        assert!(!out.exists(), "{value:?}");
+    }
+    // A good value, and --memory-budget over a bad one, run.
+    let o = run(" 0.5 ", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = run("abc", &["--memory-budget", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// A process killed outright (SIGKILL) leaves its staged files: the next output written into
+/// that folder removes those of processes that are gone, and no other file.
+#[test]
+fn staged_files_of_a_killed_process_are_removed_beside_the_next_output() {
+    let dir = temp_dir("stale-staged");
+    let (c, d) = frame(&dir);
+    // A writer killed half-way through an output.
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_defocus"))
+        .args(["render", "--width", "4", "--height", "4", "--out"])
+        .arg(dir.join("never.png"))
+        .spawn()
+        .unwrap();
+    let gone = child.id();
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let stale = format!(".defocus-{gone}-0123456789abcdef.tmp");
+    std::fs::write(dir.join(&stale), b"half an image").unwrap();
+    // Files that only look alike, and one of a process that still runs (this one).
+    let alive = format!(".defocus-{}-0123456789abcdef.tmp", std::process::id());
+    let others = [
+        alive.as_str(),
+        ".defocus-12-xyz.tmp",
+        "defocus-1-0123456789abcdef.tmp",
+        ".defocus-lock",
+    ];
+    for name in others {
+        std::fs::write(dir.join(name), b"keep").unwrap();
+    }
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&c),
+        "--depth",
+        s(&d),
+        "--focus",
+        "2",
+        "--out",
+        s(&dir.join("b.exr")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let files = files_in(&dir);
+    assert!(!files.contains(&stale), "{files:?}");
+    for name in others {
+        assert!(files.iter().any(|f| f == name), "{name}: {files:?}");
+    }
+    assert!(files.iter().any(|f| f == "b.exr"), "{files:?}");
+}

@@ -125,6 +125,49 @@ fn report_sweeps_settings_and_refuses_a_bad_sweep_value_before_rendering() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// A sweep value beyond what any run could take, and a sweep key that no run takes, are
+/// refused before the reference is rendered, and no folder is left behind.
+#[test]
+fn sweep_values_out_of_range_and_keys_no_run_takes_are_refused_up_front() {
+    let dir = temp_dir("report-sweep-range");
+    let out = dir.join("report");
+    for (methods, sweep, named) in [
+        ("lowrank", "rank=100000", "expected at most 129"),
+        ("lowrank", "lowrank.rank=3,200", "--sweep rank=200"),
+        (
+            "reference",
+            "samples=0",
+            "no method among --methods (reference) takes 'samples'",
+        ),
+        ("hammon,reference", "layers=1,4", "takes 'layers'"),
+    ] {
+        let o = defocus(&[
+            "compare",
+            "--scene",
+            "lights",
+            "--methods",
+            methods,
+            "--width",
+            "32",
+            "--height",
+            "18",
+            "--reference-samples",
+            "4",
+            "--sweep",
+            sweep,
+            "--out",
+            s(&out),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{sweep}: {}", stderr(&o));
+        let err = stderr(&o);
+        assert!(
+            err.contains(named) && err.contains("--sweep"),
+            "{sweep}: {err}"
+        );
+        assert!(!out.exists(), "{sweep}: a folder was left");
+    }
+}
+
 #[test]
 fn a_sweep_named_for_one_method_leaves_the_others_at_their_defaults() {
     let dir = temp_dir("report-sweep-scoped");

@@ -112,16 +112,81 @@ fn blur_sequence_finds_its_frames_on_disk_and_resumes() {
     for n in 7..=9 {
         assert!(io::read_color(&dir.join(format!("o.{n:04}.exr"))).is_ok());
     }
-    // A finished frame is kept as it is: here, a marker file in place of frame 8's output.
+    // A finished frame is kept as it is: here, another whole image in place of frame 8's
+    // output.
     let marker = dir.join("o.0008.exr");
-    std::fs::write(&marker, b"kept").unwrap();
+    io::write_color(&marker, &ColorImage::new(2, 1, [0.25, 0.5, 0.75, 1.0])).unwrap();
+    let kept = std::fs::read(&marker).unwrap();
     let o = run(&[]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert_eq!(std::fs::read(&marker).unwrap(), b"kept");
+    assert_eq!(std::fs::read(&marker).unwrap(), kept);
     // --overwrite renders it again.
     let o = run(&["--overwrite"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(io::read_color(&marker).is_ok());
+    assert_eq!(io::image_size(&marker).unwrap(), (W, H));
+}
+
+/// Each output format, cut short in the ways a full disk, a killed copy or a crash after
+/// `--no-fsync` leave it: a resumed sequence makes such a frame again and keeps the whole ones.
+#[test]
+fn a_resumed_sequence_makes_empty_and_truncated_outputs_again() {
+    use std::os::unix::fs::MetadataExt;
+    for ext in ["exr", "png", "pfm"] {
+        let dir = temp_dir(&format!("seq-truncated-{ext}"));
+        write_frames(&dir, &[1, 2, 3, 4, 5]);
+        let out = |n: i64| dir.join(format!("o.{n:04}.{ext}"));
+        let coc = |n: i64| dir.join(format!("k.{n:04}.exr"));
+        let run = || {
+            defocus(&[
+                "blur",
+                "--color",
+                s(&dir.join("c.####.exr")),
+                "--depth",
+                s(&dir.join("d.####.exr")),
+                "--out",
+                s(&dir.join(format!("o.####.{ext}"))),
+                "--coc-out",
+                s(&dir.join("k.####.exr")),
+                "--focus",
+                "2",
+            ])
+        };
+        let o = run();
+        assert!(o.status.success(), "{ext}: {}", stderr(&o));
+        let whole = std::fs::metadata(out(5)).unwrap().len();
+        let whole_coc = std::fs::metadata(coc(5)).unwrap().len();
+        // Frame 1: an empty output; 2: half of it; 3: all but its last byte; 4: its CoC map
+        // without its last byte. Frame 5 stays whole.
+        std::fs::write(out(1), b"").unwrap();
+        for (path, len) in [
+            (out(2), whole / 2),
+            (out(3), whole - 1),
+            (coc(4), whole_coc - 1),
+        ] {
+            let f = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+            f.set_len(len).unwrap();
+        }
+        let kept = std::fs::metadata(out(5)).unwrap().ino();
+        let o = run();
+        assert!(o.status.success(), "{ext}: {}", stderr(&o));
+        let err = stderr(&o);
+        for n in 1..=5 {
+            assert_eq!(io::image_size(&out(n)).unwrap(), (W, H), "{ext} frame {n}");
+            io::check_whole(&out(n)).unwrap();
+            io::check_whole(&coc(n)).unwrap();
+            assert!(io::read_color(&out(n)).is_ok(), "{ext} frame {n}");
+            assert!(io::read_coc(&coc(n), None).is_ok(), "{ext} frame {n}");
+        }
+        for n in 1..=4 {
+            assert!(
+                err.contains(&format!("note: frame {n}: ")) && err.contains("not a whole image"),
+                "{ext} frame {n}: {err}"
+            );
+        }
+        assert!(!err.contains("frame 5"), "{ext}: {err}");
+        // Frame 5 was kept, not written again (a write renames a new file into place).
+        assert_eq!(std::fs::metadata(out(5)).unwrap().ino(), kept, "{ext}");
+    }
 }
 
 #[test]
@@ -616,4 +681,192 @@ fn openjd_template_runs_no_shell_text_from_its_parameters() {
         let names = listed(dir);
         assert!(!names.iter().any(|n| n.starts_with("PWNED")), "{names:?}");
     }
+}
+
+#[test]
+fn frames_and_keys_beyond_nine_digits_are_refused_naming_the_range() {
+    let dir = temp_dir("seq-range");
+    write_frames(&dir, &[1]);
+    let (c, d, out) = (
+        dir.join("c.####.exr"),
+        dir.join("d.####.exr"),
+        dir.join("o.####.exr"),
+    );
+    let blur = |more: &[&str]| {
+        let mut a = vec!["blur", "--color", s(&c), "--depth", s(&d), "--out", s(&out)];
+        a.extend_from_slice(more);
+        defocus(&a)
+    };
+    for (more, flag) in [
+        (
+            &["--frames=-9223372036854775808-9223372036854775807"][..],
+            "--frames",
+        ),
+        (&["--frames", "1000000000"], "--frames"),
+        (
+            &[
+                "--frames",
+                "1",
+                "--focus=-9223372036854775808:2,9223372036854775807:3",
+            ],
+            "--focus",
+        ),
+        (
+            &["--frames", "1", "--fstop", "-1000000000:2,1:4"],
+            "--fstop",
+        ),
+    ] {
+        let o = blur(more);
+        // Refused (1, or 2 where the flag's own parser refuses it), not run nor a panic.
+        assert!(
+            matches!(o.status.code(), Some(1 | 2)),
+            "{more:?}: {}",
+            stderr(&o)
+        );
+        let err = stderr(&o);
+        assert!(
+            err.contains(flag) && err.contains("-999999999 to 999999999"),
+            "{more:?}: {err}"
+        );
+    }
+    // A file on disk whose number is beyond the range, found without --frames.
+    std::fs::copy(dir.join("c.0001.exr"), dir.join("c.12345678901.exr")).unwrap();
+    let o = blur(&[]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("c.12345678901.exr") && err.contains("-999999999 to 999999999"),
+        "{err}"
+    );
+    // A padding of more digits than a frame could have.
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.%99999999999999999999d.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.exr")),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("more than 32 digits"), "{}", stderr(&o));
+    assert!(!dir.join("o.0001.exr").exists());
+}
+
+#[test]
+fn negative_frames_and_keys_are_taken_as_the_docs_write_them() {
+    let dir = temp_dir("seq-negative");
+    let o = defocus(&[
+        "render",
+        "--scene",
+        "lights",
+        "--method",
+        "pinhole",
+        "--width",
+        "16",
+        "--height",
+        "9",
+        "--frames",
+        "-5--1",
+        "--focus",
+        "-2:2,-1:3",
+        "--fstop",
+        "-5:2,-1:4",
+        "--out",
+        s(&dir.join("r.####.png")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for n in 1..=5 {
+        assert!(dir.join(format!("r.-{n:04}.png")).is_file(), "frame -{n}");
+    }
+    write_frames(&dir, &[1, 2]);
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.####.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.exr")),
+        "--frames",
+        "-1-2",
+        "--focus",
+        "-1:2,2:3",
+    ]);
+    // Frames -1 and 0 have no input: they fail, named; 1 and 2 are written.
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("2 of 4 frames failed"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(dir.join("o.0001.exr").is_file() && dir.join("o.0002.exr").is_file());
+}
+
+/// A sequence may have ten million frames: it keeps the first failures' errors, not all of
+/// them, and counts the rest.
+#[test]
+fn a_sequence_keeps_the_first_hundred_errors_and_counts_the_rest() {
+    let dir = temp_dir("seq-errors");
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&dir.join("c.####.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.exr")),
+        "--frames",
+        "1-150",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    // Each error as it happens, then the summary of the first hundred and a count.
+    assert_eq!(
+        err.lines()
+            .filter(|l| l.starts_with("error: frame "))
+            .count(),
+        150
+    );
+    let last = err.lines().last().unwrap();
+    let first_hundred: Vec<String> = (1..=100).map(|n| n.to_string()).collect();
+    assert!(
+        last.contains("150 of 150 frames failed")
+            && last.contains(&format!(
+                "frames {}, and 50 more;",
+                first_hundred.join(", ")
+            )),
+        "{last}"
+    );
+    let done = defocus::jobs::sequence::blur(
+        &blur_args(&dir, "1-150"),
+        &defocus::jobs::sequence::Events::none(),
+    )
+    .unwrap();
+    assert_eq!(done.failed_count, 150);
+    assert_eq!(done.failed.len(), defocus::jobs::sequence::ERRORS_KEPT);
+    let frames: Vec<i64> = done.failed.iter().map(|(n, _)| *n).collect();
+    assert_eq!(frames, (1..=100).collect::<Vec<i64>>());
+}
+
+/// `blur`'s flags for a sequence of `c.####.exr` and `d.####.exr` in `dir` into `o.####.exr`.
+fn blur_args(dir: &Path, frames: &str) -> defocus::jobs::blur::BlurArgs {
+    use clap::Parser;
+    #[derive(Parser)]
+    struct Flags {
+        #[command(flatten)]
+        args: defocus::jobs::blur::BlurArgs,
+    }
+    Flags::parse_from([
+        "blur",
+        "--color",
+        s(&dir.join("c.####.exr")),
+        "--depth",
+        s(&dir.join("d.####.exr")),
+        "--out",
+        s(&dir.join("o.####.exr")),
+        "--frames",
+        frames,
+    ])
+    .args
 }

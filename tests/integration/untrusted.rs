@@ -1371,3 +1371,225 @@ fn reports_run_at_once_into_one_folder_leave_one_whole_report() {
         assert_whole_report(&r);
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Names from files in notes, and inputs that are no file
+// ---------------------------------------------------------------------------------------------
+
+/// A name that would retitle the terminal, ring its bell and forge a line: as read from a file.
+const EVIL_NAME: &str = "x\u{1b}]0;pwned\u{7}\nerror: forged";
+
+/// Its escaped form, as every message must show it.
+const EVIL_SHOWN: &str = "x\\x1b]0;pwned\\x07\\nerror: forged";
+
+fn assert_escaped(what: &str, err: &str) {
+    assert!(err.contains(EVIL_SHOWN), "{what}: {err}");
+    assert!(
+        !err.chars().any(|c| c.is_control() && c != '\n'),
+        "{what}: {err:?}"
+    );
+    assert!(
+        !err.lines().any(|l| l.starts_with("error: forged")),
+        "{what}: {err}"
+    );
+}
+
+#[test]
+fn names_read_from_files_are_escaped_in_notes() {
+    let dir = temp_dir("names-in-notes");
+    // A glTF orthographic camera's name, in the note that says it is skipped (shown even with
+    // --quiet).
+    std::fs::write(dir.join("t.bin"), triangle_buffer()).unwrap();
+    let mut gltf: serde_json::Value = serde_json::from_str(&triangle_gltf("t.bin", None)).unwrap();
+    gltf["scenes"][0]["nodes"] = json!([0, 1]);
+    gltf["nodes"] = json!([{"mesh": 0}, {"camera": 0, "name": EVIL_NAME}]);
+    gltf["cameras"] = json!([{"type": "orthographic",
+        "orthographic": {"xmag": 1.0, "ymag": 1.0, "znear": 0.1, "zfar": 10.0}}]);
+    let scene = dir.join("ortho.gltf");
+    std::fs::write(&scene, gltf.to_string()).unwrap();
+    let o = defocus(&[
+        "render",
+        "--scene",
+        s(&scene),
+        "--width",
+        "8",
+        "--height",
+        "6",
+        "--out",
+        s(&dir.join("o.png")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_escaped("orthographic camera", &stderr(&o));
+    // EXR channel names, in --verbose's notes: a colour layer and a depth channel.
+    let (w, h) = (8, 6);
+    let v = vec![0.5f32; w * h];
+    let z = vec![2.0f32; w * h];
+    let (r, g, b) = (
+        format!("{EVIL_NAME}.R"),
+        format!("{EVIL_NAME}.G"),
+        format!("{EVIL_NAME}.B"),
+    );
+    let depth_name = format!("{EVIL_NAME}.Z");
+    let exr = dir.join("layers.exr");
+    io::write_exr_layers(
+        &exr,
+        w,
+        h,
+        &[
+            (r.as_str(), &v),
+            (g.as_str(), &v),
+            (b.as_str(), &v),
+            (depth_name.as_str(), &z),
+        ],
+    )
+    .unwrap();
+    let o = defocus(&[
+        "blur",
+        "--color",
+        s(&exr),
+        "--depth",
+        s(&exr),
+        "--focus",
+        "2",
+        "--verbose",
+        "--out",
+        s(&dir.join("b.exr")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("channels") && err.contains("channel "),
+        "{err}"
+    );
+    assert_escaped("EXR channel names", &err);
+}
+
+#[test]
+fn a_lens_path_that_is_no_file_is_named_as_what_it_is() {
+    let dir = temp_dir("lens-kinds");
+    let folder = dir.join("lens.json");
+    std::fs::create_dir(&folder).unwrap();
+    let dangling = dir.join("dangling.json");
+    symlink(&dir.join("gone.json"), &dangling);
+    let fifo = dir.join("fifo.json");
+    let mut cases = vec![
+        (folder, "a folder"),
+        (PathBuf::from("/dev/null"), "a device"),
+        (dangling, "a link to nothing"),
+    ];
+    if mkfifo(&fifo) {
+        cases.push((fifo, "a FIFO"));
+    }
+    for (path, kind) in cases {
+        let (code, err) = run_within_timeout(&[
+            "render",
+            "--width",
+            "8",
+            "--height",
+            "6",
+            "--lens",
+            s(&path),
+            "--out",
+            s(&dir.join("o.png")),
+        ]);
+        assert_eq!(code, Some(1), "{kind}: {err}");
+        assert!(
+            err.contains("--lens") && err.contains(s(&path)) && err.contains(kind),
+            "{kind}: {err}"
+        );
+        assert!(!err.contains("unknown lens preset"), "{kind}: {err}");
+    }
+    // A name that is nothing on disk is still an unknown preset, with the presets listed.
+    let (code, err) = run_within_timeout(&[
+        "render",
+        "--lens",
+        "no-such-lens",
+        "--out",
+        s(&dir.join("o.png")),
+    ]);
+    assert_eq!(code, Some(1));
+    assert!(
+        err.contains("unknown lens preset") && err.contains("anamorphic-2x"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_refused_report_leaves_no_folder_it_made() {
+    let base = temp_dir("report-refused-folder");
+    let (c, z, _) = small_frame(&base);
+    // A truth of another size is refused once the report has read it, after its folder had
+    // to exist for the runs' checks.
+    let truth = base.join("small-truth.exr");
+    io::write_color(&truth, &ColorImage::new(4, 4, [0.5, 0.5, 0.5, 1.0])).unwrap();
+    let out = base.join("new").join("report");
+    let o = defocus(&[
+        "compare",
+        "--color",
+        s(&c),
+        "--depth",
+        s(&z),
+        "--truth",
+        s(&truth),
+        "--methods",
+        "hammon",
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("expected the same size"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!base.join("new").exists(), "{:?}", files_in(&base));
+    // A folder that was there before stays, empty as it was.
+    std::fs::create_dir(base.join("mine")).unwrap();
+    let o = defocus(&[
+        "compare",
+        "--color",
+        s(&c),
+        "--depth",
+        s(&z),
+        "--truth",
+        s(&truth),
+        "--methods",
+        "hammon",
+        "--out",
+        s(&base.join("mine")),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(base.join("mine").is_dir());
+}
+
+#[test]
+fn a_coc_map_beyond_any_blur_is_refused_naming_the_file_and_the_value() {
+    let dir = temp_dir("coc-huge");
+    let (c, _, _) = small_frame(&dir);
+    let mut radii = vec![1.0f32; 32 * 24];
+    radii[3 * 32 + 5] = 3.4e38;
+    let map = dir.join("coc.exr");
+    io::write_exr_layers(&map, 32, 24, &[("CoC", &radii)]).unwrap();
+    for method in ["hammon", "lowrank", "gaussian", "poisson", "splat"] {
+        let o = defocus(&[
+            "blur",
+            "--color",
+            s(&c),
+            "--depth",
+            s(&map),
+            "--depth-kind",
+            "coc",
+            "--method",
+            method,
+            "--out",
+            s(&dir.join("o.exr")),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{method}");
+        let err = stderr(&o);
+        assert!(
+            err.contains(s(&map)) && err.contains("(x 5, y 3) = 3.4e38"),
+            "{method}: {err}"
+        );
+        assert!(!err.contains("NaN"), "{method}: {err}");
+    }
+}

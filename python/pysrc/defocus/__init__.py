@@ -71,21 +71,29 @@ def _flags(options: Dict[str, Any]) -> List[str]:
 
 
 def _as_color(array: Any, name: str) -> np.ndarray:
-    """A colour array as the native module reads it: C-contiguous float32 or uint8."""
+    """A colour array as the native module reads it: C-contiguous float32 or uint8.
+
+    Its shape is checked (the image size limit, the memory budget) before any copy: a
+    broadcast array can have a shape far larger than its memory.
+    """
     a = np.asarray(array)
+    if a.dtype != np.uint8 and a.dtype.kind != "f":
+        raise ValueError(
+            f"{name}: dtype {a.dtype}: expected float32 (linear light) or uint8 (sRGB)"
+        )
+    _defocus.check_array(name, list(a.shape), True)
     if a.dtype == np.uint8:
         return np.ascontiguousarray(a)
-    if a.dtype.kind == "f":
-        return np.ascontiguousarray(a, dtype=np.float32)
-    raise ValueError(
-        f"{name}: dtype {a.dtype}: expected float32 (linear light) or uint8 (sRGB)"
-    )
+    return np.ascontiguousarray(a, dtype=np.float32)
 
 
 def _as_depth(array: Any) -> np.ndarray:
+    """A depth array as the native module reads it: C-contiguous float32, its shape checked
+    before any copy, as ``_as_color`` does."""
     a = np.asarray(array)
     if a.dtype.kind not in "fiu":
         raise ValueError(f"depth: dtype {a.dtype}: expected numbers (metres)")
+    _defocus.check_array("depth", list(a.shape), False)
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
@@ -120,7 +128,8 @@ def blur(
         HxWx3 or HxWx4 pixels, or NxHxWx3 / NxHxWx4 for a batch of N images. float32 (any
         float dtype is converted to it) is linear light, alpha premultiplied; uint8 is sRGB
         with straight alpha, decoded to linear light before the blur and encoded back after
-        it. Without alpha, the image is opaque.
+        it. Without alpha, the image is opaque. Float colour must be finite
+        (``numpy.nan_to_num`` replaces NaN and infinities).
     depth : numpy.ndarray
         HxW values (NxHxW for a batch), of the kind ``depth_kind``, in any float or integer
         dtype (read as float32). With the default kind: view-axis distance in metres, every
@@ -197,11 +206,14 @@ def blur(
     Raises
     ------
     ValueError
-        A dtype or shape that is not one of the above, ``color`` and ``depth`` of different
-        sizes, an unknown method or one that needs a scene, a depth value out of range, a lens
-        value or method option out of range, no surface to focus on, or both a ``focus``
-        distance and ``focus_pixel``; in a batch, the message names the image. The messages are the
-        command line's.
+        A dtype or shape that is not one of the above, an image larger than the size limit
+        (2**26 pixels) or a call that would need more memory than the budget
+        (``DEFOCUS_MEMORY_BUDGET_GIB``, 16 GiB by default), both checked before anything is
+        copied, ``color`` and ``depth`` of different sizes, a NaN or infinite colour value
+        (the message names the channel and pixel), an unknown method or one that needs a
+        scene, a depth value out of range, a lens value or method option out of range, no
+        surface to focus on, or both a ``focus`` distance and ``focus_pixel``; in a batch, the
+        message names the image. The messages are the command line's.
     OSError
         A file named by an option (``aperture="image:PATH"``) that cannot be read.
     OverflowError
@@ -381,7 +393,8 @@ def compare(a: Any, b: Any) -> Dict[str, float]:
     Raises
     ------
     ValueError
-        A dtype or shape other than the above, a batch, or images of different sizes.
+        A dtype or shape other than the above, an image larger than the size limit, a batch,
+        images of different sizes, or a NaN or infinite colour value.
     """
     return _defocus.compare(_as_color(a, "a"), _as_color(b, "b"))
 
@@ -549,8 +562,9 @@ def blur_sequence(
     -------
     dict
         ``{"written": [frame, ...], "kept": [frame, ...], "failed": {frame: message},
-        "frames_per_second": float}``: the frame numbers written and kept, each failed frame's
-        error (a missing or bad input file), and the rate of the frames written.
+        "failed_count": int, "frames_per_second": float}``: the frame numbers written and
+        kept, the errors of the first 100 failed frames (a missing or bad input file), how many
+        frames failed in all, and the rate of the frames written.
 
     Raises
     ------
@@ -571,11 +585,12 @@ def blur_sequence(
     flags.append(f"--focus={_keyed(focus)}")
     flags.append(f"--fstop={_keyed(fstop)}")
     flags.extend(_flags(options))
-    written, kept, failed, fps = _defocus.blur_sequence(flags)
+    written, kept, failed, failed_count, fps = _defocus.blur_sequence(flags)
     return {
         "written": list(written),
         "kept": list(kept),
         "failed": {int(n): message for n, message in failed},
+        "failed_count": int(failed_count),
         "frames_per_second": fps,
     }
 

@@ -18,11 +18,21 @@ use crate::common::{
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
-    if let Some(g) = cli.memory_budget {
-        if !(g.is_finite() && g > 0.0 && g <= 1e6) {
-            bail!("invalid --memory-budget {g}: expected a number of GiB greater than 0");
+    match cli.memory_budget {
+        Some(g) => {
+            if defocus::budget::gib_to_bytes(g).is_none() {
+                bail!(
+                    "invalid --memory-budget {g}: expected a number of GiB greater than 0 and at \
+                     most {}",
+                    defocus::budget::MAX_BUDGET_GIB
+                );
+            }
+            std::env::set_var(defocus::budget::BUDGET_VARIABLE, g.to_string());
         }
-        std::env::set_var("DEFOCUS_MEMORY_BUDGET_GIB", g.to_string());
+        // A bad value in the environment is refused before any work, not at the first check.
+        None => {
+            defocus::budget::budget_bytes()?;
+        }
     }
     if cli.no_fsync {
         defocus::output::set_durable(false);

@@ -82,7 +82,7 @@ fn shown_run(
     };
     let done = job(&events)?;
     bar.finish_and_clear();
-    let todo = done.written.len() + done.failed.len();
+    let todo = done.written.len() + done.failed_count;
     if todo == 0 {
         return Ok(());
     }
@@ -92,7 +92,7 @@ fn shown_run(
             done.command,
             done.written.len(),
             done.kept.len(),
-            done.failed.len(),
+            done.failed_count,
             done.wall_s,
             done.frames_per_second()
         ));
@@ -100,11 +100,15 @@ fn shown_run(
     if let (Some(format), Some(last)) = (timings, &done.last) {
         report_sequence_timings(format, last, &done.timings, done.written.len(), done.wall_s)?;
     }
-    if !done.failed.is_empty() {
-        let list: Vec<String> = done.failed.iter().map(|(n, _)| n.to_string()).collect();
+    if done.failed_count > 0 {
+        let mut list: Vec<String> = done.failed.iter().map(|(n, _)| n.to_string()).collect();
+        let more = done.failed_count - done.failed.len();
+        if more > 0 {
+            list.push(format!("and {more} more"));
+        }
         bail!(
             "{} of {} frames failed (frames {}; each error is above); the other frames are written",
-            done.failed.len(),
+            done.failed_count,
             todo,
             list.join(", ")
         );

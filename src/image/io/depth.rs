@@ -140,13 +140,41 @@ pub fn depth_from_values(
     GrayImage::from_vec(width, height, values)
 }
 
+/// The largest CoC radius in pixels a CoC map may hold, far beyond any blur a method renders
+/// (each clamps its blur to `--max-coc`, at most 512 px): a larger value is a damaged map or a
+/// renderer's "no value" (3.4e38, the largest float), not a blur, and the lens built from the
+/// map would overflow.
+pub const MAX_COC_MAP_PX: f32 = 1e6;
+
+/// Describes the values of a CoC map (row-major, `width` pixels wide) that are no CoC radius
+/// (NaN, infinite, or beyond [`MAX_COC_MAP_PX`] either way): how many, the first pixel and its
+/// value, and what was expected; `None` when every value is a radius.
+pub fn bad_coc_radii(values: &[f32], width: usize) -> Option<String> {
+    let is_bad = |v: &f32| !(v.is_finite() && v.abs() <= MAX_COC_MAP_PX);
+    let first = values.iter().position(is_bad)?;
+    let bad = values.iter().filter(|v| is_bad(v)).count();
+    let v = values[first];
+    let value = if v.is_finite() {
+        format!("{v:e} px")
+    } else {
+        format!("{v}")
+    };
+    let width = width.max(1);
+    Some(format!(
+        "{bad} pixel(s) are no CoC radius, the first at (x {}, y {}) = {value}; expected finite \
+         signed radii in pixels, at most {MAX_COC_MAP_PX:e} in magnitude",
+        first % width,
+        first / width
+    ))
+}
+
 /// Reads a map of signed CoC radii in pixels (negative in front of the focal plane), as
 /// `blur --coc-out` writes it: from an OpenEXR file, the channel `channel` (a full name or a
 /// unique suffix), else the one channel named `CoC` or ending in `.CoC`; from a PFM, the grey
-/// (or red) channel. Every value must be finite; other formats are refused (a PNG holds no
-/// signed values).
+/// (or red) channel. Every value must be a radius ([`bad_coc_radii`]); other formats are
+/// refused (a PNG holds no signed values).
 pub fn read_coc(path: &Path, channel: Option<&str>) -> Result<GrayImage> {
-    let (width, height, mut values, what) =
+    let (width, height, values, what) =
         match input_format(path, "CoC path")? {
             FileFormat::Exr => {
                 let channels = read_exr_channels(path)?;
@@ -175,15 +203,8 @@ pub fn read_coc(path: &Path, channel: Option<&str>) -> Result<GrayImage> {
                 "a CoC map holds signed radii in pixels: expected OpenEXR or PFM, not PNG or JPEG",
             )),
         };
-    let finite = |v: f32| v.is_finite().then_some(v);
-    if let Some((bad, x, y, v)) = convert_values(&mut values, width, finite) {
-        return Err(Error::format(
-            path,
-            format!(
-                "CoC {what}: {bad} pixel(s) are not finite, the first at (x {x}, y {y}) = {v}; \
-                 expected signed radii in pixels"
-            ),
-        ));
+    if let Some(why) = bad_coc_radii(&values, width) {
+        return Err(Error::format(path, format!("CoC {what}: {why}")));
     }
     GrayImage::from_vec(width, height, values)
 }

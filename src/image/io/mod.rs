@@ -24,8 +24,8 @@ mod write;
 mod zip;
 
 pub use depth::{
-    depth_from_values, radial_to_view_depth, radial_to_view_depth_about, read_coc, read_depth,
-    DepthRead,
+    bad_coc_radii, depth_from_values, radial_to_view_depth, radial_to_view_depth_about, read_coc,
+    read_depth, DepthRead, MAX_COC_MAP_PX,
 };
 pub use openexr::{exr_channel_choice, read_exr_channels, read_exr_placement, ExrChannels};
 pub use png::{color_from_srgb8, png8_samples};
@@ -40,7 +40,7 @@ use {depth::*, openexr::*, pfm::*, png::*, write::*};
 #[allow(unused_imports)]
 use std::fs::File;
 #[allow(unused_imports)]
-use std::io::{BufReader, Read, Write};
+use std::io::{BufReader, Read, Seek, Write};
 #[allow(unused_imports)]
 use std::path::{Path, PathBuf};
 
@@ -368,6 +368,56 @@ pub fn image_size(path: &Path) -> Result<(usize, usize)> {
     Ok((w as usize, h as usize))
 }
 
+/// Checks that an existing image file is whole, as a finished output must be before a sequence
+/// keeps it: its header reads, and the file is as long as the header says. A PNG must end with
+/// its `IEND` chunk, a PFM must hold every sample its header gives, and an OpenEXR file's offset
+/// tables must point inside it and its last chunk (by the header's line order) must read to its
+/// end. Reads the header and at most one chunk of each part, never the whole image. The error
+/// names the file and what is missing.
+pub fn check_whole(path: &Path) -> Result<()> {
+    let short = |what: String| Error::format(path, format!("not a whole image: {what}"));
+    let len = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .len();
+    if len == 0 {
+        return Err(short("the file is empty".into()));
+    }
+    match input_format(path, "output path")? {
+        FileFormat::Png => {
+            image_size(path)?;
+            /// A PNG's last chunk: no data, the type `IEND` and its CRC.
+            const IEND: [u8; 12] = [0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xAE, 0x42, 0x60, 0x82];
+            let mut f = open(path)?;
+            let mut tail = [0u8; 12];
+            let read = len >= 12
+                && f.seek(std::io::SeekFrom::End(-12)).is_ok()
+                && f.read_exact(&mut tail).is_ok();
+            if !read || tail != IEND {
+                return Err(short(format!(
+                    "the PNG does not end with its IEND chunk ({len} bytes: truncated?)"
+                )));
+            }
+        }
+        FileFormat::Pfm => {
+            let h = read_pfm_header(path)?;
+            if !h.expected.is_some_and(|e| h.available >= e) {
+                return Err(short(format!(
+                    "the PFM header gives {}x{}x{} floats, {} bytes, but {} follow it (truncated?)",
+                    h.width,
+                    h.height,
+                    h.channels,
+                    h.expected.map_or("too many".to_string(), |e| e.to_string()),
+                    h.available
+                )));
+            }
+        }
+        FileFormat::Exr => check_exr_whole(path)?,
+        // Never written: not an output a sequence could have finished.
+        FileFormat::Jpeg => return Err(short("a JPEG is no output of defocus".into())),
+    }
+    Ok(())
+}
+
 /// Whether `a` and `b` name one existing file: the same path once canonicalised (links and
 /// `./` or `../` resolved), or, on Unix, the same device and inode (which also catches hard
 /// links). A path that does not exist is the same as nothing.
@@ -407,31 +457,37 @@ pub fn ensure_not_same_file(input: &Path, output: &Path) -> Result<()> {
 /// colour image read from `path` (an HDR render can hold them after a bad sample; every method
 /// would spread them over their blur).
 pub fn check_finite_color(path: &Path, img: &ColorImage) -> Result<()> {
+    match non_finite_color(img) {
+        Some(why) => Err(Error::format(
+            path,
+            format!("{why} (--sanitize replaces them with 0)"),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Describes the first NaN or infinite value of a colour image (its channel, pixel and value,
+/// and how many pixels have one) and what was expected; `None` when every value is finite.
+pub fn non_finite_color(img: &ColorImage) -> Option<String> {
     let w = img.width().max(1);
-    if let Some((i, p)) = img
+    let (i, p) = img
         .pixels()
         .iter()
         .enumerate()
-        .find(|(_, p)| p.iter().any(|v| !v.is_finite()))
-    {
-        let bad = img
-            .pixels()
-            .iter()
-            .filter(|p| p.iter().any(|v| !v.is_finite()))
-            .count();
-        let k = p.iter().position(|v| !v.is_finite()).unwrap_or(0);
-        return Err(Error::format(
-            path,
-            format!(
-                "channel {} at pixel ({}, {}) is {} ({bad} pixel(s) not finite): expected finite colour values (--sanitize replaces them with 0)",
-                ["R", "G", "B", "A"][k],
-                i % w,
-                i / w,
-                p[k]
-            ),
-        ));
-    }
-    Ok(())
+        .find(|(_, p)| p.iter().any(|v| !v.is_finite()))?;
+    let bad = img
+        .pixels()
+        .iter()
+        .filter(|p| p.iter().any(|v| !v.is_finite()))
+        .count();
+    let k = p.iter().position(|v| !v.is_finite()).unwrap_or(0);
+    Some(format!(
+        "channel {} at pixel ({}, {}) is {} ({bad} pixel(s) not finite): expected finite colour values",
+        ["R", "G", "B", "A"][k],
+        i % w,
+        i / w,
+        p[k]
+    ))
 }
 
 /// Replaces every NaN or infinite value of `img` by 0; returns how many pixels had one.

@@ -245,6 +245,40 @@ pub fn exr_channel_choice(
 // EXR internals
 // ---------------------------------------------------------------------------------------------
 
+/// Checks that an OpenEXR file is whole ([`super::check_whole`]): its headers and offset tables
+/// read and point inside the file, and the chunk of each part that its line order puts last in
+/// the file reads to its end (every chunk when the order is unspecified).
+pub(super) fn check_exr_whole(path: &Path) -> Result<()> {
+    use exr::block::reader::ChunksReader;
+    use exr::meta::attribute::LineOrder;
+    let reader =
+        exr::block::read(BufReader::new(open(path)?), true).map_err(|e| exr_read_error(path, e))?;
+    // The filter sees each part's blocks in increasing y order.
+    let mut seen = vec![0usize; reader.headers().len()];
+    let last = reader
+        .filter_chunks(true, |meta, _, block| {
+            let header = &meta.headers[block.layer];
+            let k = seen[block.layer];
+            seen[block.layer] += 1;
+            match header.line_order {
+                LineOrder::Increasing => k + 1 == header.chunk_count,
+                LineOrder::Decreasing => k == 0,
+                LineOrder::Unspecified => true,
+            }
+        })
+        .map_err(|e| exr_read_error(path, e))?;
+    if last.expected_chunk_count() == 0 {
+        return Err(Error::format(
+            path,
+            "not a whole image: the OpenEXR file has no chunks",
+        ));
+    }
+    for chunk in last {
+        chunk.map_err(|e| exr_read_error(path, e))?;
+    }
+    Ok(())
+}
+
 /// An OpenEXR reading error, with the path.
 pub(super) fn exr_read_error(path: &Path, err: exr::error::Error) -> Error {
     match err {

@@ -51,10 +51,23 @@ pub(super) fn pfm_token(
     Ok(String::from_utf8_lossy(&token).into_owned())
 }
 
-/// Reads a PFM file (`PF` colour or `Pf` grey; byte order from the sign of the scale field,
-/// negative meaning little-endian; the scale's magnitude is ignored). Trailing bytes after the
-/// pixel data are ignored.
-pub(super) fn read_pfm(path: &Path) -> Result<Pfm> {
+/// A PFM file's header, and the file read up to its pixel data.
+pub(super) struct PfmHeader {
+    pub(super) width: usize,
+    pub(super) height: usize,
+    /// 1 (`Pf`) or 3 (`PF`).
+    pub(super) channels: usize,
+    pub(super) little_endian: bool,
+    /// Bytes of pixel data the header asks for (`None` beyond 2^64), and the bytes the file
+    /// holds after the header.
+    pub(super) expected: Option<u64>,
+    pub(super) available: u64,
+    pub(super) reader: BufReader<File>,
+}
+
+/// Reads a PFM file's header (magic, width, height, scale: byte order from the sign of the
+/// scale field, negative meaning little-endian; its magnitude is ignored), and no pixel.
+pub(super) fn read_pfm_header(path: &Path) -> Result<PfmHeader> {
     let file = open(path)?;
     let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut r = BufReader::new(file);
@@ -81,7 +94,6 @@ pub(super) fn read_pfm(path: &Path) -> Result<Pfm> {
     };
     let width = dimension("width")?;
     let height = dimension("height")?;
-    check_file_size(path, width, height)?;
     let t = pfm_token(path, &mut r, "scale", &mut consumed)?;
     let scale: f32 = t.parse().unwrap_or(f32::NAN);
     if !(scale.is_finite() && scale != 0.0) {
@@ -92,10 +104,35 @@ pub(super) fn read_pfm(path: &Path) -> Result<Pfm> {
             ),
         ));
     }
-    let little_endian = scale < 0.0;
-    let expected = width * height * channels * 4;
-    let available = file_len.saturating_sub(consumed);
-    if available < expected as u64 {
+    Ok(PfmHeader {
+        width,
+        height,
+        channels,
+        little_endian: scale < 0.0,
+        expected: (width as u64)
+            .checked_mul(height as u64)
+            .and_then(|n| n.checked_mul(channels as u64 * 4)),
+        available: file_len.saturating_sub(consumed),
+        reader: r,
+    })
+}
+
+/// Reads a PFM file (`PF` colour or `Pf` grey, either byte order; see [`read_pfm_header`]).
+/// Trailing bytes after the pixel data are ignored.
+pub(super) fn read_pfm(path: &Path) -> Result<Pfm> {
+    let PfmHeader {
+        width,
+        height,
+        channels,
+        little_endian,
+        expected,
+        available,
+        reader: mut r,
+    } = read_pfm_header(path)?;
+    check_file_size(path, width, height)?;
+    // Within the size limit: the byte count fits.
+    let expected = expected.unwrap_or(u64::MAX);
+    if available < expected {
         return Err(Error::format(
             path,
             format!(
@@ -104,6 +141,7 @@ pub(super) fn read_pfm(path: &Path) -> Result<Pfm> {
             ),
         ));
     }
+    let expected = expected as usize;
     let mut bytes = vec![0u8; expected];
     r.read_exact(&mut bytes).map_err(|e| {
         if e.kind() == std::io::ErrorKind::UnexpectedEof {

@@ -187,6 +187,19 @@ impl LowRankSettings {
         if self.rank == 0 {
             return Err(Error::invalid("rank", "0: expected at least 1"));
         }
+        // A kernel of n px has at most n separable terms; the largest kernel a run can use is
+        // the one for the largest CoC (--max-coc), or --kernel-size.
+        let largest_px = self.kernel_spec(self.max_coc_px).size_px;
+        if self.rank > largest_px {
+            return Err(Error::invalid(
+                "rank",
+                format!(
+                    "{}: expected at most {largest_px}, the terms of the largest kernel this run \
+                     can use ({largest_px} px, from --max-coc {} or --kernel-size)",
+                    self.rank, self.max_coc_px
+                ),
+            ));
+        }
         if !(self.edge_threshold_px.is_finite() && self.edge_threshold_px >= 0.0) {
             return Err(Error::invalid(
                 "edge threshold",

@@ -477,7 +477,7 @@ impl<'a> Loader<'a> {
                 None => skipped_cameras.push(format!(
                     "camera {} ('{}', orthographic)",
                     camera.index(),
-                    node.name().or(camera.name()).unwrap_or("unnamed")
+                    shown(node.name().or(camera.name()).unwrap_or("unnamed"))
                 )),
             }
         }
@@ -536,7 +536,9 @@ impl<'a> Loader<'a> {
             let what = format!(
                 "mesh {}{} primitive {}",
                 mesh.index(),
-                mesh.name().map(|n| format!(" ('{n}')")).unwrap_or_default(),
+                mesh.name()
+                    .map(|n| format!(" ('{}')", shown(n)))
+                    .unwrap_or_default(),
                 prim.index()
             );
             let mode = prim.mode();
