@@ -306,7 +306,7 @@ struct Sweep {
 impl Sweep {
     /// Whether the sweep changes the settings of method `id`.
     fn applies_to(&self, id: &str) -> bool {
-        self.method.map_or(true, |m| m == id)
+        self.method.is_none_or(|m| m == id)
             && SWEEPS
                 .iter()
                 .any(|(k, ids)| *k == self.key && ids.contains(&id))
