@@ -4,6 +4,7 @@ mod cli;
 mod cli_post;
 mod docs;
 mod fuzz;
+mod gpu;
 mod hammon;
 mod highlights;
 mod image_io;
