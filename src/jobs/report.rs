@@ -22,7 +22,7 @@ use base64::Engine as _;
 use serde::Serialize;
 
 use super::blur::{BlurArgs, BlurJob, DepthKind};
-use super::flags::{check_input, parse_focus, ExrArgs, ExrCompressionArg, Focus};
+use super::flags::{check_input, parse_focus, DeviceArg, ExrArgs, ExrCompressionArg, Focus};
 use super::grid;
 use super::render::{RenderArgs, RenderJob, ViewArgs};
 use crate::options::PostArgs;
@@ -483,6 +483,7 @@ fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> Render
         frames: None,
         overwrite: false,
         in_sequence: false,
+        device: DeviceArg::Cpu,
         timings: None,
         verbose: false,
         exr: ExrArgs {
@@ -519,6 +520,7 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
         frames: None,
         overwrite: false,
         in_sequence: false,
+        device: DeviceArg::Cpu,
         timings: None,
         coc_out: None,
         verbose: false,
