@@ -51,6 +51,11 @@ pub enum Error {
         /// The valid names.
         expected: String,
     },
+    /// The GPU backend failed: no adapter for `--device gpu`, a frame over the adapter's
+    /// limits, a shader that did not build, a GPU out of memory or a lost device. The message
+    /// names the adapter.
+    #[error("GPU: {0}")]
+    Gpu(String),
 }
 
 impl Error {

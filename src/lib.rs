@@ -1,4 +1,4 @@
-//! defocus: depth-of-field rendering on the CPU.
+//! defocus: depth-of-field rendering on the CPU, and on the GPU through [`gpu`] (wgpu).
 //!
 //! One thin-lens model ([`lens::ThinLens`]) is shared by every method: the ground-truth
 //! [`methods::reference`] renderer (multiview accumulation over the lens, Haeberli & Akeley)
@@ -59,6 +59,7 @@ pub mod blur;
 pub mod budget;
 pub mod error;
 pub mod frames;
+pub mod gpu;
 pub mod image;
 pub mod input;
 pub mod jobs;

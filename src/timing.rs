@@ -1,4 +1,5 @@
-//! Per-pass wall-clock timings, reported by `--timings`.
+//! Per-pass timings, reported by `--timings`: wall-clock time of the CPU passes, and GPU time
+//! of the GPU passes ([`Clock`] says which).
 
 use std::time::Instant;
 
@@ -9,13 +10,40 @@ pub const READ: &str = "io/read";
 /// Label of writing output files, apart from any method's passes.
 pub const WRITE: &str = "io/write";
 
-/// One timed pass: `<method>/<pass>` and its wall-clock time in milliseconds.
+/// How a pass was timed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Clock {
+    /// Wall-clock time on the CPU around the pass.
+    #[default]
+    Wall,
+    /// GPU time between timestamp queries written at the start and the end of the pass.
+    GpuTimestamps,
+    /// Wall-clock time around the pass's submit to the GPU and the wait for it (an adapter
+    /// without timestamp queries): GPU time plus the submit's overhead.
+    SubmitWait,
+}
+
+impl Clock {
+    /// How `--timings` names it: `wall`, `gpu-timestamps` or `submit-wait`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Clock::Wall => "wall",
+            Clock::GpuTimestamps => "gpu-timestamps",
+            Clock::SubmitWait => "submit-wait",
+        }
+    }
+}
+
+/// One timed pass: `<method>/<pass>`, its time in milliseconds and how it was measured.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PassTiming {
     /// `<method>/<pass>`, e.g. `reference/raster`.
     pub name: String,
-    /// Wall-clock milliseconds.
+    /// Milliseconds.
     pub ms: f64,
+    /// How `ms` was measured.
+    pub clock: Clock,
 }
 
 /// The timings of one run of a method.
@@ -34,13 +62,20 @@ impl Timings {
         out
     }
 
-    /// Adds `ms` to the pass `name` (created at the end if new).
+    /// Adds `ms` of wall-clock time to the pass `name` (created at the end if new).
     pub fn add(&mut self, name: &str, ms: f64) {
+        self.add_with(name, ms, Clock::Wall);
+    }
+
+    /// Adds `ms` measured by `clock` to the pass `name` (created at the end if new; a pass
+    /// keeps the clock it was first timed by).
+    pub fn add_with(&mut self, name: &str, ms: f64, clock: Clock) {
         match self.passes.iter_mut().find(|p| p.name == name) {
             Some(p) => p.ms += ms,
             None => self.passes.push(PassTiming {
                 name: name.to_string(),
                 ms,
+                clock,
             }),
         }
     }
@@ -48,7 +83,7 @@ impl Timings {
     /// Appends all passes of `other`.
     pub fn extend(&mut self, other: &Timings) {
         for p in &other.passes {
-            self.add(&p.name, p.ms);
+            self.add_with(&p.name, p.ms, p.clock);
         }
     }
 

@@ -3,10 +3,12 @@
 //! and its run. Lines the command line shows go to a `notes` sink.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use crate::blur::{describe_placement, frame_lens, FocusChoice, FrameLens, Highlights, LensSpec};
 use crate::error::shown;
 use crate::frames::Keyed;
+use crate::gpu::GpuContext;
 use crate::image::io::{self, DepthRead, Placement};
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::ThinLens;
@@ -19,7 +21,8 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use super::flags::{
-    check_input, check_output, method_parser, ExrArgs, FrameDone, TimingFormat, IMAGE_EXTENSIONS,
+    check_input, check_output, device_name, method_parser, open_device, DeviceArg, ExrArgs,
+    FrameDone, TimingFormat, IMAGE_EXTENSIONS,
 };
 use crate::options::{parse_aperture, PostArgs};
 
@@ -135,7 +138,13 @@ pub struct BlurArgs {
     /// Set for the frames of a sequence: notes that every frame would repeat are not printed.
     #[arg(skip)]
     pub in_sequence: bool,
-    /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
+    /// Where the method runs: `auto` (a hardware GPU when there is one and the method runs
+    /// there, else the CPU), `cpu`, or `gpu` (any GPU adapter, a software one included; an
+    /// error when there is none). On the GPU so far: gaussian. `defocus devices` lists the
+    /// adapters.
+    #[arg(long, value_enum, default_value_t = DeviceArg::Auto, value_name = "DEVICE")]
+    pub device: DeviceArg,
+    /// Print per-pass timings and the device: a table on stderr, or `--timings json` on stdout.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
     pub timings: Option<TimingFormat>,
     /// Also write the signed CoC radius in pixels of every pixel (channel `CoC`; negative in front
@@ -211,12 +220,38 @@ pub struct BlurJob {
     out: PathBuf,
     coc_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
+    /// The GPU the method runs on; `None` for the CPU.
+    gpu: Option<Arc<GpuContext>>,
+}
+
+/// The method a `blur` runs: `--method`, else `hammon`, or `lowrank` with `--tilt-shift`.
+pub fn method_of(a: &BlurArgs) -> Result<&str> {
+    Ok(match (a.method.as_deref(), a.tilt_shift.is_some()) {
+        (None, false) => "hammon",
+        (None, true) | (Some("lowrank"), true) => "lowrank",
+        (Some(m), false) => m,
+        (Some(m), true) => {
+            bail!("--tilt-shift works with --method lowrank (McGraw section 4), not {m}")
+        }
+    })
 }
 
 impl BlurJob {
-    /// Checks the flags, reads the images and derives the lens; `notes` receives the lines the
-    /// command line shows (channels chosen, the focus picked, `--verbose` details).
+    /// Checks the flags, opens the device (`--device`), reads the images and derives the lens;
+    /// `notes` receives the lines the command line shows (channels chosen, the focus picked,
+    /// `--verbose` details).
     pub fn new(a: &BlurArgs, notes: &mut dyn FnMut(String)) -> Result<Self> {
+        let gpu = open_device(a.device, method_of(a)?)?;
+        Self::new_on(a, gpu, notes)
+    }
+
+    /// [`BlurJob::new`] on a GPU context the caller opened ([`open_device`]; `None` for the
+    /// CPU), which a sequence shares between its frames.
+    pub fn new_on(
+        a: &BlurArgs,
+        gpu: Option<Arc<GpuContext>>,
+        notes: &mut dyn FnMut(String),
+    ) -> Result<Self> {
         check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
         if let Some(c) = &a.coc_out {
             check_output(c, "--coc-out", &["exr"])?;
@@ -233,14 +268,7 @@ impl BlurJob {
             }
         }
         let tilt_shift = a.tilt_shift.as_deref().map(parse_tilt_shift).transpose()?;
-        let method: &str = match (a.method.as_deref(), &tilt_shift) {
-            (None, None) => "hammon",
-            (None, Some(_)) | (Some("lowrank"), Some(_)) => "lowrank",
-            (Some(m), None) => m,
-            (Some(m), Some(_)) => {
-                bail!("--tilt-shift works with --method lowrank (McGraw section 4), not {m}")
-            }
-        };
+        let method = method_of(a)?;
         let info = registry::find(method)?;
         if info.input.needs_scene() {
             bail!(
@@ -329,6 +357,7 @@ impl BlurJob {
                 out: a.out.clone(),
                 coc_out: a.coc_out.clone(),
                 timings: a.timings,
+                gpu,
             });
         }
         let depth_path = a
@@ -441,6 +470,7 @@ impl BlurJob {
             out: a.out.clone(),
             coc_out: a.coc_out.clone(),
             timings: a.timings,
+            gpu,
         })
     }
 
@@ -454,9 +484,18 @@ impl BlurJob {
                     lens,
                 };
                 match self.occlusion {
-                    Occlusion::None => registry::run_frame(settings, &frame)?,
+                    Occlusion::None => {
+                        registry::run_frame_on(settings, &frame, self.gpu.as_deref())?
+                    }
+                    Occlusion::Fill if self.gpu.is_some() => bail!(
+                        "--occlusion fill runs on the CPU only so far: use --device cpu, or --occlusion none"
+                    ),
                     Occlusion::Fill => fill::run_frame(settings, &frame, &FillSettings::default())?,
                 }
+            }
+            (Input::TiltShift { .. }, _) if self.gpu.is_some() => {
+                registry::check_gpu("lowrank")?;
+                bail!("--tilt-shift does not run on the GPU yet: use --device cpu")
             }
             (Input::TiltShift { coc_px }, MethodSettings::Lowrank(s)) => {
                 lowrank::render_coc(&self.color, coc_px, s)?
@@ -502,6 +541,7 @@ impl BlurJob {
         set.commit()?;
         Ok(FrameDone {
             method: id,
+            device: device_name(self.gpu.as_deref()),
             width: self.color.width(),
             height: self.color.height(),
             timings,

@@ -3,15 +3,17 @@
 //! them against each other.
 
 use std::path::Path;
+use std::sync::Arc;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Args, ValueEnum};
 
 use crate::error::shown;
 use crate::frames::Keyed;
+use crate::gpu::{Device, GpuContext};
 use crate::image::io::{ExrCompression, ExrOptions};
-use crate::methods::registry::METHODS;
+use crate::methods::registry::{self, METHODS};
 use crate::options::parse_numbers;
 use crate::timing::Timings;
 
@@ -22,6 +24,42 @@ pub enum TimingFormat {
     Table,
     /// One JSON object on stdout.
     Json,
+}
+
+/// `--device`: where the method runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, ValueEnum)]
+pub enum DeviceArg {
+    /// The CPU.
+    Cpu,
+    /// A GPU adapter, a software one (lavapipe) included; an error when there is none.
+    Gpu,
+    /// A hardware GPU when there is one and the method runs there, else the CPU.
+    #[default]
+    Auto,
+}
+
+impl From<DeviceArg> for Device {
+    fn from(d: DeviceArg) -> Self {
+        match d {
+            DeviceArg::Cpu => Device::Cpu,
+            DeviceArg::Gpu => Device::Gpu,
+            DeviceArg::Auto => Device::Auto,
+        }
+    }
+}
+
+/// The GPU context of a job running method `id` on `device`, shared by its frames, or `None`
+/// for the CPU ([`registry::gpu_context`]).
+pub fn open_device(device: DeviceArg, id: &str) -> Result<Option<Arc<GpuContext>>> {
+    Ok(registry::gpu_context(device.into(), id)
+        .context("--device")?
+        .map(Arc::new))
+}
+
+/// The device a run took, as `--timings` names it: `cpu`, or the adapter's label
+/// ([`crate::gpu::AdapterDescription::label`]).
+pub fn device_name(gpu: Option<&GpuContext>) -> String {
+    gpu.map_or_else(|| "cpu".to_string(), |g| g.description().label())
 }
 
 /// `--method`: every id of the library's registry, with its description as help.
@@ -92,6 +130,8 @@ pub fn check_input(path: &Path, flag: &str) -> Result<()> {
 pub struct FrameDone {
     /// The method's id.
     pub method: &'static str,
+    /// Where it ran: `cpu`, or the GPU adapter's label.
+    pub device: String,
     /// Image width in pixels.
     pub width: usize,
     /// Image height in pixels.

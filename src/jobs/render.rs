@@ -3,10 +3,12 @@
 //! ([`RenderJob`]) and its run. Lines the command line shows go to a `notes` sink.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use crate::autofocus;
 use crate::error::shown;
 use crate::frames::Keyed;
+use crate::gpu::GpuContext;
 use crate::image::io;
 use crate::lens::{Camera, SamplerKind};
 use crate::methods::registry::{self, MethodSettings, SceneOptions, DEFAULT_FRAME_SAMPLES};
@@ -18,8 +20,8 @@ use clap::Args;
 use glam::Vec3;
 
 use super::flags::{
-    check_output, method_parser, parse_focus, parse_fstop, parse_pixel, parse_vec3, single_value,
-    ExrArgs, Focus, FrameDone, TimingFormat, IMAGE_EXTENSIONS,
+    check_output, device_name, method_parser, open_device, parse_focus, parse_fstop, parse_pixel,
+    parse_vec3, single_value, DeviceArg, ExrArgs, Focus, FrameDone, TimingFormat, IMAGE_EXTENSIONS,
 };
 use crate::options::{parse_aperture, PostArgs};
 
@@ -101,7 +103,13 @@ pub struct RenderArgs {
     /// Set for the frames of a sequence: notes that every frame would repeat are not printed.
     #[arg(skip)]
     pub in_sequence: bool,
-    /// Print per-pass timings: a table on stderr, or `--timings json` on stdout.
+    /// Where the method runs: `auto` (a hardware GPU when there is one and the method runs
+    /// there, else the CPU), `cpu`, or `gpu` (any GPU adapter, a software one included; an
+    /// error when there is none). On the GPU so far: gaussian, whose pinhole frame is rendered
+    /// on the CPU. `defocus devices` lists the adapters.
+    #[arg(long, value_enum, default_value_t = DeviceArg::Auto, value_name = "DEVICE")]
+    pub device: DeviceArg,
+    /// Print per-pass timings and the device: a table on stderr, or `--timings json` on stdout.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "table", value_name = "FORMAT")]
     pub timings: Option<TimingFormat>,
     /// Say what was run: method, paper, lens, and the peak bytes of the method's own storage
@@ -162,6 +170,8 @@ pub struct RenderJob {
     depth_out: Option<PathBuf>,
     timings: Option<TimingFormat>,
     inputs: Vec<PathBuf>,
+    /// The GPU the method runs on; `None` for the CPU.
+    gpu: Option<Arc<GpuContext>>,
 }
 
 fn load_scene(
@@ -187,9 +197,21 @@ fn load_scene(
 }
 
 impl RenderJob {
-    /// Checks the flags, loads the scene and places the camera (the autofocus renders);
-    /// `notes` receives the lines the command line shows (skipped cameras, the focus picked).
+    /// Checks the flags, opens the device (`--device`), loads the scene and places the camera
+    /// (the autofocus renders); `notes` receives the lines the command line shows (skipped
+    /// cameras, the focus picked).
     pub fn new(a: RenderArgs, notes: &mut dyn FnMut(String)) -> Result<Self> {
+        let gpu = open_device(a.device, &a.method)?;
+        Self::new_on(a, gpu, notes)
+    }
+
+    /// [`RenderJob::new`] on a GPU context the caller opened ([`open_device`]; `None` for the
+    /// CPU), which a sequence shares between its frames.
+    pub fn new_on(
+        a: RenderArgs,
+        gpu: Option<Arc<GpuContext>>,
+        notes: &mut dyn FnMut(String),
+    ) -> Result<Self> {
         check_output(&a.out, "--out", IMAGE_EXTENSIONS)?;
         if let Some(d) = &a.depth_out {
             check_output(d, "--depth-out", &["exr"])?;
@@ -306,6 +328,7 @@ impl RenderJob {
             depth_out: a.depth_out,
             timings: a.timings,
             inputs,
+            gpu,
         })
     }
 
@@ -322,11 +345,12 @@ impl RenderJob {
 
     /// Runs the method on the scene; `progress(done, total)` reports views.
     pub fn compute(&self, progress: &mut dyn FnMut(usize, usize)) -> Result<MethodOutput> {
-        Ok(registry::run_scene(
+        Ok(registry::run_scene_on(
             &self.settings,
             &self.scene,
             &self.camera,
             &self.options,
+            self.gpu.as_deref(),
             progress,
         )?)
     }
@@ -396,6 +420,7 @@ impl RenderJob {
         }
         Ok(FrameDone {
             method,
+            device: device_name(self.gpu.as_deref()),
             width: self.camera.width_px,
             height: self.camera.height_px,
             timings,

@@ -22,7 +22,7 @@ use base64::Engine as _;
 use serde::Serialize;
 
 use super::blur::{BlurArgs, BlurJob, DepthKind};
-use super::flags::{check_input, parse_focus, ExrArgs, ExrCompressionArg, Focus};
+use super::flags::{check_input, parse_focus, DeviceArg, ExrArgs, ExrCompressionArg, Focus};
 use super::grid;
 use super::render::{RenderArgs, RenderJob, ViewArgs};
 use crate::options::PostArgs;
@@ -306,7 +306,7 @@ struct Sweep {
 impl Sweep {
     /// Whether the sweep changes the settings of method `id`.
     fn applies_to(&self, id: &str) -> bool {
-        self.method.map_or(true, |m| m == id)
+        self.method.is_none_or(|m| m == id)
             && SWEEPS
                 .iter()
                 .any(|(k, ids)| *k == self.key && ids.contains(&id))
@@ -494,6 +494,7 @@ fn render_args(a: &CompareArgs, scene: &str, method: &str, out: &Path) -> Render
         frames: None,
         overwrite: false,
         in_sequence: false,
+        device: DeviceArg::Cpu,
         timings: None,
         verbose: false,
         exr: ExrArgs {
@@ -530,6 +531,7 @@ fn blur_args(a: &CompareArgs, method: &str, out: &Path) -> Result<BlurArgs> {
         frames: None,
         overwrite: false,
         in_sequence: false,
+        device: DeviceArg::Cpu,
         timings: None,
         coc_out: None,
         verbose: false,

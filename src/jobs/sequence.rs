@@ -14,8 +14,8 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 
-use super::blur::{BlurArgs, BlurJob};
-use super::flags::{check_output, Focus, FrameDone, IMAGE_EXTENSIONS};
+use super::blur::{method_of, BlurArgs, BlurJob};
+use super::flags::{check_output, open_device, Focus, FrameDone, IMAGE_EXTENSIONS};
 use super::render::{RenderArgs, RenderJob};
 use crate::error::shown;
 use crate::frames::{self, FramePattern, FrameSet, Interpolation, Keyed};
@@ -245,6 +245,8 @@ pub fn blur(a: &BlurArgs, events: &Events) -> Result<Finished> {
     });
     let by_memory = crate::budget::budget_bytes()? / per_frame.max(1);
     let workers = rayon::current_num_threads().min(by_memory.max(1) as usize);
+    // One GPU context for every frame: its pipelines and buffers are reused.
+    let gpu = open_device(a.device, method_of(a)?)?;
     run(
         "blur",
         &frames,
@@ -252,7 +254,9 @@ pub fn blur(a: &BlurArgs, events: &Events) -> Result<Finished> {
         a.overwrite,
         workers,
         events,
-        |n| BlurJob::new(&frame_args(n), &mut |line| (events.note)(line))?.execute(),
+        |n| {
+            BlurJob::new_on(&frame_args(n), gpu.clone(), &mut |line| (events.note)(line))?.execute()
+        },
     )
 }
 
@@ -323,9 +327,11 @@ pub fn render(a: RenderArgs, events: &Events) -> Result<Finished> {
             .chain(depth_out.as_ref().map(|p| p.path(n)))
             .collect()
     };
+    // One GPU context for every frame: its pipelines and buffers are reused.
+    let gpu = open_device(a.device, &a.method)?;
     run("render", &frames, outputs, a.overwrite, 1, events, |n| {
         let mut note = |line| (events.note)(line);
-        RenderJob::new(frame_args(n), &mut note)?.execute(&mut |_, _| {}, &mut note)
+        RenderJob::new_on(frame_args(n), gpu.clone(), &mut note)?.execute(&mut |_, _| {}, &mut note)
     })
 }
 

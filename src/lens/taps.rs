@@ -72,7 +72,7 @@ impl Taps {
                     .iter()
                     .map(|p| p.distance_squared(v))
                     .fold(f32::INFINITY, f32::min);
-                if best.map_or(true, |(bd, _)| d > bd) {
+                if best.is_none_or(|(bd, _)| d > bd) {
                     best = Some((d, v));
                 }
             }

@@ -67,20 +67,23 @@ pub fn coc(depth: &GrayImage, lens: &ThinLens, max_coc_px: f32) -> Result<GrayIm
     let coc = |z: f32| lens.coc_px(z).clamp(-max_coc_px, max_coc_px);
     match map_checked(depth.pixels(), |z| z > 0.0, coc) {
         Some(pixels) => GrayImage::from_vec(w, depth.height(), pixels),
-        None => {
-            let i = first_failing(depth.pixels(), |z| z > 0.0);
-            Err(Error::invalid(
-                "depth",
-                format!(
-                    "{} at pixel ({}, {}): expected a view-axis depth greater than 0 m (+inf \
-                     for sky)",
-                    depth.pixels()[i],
-                    i % w.max(1),
-                    i / w.max(1)
-                ),
-            ))
-        }
+        None => Err(bad_depth(depth, first_failing(depth.pixels(), |z| z > 0.0))),
     }
+}
+
+/// The error of pass [`coc`] for the depth at index `i` (row order) of `depth`, which is NaN,
+/// zero or negative: the GPU twin reports the same.
+pub(crate) fn bad_depth(depth: &GrayImage, i: usize) -> Error {
+    let w = depth.width().max(1);
+    Error::invalid(
+        "depth",
+        format!(
+            "{} at pixel ({}, {}): expected a view-axis depth greater than 0 m (+inf for sky)",
+            depth.pixels()[i],
+            i % w,
+            i / w
+        ),
+    )
 }
 
 /// Values per parallel block of [`map_checked`], [`max_abs`] and the per-pixel passes like them:

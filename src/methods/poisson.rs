@@ -288,7 +288,7 @@ fn gather_row_inner(inputs: &GatherInputs, y: usize, row: &mut [Rgba]) {
     } = *inputs;
     let w = color.width().max(1);
     for (x, o) in row.iter_mut().enumerate() {
-        if mask.map_or(true, |m| m.get(y * w + x).copied().unwrap_or(false)) {
+        if mask.is_none_or(|m| m.get(y * w + x).copied().unwrap_or(false)) {
             *o = gather_pixel(color, coc_px, taps, x, y);
         }
     }

@@ -8,6 +8,7 @@ use crate::lens::{Camera, SamplerKind, ThinLens};
 
 /// Most samples a run takes (`--samples`): lens views, rays or pixel samples.
 pub const MAX_SAMPLES: usize = 1 << 20;
+use crate::gpu::{Device, GpuContext};
 use crate::scene::Scene;
 use crate::{Error, Result};
 
@@ -65,6 +66,8 @@ pub struct MethodInfo {
     pub input: InputKind,
     /// The lens effects ([`crate::lens::EFFECT_NAMES`]) it renders; it refuses the others.
     pub effects: &'static [&'static str],
+    /// Whether it runs on the GPU too (`--device gpu`; its GPU passes beside its CPU ones).
+    pub gpu: bool,
 }
 
 /// Every method, in the order reports list them.
@@ -75,6 +78,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "",
         input: InputKind::SceneViews,
         effects: &[],
+        gpu: false,
     },
     MethodInfo {
         id: "reference",
@@ -82,6 +86,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Haeberli & Akeley 1990, The accumulation buffer",
         input: InputKind::SceneViews,
         effects: &crate::lens::EFFECT_NAMES,
+        gpu: false,
     },
     MethodInfo {
         id: "hammon",
@@ -89,6 +94,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Hammon 2007, GPU Gems 3 ch. 28",
         input: InputKind::PinholeFrame,
         effects: &[],
+        gpu: false,
     },
     MethodInfo {
         id: "lowrank",
@@ -96,6 +102,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "McGraw 2015, Fast bokeh effects using low-rank linear filters",
         input: InputKind::PinholeFrame,
         effects: super::lowrank::EFFECTS,
+        gpu: false,
     },
     MethodInfo {
         id: "gaussian",
@@ -103,6 +110,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "after Zhou et al. 2007",
         input: InputKind::PinholeFrame,
         effects: &[],
+        gpu: true,
     },
     MethodInfo {
         id: "poisson",
@@ -110,6 +118,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "after Scheuermann 2004",
         input: InputKind::PinholeFrame,
         effects: super::poisson::EFFECTS,
+        gpu: false,
     },
     MethodInfo {
         id: "splat",
@@ -117,6 +126,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Fast depth of field rendering (poster; tiled DoF splatting)",
         input: InputKind::PinholeFrame,
         effects: super::splat::EFFECTS,
+        gpu: false,
     },
     MethodInfo {
         id: "multilayer",
@@ -124,6 +134,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Selgrad et al. 2015, Real-time depth of field using multi-layer filtering",
         input: InputKind::FragmentLists,
         effects: &[],
+        gpu: false,
     },
     MethodInfo {
         id: "multiview",
@@ -131,6 +142,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Lee, Eisemann, Seidel 2009, Depth-of-field rendering with multiview synthesis",
         input: InputKind::DepthLayers,
         effects: super::multiview::EFFECTS,
+        gpu: false,
     },
 ];
 
@@ -166,6 +178,48 @@ pub fn find(id: &str) -> Result<&'static MethodInfo> {
             name: id.to_string(),
             expected: ids().join(", "),
         })
+}
+
+/// The ids of the methods that run on the GPU ([`MethodInfo::gpu`]), in registry order.
+pub fn gpu_ids() -> Vec<&'static str> {
+    METHODS.iter().filter(|m| m.gpu).map(|m| m.id).collect()
+}
+
+/// Every WGSL shader of the GPU methods: its name and source (for validation by naga).
+pub const GPU_SHADERS: &[(&str, &str)] = &[(gaussian::gpu::SHADER_NAME, gaussian::gpu::SHADER)];
+
+/// Builds every pipeline of every GPU method on `ctx` (compiled once, then cached there): a
+/// shader that does not build is an error naming it.
+pub fn prepare_gpu(ctx: &GpuContext) -> Result<()> {
+    gaussian::gpu::prepare(ctx)
+}
+
+/// Refuses `--device gpu` for method `id` when it has no GPU passes, naming those that have.
+pub fn check_gpu(id: &str) -> Result<()> {
+    let info = find(id)?;
+    if info.gpu {
+        return Ok(());
+    }
+    Err(Error::Option(format!(
+        "method {} does not run on the GPU yet (--device gpu); the methods that do: {}. Use \
+         --device cpu or auto",
+        info.id,
+        gpu_ids().join(", ")
+    )))
+}
+
+/// The GPU context a run of method `id` takes on `device` ([`crate::gpu::choose`]), or `None`
+/// for the CPU: `cpu`; `auto` for a method without GPU passes or on a machine without a
+/// hardware adapter. `gpu` refuses a method without GPU passes, and fails when there is no
+/// adapter.
+pub fn gpu_context(device: Device, id: &str) -> Result<Option<GpuContext>> {
+    let info = find(id)?;
+    match device {
+        Device::Cpu => Ok(None),
+        Device::Auto if !info.gpu => Ok(None),
+        Device::Gpu if !info.gpu => check_gpu(id).map(|()| None),
+        _ => GpuContext::open(device),
+    }
 }
 
 /// Every method id, in registry order.
@@ -360,8 +414,33 @@ pub fn check_budget(settings: &MethodSettings, width: usize, height: usize) -> R
 /// Runs a method that reads a pinhole frame. A method that needs a scene is refused with a
 /// message that says what it needs.
 pub fn run_frame(settings: &MethodSettings, frame: &Frame) -> Result<MethodOutput> {
+    run_frame_on(settings, frame, None)
+}
+
+/// [`run_frame`] on the GPU of `gpu` (`None`: the CPU). A method without GPU passes is
+/// refused on a GPU ([`check_gpu`]).
+pub fn run_frame_on(
+    settings: &MethodSettings,
+    frame: &Frame,
+    gpu: Option<&GpuContext>,
+) -> Result<MethodOutput> {
     let (c, d, l) = (frame.color, frame.depth, frame.lens);
     check_budget(settings, c.width(), c.height())?;
+    if let Some(ctx) = gpu {
+        check_gpu(settings.id())?;
+        let out = match settings {
+            MethodSettings::Gaussian(s) => gaussian::gpu::render(ctx, c, d, l, s),
+            other => Err(Error::invalid(
+                "method",
+                format!(
+                    "'{}' is marked as a GPU method in the registry but has no GPU passes",
+                    other.id()
+                ),
+            )),
+        };
+        ctx.check()?;
+        return out;
+    }
     match settings {
         MethodSettings::Hammon(s) => hammon::render(c, d, l, s),
         MethodSettings::Lowrank(s) => lowrank::render(c, d, l, s),
@@ -431,7 +510,24 @@ pub fn run_scene(
     options: &SceneOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<MethodOutput> {
+    run_scene_on(settings, scene, camera, options, None, progress)
+}
+
+/// [`run_scene`] on the GPU of `gpu` (`None`: the CPU). A method without GPU passes is
+/// refused on a GPU ([`check_gpu`]); the pinhole frame that a post-process method blurs is
+/// rendered on the CPU.
+pub fn run_scene_on(
+    settings: &MethodSettings,
+    scene: &Scene,
+    camera: &Camera,
+    options: &SceneOptions,
+    gpu: Option<&GpuContext>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<MethodOutput> {
     check_budget(settings, camera.width_px, camera.height_px)?;
+    if gpu.is_some() {
+        check_gpu(settings.id())?;
+    }
     match settings {
         MethodSettings::Reference(s) => {
             let s = ReferenceSettings {
@@ -486,7 +582,13 @@ pub fn run_scene(
                 lens: &lens,
             };
             let out = match options.occlusion {
-                super::fill::Occlusion::None => run_frame(post, &frame)?,
+                super::fill::Occlusion::None => run_frame_on(post, &frame, gpu)?,
+                super::fill::Occlusion::Fill if gpu.is_some() => {
+                    return Err(Error::invalid(
+                        "occlusion",
+                        "fill runs on the CPU only so far: use --device cpu, or --occlusion none",
+                    ))
+                }
                 super::fill::Occlusion::Fill => {
                     super::fill::run_frame(post, &frame, &super::fill::FillSettings::default())?
                 }

@@ -820,7 +820,7 @@ impl TileSink for FragmentTile {
                 } else {
                     let mut next = None::<usize>;
                     for (k, s) in slots.iter().enumerate() {
-                        if k != far && next.map_or(true, |m| s.depth_m >= slots[m].depth_m) {
+                        if k != far && next.is_none_or(|m| s.depth_m >= slots[m].depth_m) {
                             next = Some(k);
                         }
                     }

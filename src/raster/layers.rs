@@ -384,7 +384,7 @@ impl TileSink for LayersTile {
         }
         let c = self.spacing.lens.coc_px(depth_m);
         let (l, other) = self.spacing.targets(c);
-        self.hidden(l, i, depth_m, c) && other.map_or(true, |o| self.hidden(o, i, depth_m, c))
+        self.hidden(l, i, depth_m, c) && other.is_none_or(|o| self.hidden(o, i, depth_m, c))
     }
 
     #[inline]

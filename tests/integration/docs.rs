@@ -237,6 +237,7 @@ fn every_flag_of_the_command_line_is_in_the_guide_or_a_method_page() {
         vec!["blur", "--help"],
         vec!["compare", "--help"],
         vec!["kernel", "--help"],
+        vec!["devices", "--help"],
     ] {
         let out = defocus(&command);
         assert!(out.status.success(), "{command:?}");

@@ -5,6 +5,7 @@ mod cli_post;
 mod docs;
 mod fill;
 mod fuzz;
+mod gpu;
 mod hammon;
 mod highlights;
 mod image_io;

@@ -21,7 +21,7 @@ fn write_frames(dir: &Path, frames: &[i64]) {
         let mut rgba = Vec::with_capacity(W * H);
         for y in 0..H {
             for x in 0..W {
-                let v = if (x / 3 + y / 3 + n as usize) % 2 == 0 {
+                let v = if (x / 3 + y / 3 + n as usize).is_multiple_of(2) {
                     0.9
                 } else {
                     0.1

@@ -354,7 +354,7 @@ fn a_buffer_file_is_read_only_up_to_its_declared_length() {
     let (base, scene) = scene_folder("byte-length");
     // A buffer file followed by much more: only byteLength bytes are the buffer's.
     let mut long = triangle_buffer();
-    long.extend(std::iter::repeat(7u8).take(1 << 20));
+    long.extend(std::iter::repeat_n(7u8, 1 << 20));
     std::fs::write(scene.join("long.bin"), long).unwrap();
     let path = scene.join("long.gltf");
     std::fs::write(&path, triangle_gltf("long.bin", None)).unwrap();

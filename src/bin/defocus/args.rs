@@ -46,4 +46,7 @@ pub enum Command {
     Compare(defocus::jobs::report::CompareArgs),
     /// Aperture kernels: singular values and low-rank approximation errors (McGraw eq. 4).
     Kernel(crate::kernel::KernelArgs),
+    /// The GPU adapters found (name, backend, type, software or not, limits) and the one
+    /// `--device auto` takes.
+    Devices(crate::devices::DevicesArgs),
 }

@@ -70,6 +70,7 @@ pub fn run(cli: Cli) -> Result<()> {
             }
         }
         Command::Kernel(args) => crate::kernel::run(&args),
+        Command::Devices(args) => crate::devices::run(&args),
     }
 }
 

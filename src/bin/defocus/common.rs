@@ -2,7 +2,7 @@
 //! reports. The flags' parsers and the jobs are the library's (`defocus::jobs`); this file
 //! imports no other file of the binary.
 
-use defocus::timing::Timings;
+use defocus::timing::{Clock, Timings};
 use indicatif::{ProgressBar, ProgressStyle};
 
 pub use defocus::jobs::flags::*;
@@ -13,6 +13,7 @@ pub fn report_done(format: Option<TimingFormat>, done: &FrameDone) -> anyhow::Re
     report_timings(
         format,
         done.method,
+        &done.device,
         done.width,
         done.height,
         &done.timings,
@@ -73,9 +74,13 @@ pub fn resident_peak_bytes() -> Option<u64> {
     Some(kib * 1024)
 }
 
+/// `--timings`: the method, the device it ran on (`cpu` or the GPU adapter's label), the size
+/// and each pass, as a table on stderr or one JSON object on stdout. A pass not timed by the
+/// wall clock (a GPU pass) says how it was timed.
 pub fn report_timings(
     format: Option<TimingFormat>,
     method: &str,
+    device: &str,
     width: usize,
     height: usize,
     timings: &Timings,
@@ -91,12 +96,24 @@ pub fn report_timings(
                 .max()
                 .unwrap_or(4)
                 .max(5);
+            let clocked = timings.passes.iter().any(|p| p.clock != Clock::Wall);
             let mut table = vec![
                 format!("{method} {width}x{height}"),
-                format!("{:<name_width$} {:>10}", "pass", "ms"),
+                format!("device: {device}"),
+                format!(
+                    "{:<name_width$} {:>10}{}",
+                    "pass",
+                    "ms",
+                    if clocked { "  clock" } else { "" }
+                ),
             ];
             for p in &timings.passes {
-                table.push(format!("{:<name_width$} {:>10.2}", p.name, p.ms));
+                let clock = if clocked {
+                    format!("  {}", p.clock.name())
+                } else {
+                    String::new()
+                };
+                table.push(format!("{:<name_width$} {:>10.2}{clock}", p.name, p.ms));
             }
             table.push(format!(
                 "{:<name_width$} {:>10.2}",
@@ -122,6 +139,7 @@ pub fn report_timings(
         Some(TimingFormat::Json) => {
             let value = serde_json::json!({
                 "method": method,
+                "device": device,
                 "width": width,
                 "height": height,
                 "passes": timings.passes,

@@ -4,6 +4,7 @@
 mod args;
 mod commands;
 mod common;
+mod devices;
 mod kernel;
 mod sequence;
 
@@ -12,6 +13,13 @@ use std::process::ExitCode;
 use clap::Parser;
 
 fn main() -> ExitCode {
+    // Mesa's Vulkan device-selection layer only reorders the adapters (defocus chooses its own,
+    // `--device`), and on a machine without a graphical login (no XDG_RUNTIME_DIR) it prints
+    // "error: XDG_RUNTIME_DIR is invalid" on every run that looks for an adapter. Turned off
+    // before any thread starts, unless the user set it.
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
     // Ctrl-C or SIGTERM: remove the temporary files of unfinished outputs, then stop.
     let _ = ctrlc::set_handler(|| {
         defocus::output::interrupt();

@@ -135,6 +135,7 @@ fn report_sequence_timings(
             crate::common::report_timings(
                 Some(format),
                 last.method,
+                &last.device,
                 last.width,
                 last.height,
                 total,
@@ -149,6 +150,7 @@ fn report_sequence_timings(
         TimingFormat::Json => {
             let value = serde_json::json!({
                 "method": last.method,
+                "device": last.device,
                 "width": last.width,
                 "height": last.height,
                 "frames": written,

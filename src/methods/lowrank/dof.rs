@@ -897,9 +897,9 @@ pub fn horizontal(
 /// Copies `row` into `buf` with `n` clamped copies of its ends on each side.
 fn pad<T: Copy>(row: &[T], n: usize, buf: &mut Vec<T>) {
     buf.clear();
-    buf.extend(std::iter::repeat(row[0]).take(n));
+    buf.extend(std::iter::repeat_n(row[0], n));
     buf.extend_from_slice(row);
-    buf.extend(std::iter::repeat(row[row.len() - 1]).take(n));
+    buf.extend(std::iter::repeat_n(row[row.len() - 1], n));
 }
 
 /// Splits `keys` into maximal runs of equal keys: `(start, end, key)`.

@@ -74,7 +74,7 @@ impl KernelSpec {
     /// Checks every field (see their documentation).
     pub fn validate(&self) -> Result<()> {
         self.aperture.validate()?;
-        if self.size_px == 0 || self.size_px % 2 == 0 || self.size_px > MAX_KERNEL_PX {
+        if self.size_px == 0 || self.size_px.is_multiple_of(2) || self.size_px > MAX_KERNEL_PX {
             return Err(Error::invalid(
                 "kernel size",
                 format!(

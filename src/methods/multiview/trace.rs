@@ -597,7 +597,7 @@ const LANES: usize = 16;
 
 // The lanes are bits of a `u32` (`1 << n` must not overflow), and the AVX2 path reads whole
 // registers of eight.
-const _: () = assert!(LANES < 32 && LANES % 8 == 0);
+const _: () = assert!(LANES < 32 && LANES.is_multiple_of(8));
 
 /// [`ray`] for up to [`LANES`] rays `rays` of a pixel whose rays stay inside the layers, through
 /// the open layers `open` in order, with the same samples and arithmetic as [`layer`], so the

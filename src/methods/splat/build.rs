@@ -42,7 +42,7 @@ impl SplatFragment {
     /// merged fragment (merged fragments sit on whole pixels, single ones on pixel centres).
     #[inline]
     pub fn soft_px(&self, merge: usize) -> f32 {
-        if self.pos_half_px[0] % 2 == 0 {
+        if self.pos_half_px[0].is_multiple_of(2) {
             merge as f32
         } else {
             1.0

@@ -218,7 +218,7 @@ impl Canvas {
                 return None;
             }
             let sector = ((dy.atan2(dx) + std::f32::consts::PI) * sectors) as u32;
-            (sector % 2 == 0).then_some(ink)
+            sector.is_multiple_of(2).then_some(ink)
         });
     }
 

@@ -607,7 +607,7 @@ impl<'a> Loader<'a> {
             }
             let indices: Vec<[u32; 3]> = match mode {
                 gl::mesh::Mode::Triangles => {
-                    if idx.len() % 3 != 0 {
+                    if !idx.len().is_multiple_of(3) {
                         return Err(self.err(format!(
                             "{what}: {} indices (or vertices) for TRIANGLES: expected a multiple \
                              of 3",

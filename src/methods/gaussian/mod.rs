@@ -19,6 +19,10 @@
 //! Radii are quantised to 1/4 px as in `lowrank`; pixels with a radius of at most 1/2 px are
 //! copied unchanged. Rows (and column chunks of the vertical pass) are independent, so the
 //! output does not depend on the thread count. [`naive`] is the per-pixel twin.
+//!
+//! [`gpu`] runs the same three passes as WGSL compute shaders, under the same names.
+
+pub mod gpu;
 
 use rayon::prelude::*;
 
@@ -79,12 +83,13 @@ impl GaussianSettings {
 /// Gaussian taps of every radius level, zero-padded to the largest.
 #[derive(Clone, Debug)]
 pub struct GaussTable {
-    levels: usize,
+    pub(crate) levels: usize,
     nmax: usize,
-    stride: usize,
-    half: Vec<usize>,
+    pub(crate) stride: usize,
+    /// Taps on each side of each level.
+    pub(crate) half: Vec<usize>,
     /// `[level * stride + |d|]`.
-    weights: Vec<f32>,
+    pub(crate) weights: Vec<f32>,
 }
 
 impl GaussTable {

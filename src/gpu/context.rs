@@ -1,0 +1,469 @@
+//! [`GpuContext`]: one adapter, device and queue, with the pipelines and buffers of the runs
+//! made on it; [`PassTimer`]: the passes of one run, timed.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Instant;
+
+use super::adapter::{choose, AdapterDescription, Device};
+use crate::timing::{Clock, Timings};
+use crate::{Error, Result};
+
+/// Buffers the pool keeps for reuse at most; the oldest is dropped beyond.
+const POOL_BUFFERS: usize = 32;
+
+/// The wgpu instance of the backends defocus uses (Vulkan, Metal, DX12; `WGPU_BACKEND`
+/// narrows them), without Vulkan's validation layers unless `WGPU_VALIDATION` asks.
+pub(crate) fn new_instance() -> wgpu::Instance {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::PRIMARY.with_env();
+    desc.flags = wgpu::InstanceFlags::empty().with_env();
+    wgpu::Instance::new(desc)
+}
+
+/// The adapters of `instance`, in wgpu's order.
+pub(crate) fn enumerate(instance: &wgpu::Instance) -> Vec<wgpu::Adapter> {
+    pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()))
+}
+
+/// A GPU device and its queue, with the compiled pipelines and pooled buffers of the runs made
+/// on it. Made once per job ([`GpuContext::open`]) and passed to every run: a sequence or a
+/// batch reuses its pipelines and buffers. Shared between threads (`Sync`).
+pub struct GpuContext {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    description: AdapterDescription,
+    /// Whether passes are timed by timestamp queries.
+    timestamps: bool,
+    /// Compiled shader modules by shader name.
+    modules: Mutex<HashMap<&'static str, wgpu::ShaderModule>>,
+    /// Compiled pipelines by pass name.
+    pipelines: Mutex<HashMap<&'static str, wgpu::ComputePipeline>>,
+    /// Buffers given back after a run, for the next one of the same size and use.
+    pool: Mutex<Vec<wgpu::Buffer>>,
+    /// Errors wgpu reported outside an error scope (validation, out of memory, device lost),
+    /// returned by the next [`GpuContext::check`].
+    errors: Arc<Mutex<Vec<String>>>,
+    // Kept so that the adapter outlives the device on every backend.
+    _adapter: wgpu::Adapter,
+    _instance: wgpu::Instance,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext")
+            .field("adapter", &self.description.label())
+            .field("timestamps", &self.timestamps)
+            .finish_non_exhaustive()
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic while holding the lock leaves a map that is still whole.
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl GpuContext {
+    /// The context of `device` on this machine's adapters ([`super::choose`]): `None` for the
+    /// CPU (`cpu`, or `auto` without a hardware adapter).
+    pub fn open(device: Device) -> Result<Option<Self>> {
+        if device == Device::Cpu {
+            return Ok(None);
+        }
+        let instance = new_instance();
+        let mut adapters = enumerate(&instance);
+        let descriptions: Vec<AdapterDescription> =
+            adapters.iter().map(AdapterDescription::of).collect();
+        match choose(device, &descriptions)? {
+            None => Ok(None),
+            Some(i) => {
+                let adapter = adapters.swap_remove(i);
+                Self::on_adapter(instance, adapter).map(Some)
+            }
+        }
+    }
+
+    /// A context on `adapter`: its device with timestamp queries where it has them, and the
+    /// adapter's own limits (not WebGPU's defaults), so a frame is refused only where the
+    /// hardware would refuse it.
+    fn on_adapter(instance: wgpu::Instance, adapter: wgpu::Adapter) -> Result<Self> {
+        let description = AdapterDescription::of(&adapter);
+        let timestamps = description.timestamp_query;
+        let required_features = if timestamps {
+            wgpu::Features::TIMESTAMP_QUERY
+        } else {
+            wgpu::Features::empty()
+        };
+        let desc = wgpu::DeviceDescriptor {
+            label: Some("defocus"),
+            required_features,
+            required_limits: adapter.limits(),
+            ..Default::default()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&desc)).map_err(|e| {
+            Error::Gpu(format!(
+                "could not open a device on {}: {e}",
+                description.label()
+            ))
+        })?;
+        let errors = Arc::new(Mutex::new(Vec::new()));
+        let sink = Arc::clone(&errors);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            lock(&sink).push(e.to_string());
+        }));
+        let sink = Arc::clone(&errors);
+        device.set_device_lost_callback(move |reason, message| {
+            lock(&sink).push(format!("the device was lost ({reason:?}): {message}"));
+        });
+        Ok(Self {
+            device,
+            queue,
+            description,
+            timestamps,
+            modules: Mutex::new(HashMap::new()),
+            pipelines: Mutex::new(HashMap::new()),
+            pool: Mutex::new(Vec::new()),
+            errors,
+            _adapter: adapter,
+            _instance: instance,
+        })
+    }
+
+    /// The adapter the context runs on.
+    pub fn description(&self) -> &AdapterDescription {
+        &self.description
+    }
+
+    /// Whether passes are timed by timestamp queries (GPU time) rather than by the wall time
+    /// around their submit and wait.
+    pub fn has_timestamps(&self) -> bool {
+        self.timestamps
+    }
+
+    /// The wgpu device.
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    /// The wgpu queue.
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+
+    /// The error wgpu reported since the last check (validation, out of memory, a lost
+    /// device), as [`Error::Gpu`] naming the adapter; `Ok` when there was none.
+    pub fn check(&self) -> Result<()> {
+        let errors: Vec<String> = std::mem::take(&mut *lock(&self.errors));
+        if errors.is_empty() {
+            Ok(())
+        } else {
+            Err(Error::Gpu(format!(
+                "{}: {}",
+                self.description.label(),
+                errors.join("; ")
+            )))
+        }
+    }
+
+    /// The compute pipeline of entry point `pass` (a pass name such as `gaussian/coc`: the
+    /// entry point is the part after the last `/`) of the WGSL shader `shader` named
+    /// `shader_name`, compiled on first use and cached. A shader that naga refuses is an
+    /// [`Error::Gpu`] with naga's message.
+    pub fn pipeline(
+        &self,
+        shader_name: &'static str,
+        shader: &'static str,
+        pass: &'static str,
+    ) -> Result<wgpu::ComputePipeline> {
+        if let Some(p) = lock(&self.pipelines).get(pass) {
+            return Ok(p.clone());
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module = lock(&self.modules)
+            .entry(shader_name)
+            .or_insert_with(|| {
+                self.device
+                    .create_shader_module(wgpu::ShaderModuleDescriptor {
+                        label: Some(shader_name),
+                        source: wgpu::ShaderSource::Wgsl(shader.into()),
+                    })
+            })
+            .clone();
+        let entry = pass.rsplit('/').next().unwrap_or(pass);
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(pass),
+                layout: None,
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            lock(&self.modules).remove(shader_name);
+            return Err(Error::Gpu(format!(
+                "the pipeline {pass} of {shader_name} did not build: {e}"
+            )));
+        }
+        lock(&self.pipelines).insert(pass, pipeline.clone());
+        Ok(pipeline)
+    }
+
+    /// Checks that a storage buffer of `bytes` fits the adapter's limits, naming `what` it
+    /// holds and the limit it passes, before anything is allocated.
+    pub fn check_storage(&self, what: &str, bytes: u64) -> Result<()> {
+        let l = &self.description.limits;
+        for (limit, name) in [
+            (
+                l.max_storage_buffer_binding_size,
+                "max storage buffer binding size",
+            ),
+            (l.max_buffer_size, "max buffer size"),
+        ] {
+            if bytes > limit {
+                return Err(Error::Gpu(format!(
+                    "{what} needs a buffer of {bytes} bytes; {} allows {limit} ({name})",
+                    self.description.label()
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// A buffer of `size` bytes and `usage`, from the pool when one was given back, else new.
+    /// Its contents are undefined.
+    pub fn buffer(
+        &self,
+        label: &'static str,
+        size: u64,
+        usage: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
+        let size = size.max(4).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        {
+            let mut pool = lock(&self.pool);
+            if let Some(i) = pool
+                .iter()
+                .position(|b| b.size() == size && b.usage() == usage)
+            {
+                return pool.swap_remove(i);
+            }
+        }
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Gives buffers back to the pool for the next run (the oldest are dropped beyond a few).
+    pub fn recycle(&self, buffers: impl IntoIterator<Item = wgpu::Buffer>) {
+        let mut pool = lock(&self.pool);
+        pool.extend(buffers);
+        let excess = pool.len().saturating_sub(POOL_BUFFERS);
+        pool.drain(..excess);
+    }
+
+    /// A storage buffer holding `data`, checked against the limits first.
+    pub fn upload(&self, label: &'static str, data: &[u8]) -> Result<wgpu::Buffer> {
+        self.check_storage(label, data.len() as u64)?;
+        let usage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC;
+        let buffer = self.buffer(label, data.len() as u64, usage);
+        if !data.is_empty() {
+            self.queue.write_buffer(&buffer, 0, data);
+        }
+        Ok(buffer)
+    }
+
+    /// A storage buffer of `bytes` bytes whose contents are undefined until a pass writes
+    /// them, checked against the limits first.
+    pub fn storage(&self, label: &'static str, bytes: u64) -> Result<wgpu::Buffer> {
+        self.check_storage(label, bytes)?;
+        let usage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC;
+        Ok(self.buffer(label, bytes, usage))
+    }
+
+    /// A uniform buffer holding `data`.
+    pub fn uniform(&self, label: &'static str, data: &[u8]) -> wgpu::Buffer {
+        let usage = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
+        let buffer = self.buffer(label, data.len() as u64, usage);
+        self.queue.write_buffer(&buffer, 0, data);
+        buffer
+    }
+
+    /// Submits what was written and waits until the GPU has done it all.
+    pub fn flush(&self) -> Result<()> {
+        self.queue.submit([]);
+        self.wait()
+    }
+
+    /// Waits until every submitted command has run, then [`GpuContext::check`]s.
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| {
+                Error::Gpu(format!(
+                    "{}: waiting for the GPU failed: {e}",
+                    self.description.label()
+                ))
+            })?;
+        self.check()
+    }
+
+    /// The first `bytes` bytes of each of `buffers` (each made with `COPY_SRC`), copied back
+    /// to the CPU in one submit.
+    pub fn read(&self, buffers: &[(&wgpu::Buffer, u64)]) -> Result<Vec<Vec<u8>>> {
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("gpu/download"),
+            });
+        let staging: Vec<(wgpu::Buffer, u64)> = buffers
+            .iter()
+            .map(|&(src, bytes)| {
+                let size = bytes.max(4).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+                let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+                let dst = self.buffer("gpu/download", size, usage);
+                encoder.copy_buffer_to_buffer(src, 0, &dst, 0, size);
+                (dst, bytes)
+            })
+            .collect();
+        self.queue.submit([encoder.finish()]);
+        for (dst, _) in &staging {
+            dst.slice(..).map_async(wgpu::MapMode::Read, |_| {});
+        }
+        self.wait()?;
+        let mut out = Vec::with_capacity(staging.len());
+        for (dst, bytes) in &staging {
+            let view = dst.slice(..).get_mapped_range().map_err(|e| {
+                Error::Gpu(format!(
+                    "{}: reading a result back failed: {e}",
+                    self.description.label()
+                ))
+            })?;
+            out.push(view[..*bytes as usize].to_vec());
+            drop(view);
+            dst.unmap();
+        }
+        self.recycle(staging.into_iter().map(|(b, _)| b));
+        Ok(out)
+    }
+}
+
+/// The passes of one run, timed: with timestamp queries they are recorded into one command
+/// buffer, each between two timestamps, and submitted once by [`PassTimer::finish`]; without,
+/// each pass is submitted and waited for on its own, and timed by the wall clock around that.
+pub struct PassTimer<'a> {
+    ctx: &'a GpuContext,
+    encoder: Option<wgpu::CommandEncoder>,
+    queries: Option<wgpu::QuerySet>,
+    capacity: u32,
+    names: Vec<&'static str>,
+    timings: Timings,
+}
+
+impl<'a> PassTimer<'a> {
+    /// A timer for at most `passes` passes.
+    pub fn new(ctx: &'a GpuContext, passes: u32) -> Self {
+        let queries = ctx.timestamps.then(|| {
+            ctx.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("pass timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2 * passes.max(1),
+            })
+        });
+        Self {
+            ctx,
+            encoder: None,
+            queries,
+            capacity: passes,
+            names: Vec::new(),
+            timings: Timings::default(),
+        }
+    }
+
+    /// Runs the compute pass `name` (its pipeline from [`GpuContext::pipeline`]) over
+    /// `workgroups` with `bind_group` at group 0.
+    pub fn dispatch(
+        &mut self,
+        name: &'static str,
+        pipeline: &wgpu::ComputePipeline,
+        bind_group: &wgpu::BindGroup,
+        workgroups: [u32; 3],
+    ) -> Result<()> {
+        let index = self.names.len() as u32;
+        if index >= self.capacity {
+            return Err(Error::Gpu(format!(
+                "pass {name}: the timer holds {} passes",
+                self.capacity
+            )));
+        }
+        let start = Instant::now();
+        let mut encoder = self.encoder.take().unwrap_or_else(|| {
+            self.ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) })
+        });
+        {
+            let timestamp_writes =
+                self.queries
+                    .as_ref()
+                    .map(|query_set| wgpu::ComputePassTimestampWrites {
+                        query_set,
+                        beginning_of_pass_write_index: Some(2 * index),
+                        end_of_pass_write_index: Some(2 * index + 1),
+                    });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(name),
+                timestamp_writes,
+            });
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, bind_group, &[]);
+            pass.dispatch_workgroups(workgroups[0], workgroups[1], workgroups[2]);
+        }
+        self.names.push(name);
+        if self.queries.is_some() {
+            self.encoder = Some(encoder);
+        } else {
+            self.ctx.queue.submit([encoder.finish()]);
+            self.ctx.wait()?;
+            self.timings
+                .add_with(name, start.elapsed().as_secs_f64() * 1e3, Clock::SubmitWait);
+        }
+        Ok(())
+    }
+
+    /// Submits what is recorded, waits for it, and returns each pass's time.
+    pub fn finish(mut self) -> Result<Timings> {
+        let (Some(queries), Some(mut encoder)) = (self.queries.take(), self.encoder.take()) else {
+            self.ctx.check()?;
+            return Ok(self.timings);
+        };
+        let count = 2 * self.names.len() as u32;
+        let bytes = u64::from(count) * 8;
+        let resolve = self.ctx.buffer(
+            "pass timestamps",
+            bytes,
+            wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+        );
+        encoder.resolve_query_set(&queries, 0..count, &resolve, 0);
+        self.ctx.queue.submit([encoder.finish()]);
+        let ticks = self.ctx.read(&[(&resolve, bytes)])?;
+        self.ctx.recycle([resolve]);
+        let period_ns = f64::from(self.ctx.queue.get_timestamp_period());
+        for (i, name) in self.names.iter().enumerate() {
+            let at = |k: usize| {
+                let b = &ticks[0][8 * k..8 * k + 8];
+                u64::from_le_bytes(b.try_into().unwrap_or([0; 8]))
+            };
+            let ns = at(2 * i + 1).saturating_sub(at(2 * i)) as f64 * period_ns;
+            self.timings.add_with(name, ns * 1e-6, Clock::GpuTimestamps);
+        }
+        Ok(self.timings)
+    }
+}

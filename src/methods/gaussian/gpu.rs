@@ -1,0 +1,215 @@
+//! `gaussian` on the GPU: the passes of [`super`] (`coc`, `horizontal`, `vertical`, timed as
+//! `gaussian/<pass>`) as the entry points of one WGSL compute shader, `gaussian.wgsl`, which
+//! computes what the CPU passes compute, in f32, summing in the same order. The CPU passes are
+//! its oracle (tested within 45 dB PSNR on every built-in scene).
+//!
+//! The tap table is the CPU's [`GaussTable`], tabulated up to `max_coc_px` instead of the
+//! frame's largest radius (the same taps: a level's taps do not depend on how many levels
+//! there are, and no radius of the frame reaches past its own largest level), so the GPU needs
+//! no read-back between passes. A depth that is not > 0 is recorded by the `coc` pass and
+//! reported with the CPU's message once the run is done.
+//!
+//! Besides the method's passes, `gpu/upload` (colour, depth and table to the GPU) and
+//! `gpu/download` (the image back) are timed by the wall clock.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::{GaussTable, GaussianSettings};
+use crate::gpu::{GpuContext, PassTimer};
+use crate::image::{ColorImage, GrayImage};
+use crate::lens::ThinLens;
+use crate::methods::coc_map;
+use crate::methods::MethodOutput;
+use crate::timing::Timings;
+use crate::{Error, Result};
+
+/// The WGSL source of the passes.
+pub const SHADER: &str = include_str!("gaussian.wgsl");
+
+/// The name the shader is compiled under.
+pub const SHADER_NAME: &str = "gaussian.wgsl";
+
+/// The passes, in order: each is an entry point of [`SHADER`] named after the part after `/`.
+pub const PASSES: [&str; 3] = ["gaussian/coc", "gaussian/horizontal", "gaussian/vertical"];
+
+/// Invocations of a workgroup along x (the shader's `@workgroup_size`).
+const WORKGROUP_X: u32 = 64;
+
+/// No failing pixel in the `status` buffer.
+const NO_FAILURE: u32 = u32::MAX;
+
+/// The shader's `Params`.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Params {
+    width: u32,
+    height: u32,
+    stride: u32,
+    levels: u32,
+    f_times_e: f32,
+    focus_m: f32,
+    max_coc_px: f32,
+    pad: f32,
+}
+
+/// Builds every pipeline of the method on `ctx` (compiled once, then cached in it).
+pub fn prepare(ctx: &GpuContext) -> Result<()> {
+    for pass in PASSES {
+        ctx.pipeline(SHADER_NAME, SHADER, pass)?;
+    }
+    Ok(())
+}
+
+/// Renders depth of field from a pinhole colour image and its view-axis depth in metres, on
+/// the GPU of `ctx`: the GPU twin of [`super::render`].
+pub fn render(
+    ctx: &GpuContext,
+    color: &ColorImage,
+    depth: &GrayImage,
+    lens: &ThinLens,
+    settings: &GaussianSettings,
+) -> Result<MethodOutput> {
+    settings.validate()?;
+    coc_map::check_frame(color, depth, lens)?;
+    let (w, h) = (color.width(), color.height());
+    let pixels = (w * h) as u64;
+    let what = format!("gaussian at {w}x{h}");
+    ctx.check_storage(&what, pixels * 16)?;
+    let groups = [(w as u32).div_ceil(WORKGROUP_X), h as u32, 1];
+    let max_groups = ctx
+        .description()
+        .limits
+        .max_compute_workgroups_per_dimension;
+    if groups[0] > max_groups || groups[1] > max_groups {
+        return Err(Error::Gpu(format!(
+            "{what} needs {} x {} workgroups; {} allows {max_groups} a dimension (max compute \
+             workgroups per dimension)",
+            groups[0],
+            groups[1],
+            ctx.description().label()
+        )));
+    }
+    let pipelines = PASSES
+        .iter()
+        .map(|pass| ctx.pipeline(SHADER_NAME, SHADER, pass))
+        .collect::<Result<Vec<_>>>()?;
+
+    let mut timings = Timings::default();
+    let table = GaussTable::new(settings, settings.max_coc_px);
+    let start = std::time::Instant::now();
+    let params = Params {
+        width: w as u32,
+        height: h as u32,
+        stride: table.stride as u32,
+        levels: table.levels as u32,
+        f_times_e: lens.f_px * lens.lens_radius_m,
+        focus_m: lens.focus_m,
+        max_coc_px: settings.max_coc_px,
+        pad: 0.0,
+    };
+    let half: Vec<u32> = table.half.iter().map(|&n| n as u32).collect();
+    let params_buf = ctx.uniform("gaussian params", bytemuck::bytes_of(&params));
+    let depth_buf = ctx.upload("depth", bytemuck::cast_slice(depth.pixels()))?;
+    let color_buf = ctx.upload("colour", bytemuck::cast_slice(color.pixels()))?;
+    let half_buf = ctx.upload("gaussian half widths", bytemuck::cast_slice(&half))?;
+    let weights_buf = ctx.upload("gaussian weights", bytemuck::cast_slice(&table.weights))?;
+    let status_buf = ctx.upload("status", bytemuck::bytes_of(&NO_FAILURE))?;
+    let coc_buf = ctx.storage("CoC", pixels * 4)?;
+    let rows_buf = ctx.storage("rows", pixels * 16)?;
+    let out_buf = ctx.storage("gaussian output", pixels * 16)?;
+    ctx.flush()?;
+    timings.add("gpu/upload", start.elapsed().as_secs_f64() * 1e3);
+
+    let bind = |pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
+        let entries: Vec<wgpu::BindGroupEntry> = entries
+            .iter()
+            .map(|&(binding, buffer)| wgpu::BindGroupEntry {
+                binding,
+                resource: buffer.as_entire_binding(),
+            })
+            .collect();
+        ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    };
+    let groups_of = [
+        bind(
+            &pipelines[0],
+            &[
+                (0, &params_buf),
+                (1, &depth_buf),
+                (2, &coc_buf),
+                (3, &status_buf),
+            ],
+        ),
+        bind(
+            &pipelines[1],
+            &[
+                (0, &params_buf),
+                (2, &coc_buf),
+                (4, &color_buf),
+                (5, &rows_buf),
+                (7, &half_buf),
+                (8, &weights_buf),
+            ],
+        ),
+        bind(
+            &pipelines[2],
+            &[
+                (0, &params_buf),
+                (2, &coc_buf),
+                (4, &color_buf),
+                (5, &rows_buf),
+                (6, &out_buf),
+                (7, &half_buf),
+                (8, &weights_buf),
+            ],
+        ),
+    ];
+    let mut timer = PassTimer::new(ctx, PASSES.len() as u32);
+    for ((pass, pipeline), group) in PASSES.iter().zip(&pipelines).zip(&groups_of) {
+        timer.dispatch(pass, pipeline, group, groups)?;
+    }
+    timings.extend(&timer.finish()?);
+
+    let start = std::time::Instant::now();
+    let read = ctx.read(&[(&status_buf, 4), (&out_buf, pixels * 16)])?;
+    let failed = u32::from_le_bytes(read[0][..4].try_into().unwrap_or([0; 4]));
+    let image = if failed == NO_FAILURE {
+        let rgba: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read[1]);
+        Some(ColorImage::from_vec(w, h, rgba)?)
+    } else {
+        None
+    };
+    timings.add("gpu/download", start.elapsed().as_secs_f64() * 1e3);
+    ctx.recycle([
+        params_buf,
+        depth_buf,
+        color_buf,
+        half_buf,
+        weights_buf,
+        status_buf,
+        coc_buf,
+        rows_buf,
+        out_buf,
+    ]);
+    let image = match image {
+        Some(image) => image,
+        None if (failed as usize) < depth.pixels().len() => {
+            return Err(coc_map::bad_depth(depth, failed as usize))
+        }
+        None => {
+            return Err(Error::Gpu(format!(
+                "{what}: the coc pass reported pixel {failed} of {pixels}"
+            )))
+        }
+    };
+    Ok(MethodOutput {
+        image,
+        depth: None,
+        timings,
+        memory_bytes: None,
+    })
+}
