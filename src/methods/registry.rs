@@ -581,18 +581,17 @@ pub fn run_scene_on(
                 depth: &depth,
                 lens: &lens,
             };
-            let out = match options.occlusion {
-                super::fill::Occlusion::None => run_frame_on(post, &frame, gpu)?,
-                super::fill::Occlusion::Fill if gpu.is_some() => {
-                    return Err(Error::invalid(
+            let out =
+                match options.occlusion {
+                    super::fill::Occlusion::None => run_frame_on(post, &frame, gpu)?,
+                    super::fill::Occlusion::Fill if gpu.is_some() => return Err(Error::invalid(
                         "occlusion",
                         "fill runs on the CPU only so far: use --device cpu, or --occlusion none",
-                    ))
-                }
-                super::fill::Occlusion::Fill => {
-                    super::fill::run_frame(post, &frame, &super::fill::FillSettings::default())?
-                }
-            };
+                    )),
+                    super::fill::Occlusion::Fill => {
+                        super::fill::run_frame(post, &frame, &super::fill::FillSettings::default())?
+                    }
+                };
             let mut timings = pin.timings;
             timings.extend(&out.timings);
             Ok(MethodOutput {
