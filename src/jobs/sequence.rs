@@ -547,7 +547,7 @@ fn run(
             Ok(frame) => {
                 t.timings.extend(&frame.timings);
                 t.written.push(i);
-                if !t.last.as_ref().is_some_and(|(j, _)| *j > i) {
+                if t.last.as_ref().is_none_or(|(j, _)| *j <= i) {
                     t.last = Some((i, frame));
                 }
             }

@@ -400,7 +400,7 @@ pub fn check_whole(path: &Path) -> Result<()> {
         }
         FileFormat::Pfm => {
             let h = read_pfm_header(path)?;
-            if !h.expected.is_some_and(|e| h.available >= e) {
+            if h.expected.is_none_or(|e| h.available < e) {
                 return Err(short(format!(
                     "the PFM header gives {}x{}x{} floats, {} bytes, but {} follow it (truncated?)",
                     h.width,
