@@ -65,10 +65,13 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 impl GpuContext {
     /// The context of `device` on this machine's adapters ([`super::choose`]): `None` for the
-    /// CPU (`cpu`, or `auto` without a hardware adapter).
+    /// CPU (`cpu`, or `auto` without a hardware adapter; `auto` does not load a Vulkan driver
+    /// where no GPU device node exists, [`super::adapter::hardware_may_exist`]).
     pub fn open(device: Device) -> Result<Option<Self>> {
-        if device == Device::Cpu {
-            return Ok(None);
+        match device {
+            Device::Cpu => return Ok(None),
+            Device::Auto if !super::adapter::hardware_may_exist() => return Ok(None),
+            _ => {}
         }
         let instance = new_instance();
         let mut adapters = enumerate(&instance);

@@ -26,7 +26,8 @@ pub mod adapter;
 mod context;
 
 pub use adapter::{
-    adapters, choose, is_software_name, AdapterDescription, AdapterLimits, AdapterType, Device,
+    adapters, choose, hardware_may_exist, is_software_name, AdapterDescription, AdapterLimits,
+    AdapterType, Device,
 };
 pub use context::{GpuContext, PassTimer};
 

@@ -103,6 +103,17 @@ fn gpu_with_no_adapter_is_a_clear_error_naming_what_was_found() {
 }
 
 #[test]
+fn auto_runs_gaussian_on_the_cpu_where_there_is_no_hardware_gpu() {
+    if gpu::adapters().iter().any(AdapterDescription::is_hardware) {
+        eprintln!("skipped: this machine has a hardware GPU");
+        return;
+    }
+    assert!(registry::gpu_context(Device::Auto, "gaussian")
+        .unwrap()
+        .is_none());
+}
+
+#[test]
 fn software_adapter_names_are_recognised_in_any_case() {
     for name in [
         "llvmpipe (LLVM 15.0.6, 256 bits)",
