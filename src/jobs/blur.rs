@@ -140,8 +140,8 @@ pub struct BlurArgs {
     pub in_sequence: bool,
     /// Where the method runs: `auto` (a hardware GPU when there is one and the method runs
     /// there, else the CPU), `cpu`, or `gpu` (any GPU adapter, a software one included; an
-    /// error when there is none). On the GPU so far: gaussian. `defocus devices` lists the
-    /// adapters.
+    /// error when there is none). On the GPU so far: hammon and gaussian. `defocus devices`
+    /// lists the adapters.
     #[arg(long, value_enum, default_value_t = DeviceArg::Auto, value_name = "DEVICE")]
     pub device: DeviceArg,
     /// Print per-pass timings and the device: a table on stderr, or `--timings json` on stdout.

@@ -94,7 +94,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Hammon 2007, GPU Gems 3 ch. 28",
         input: InputKind::PinholeFrame,
         effects: &[],
-        gpu: false,
+        gpu: true,
     },
     MethodInfo {
         id: "lowrank",
@@ -186,11 +186,15 @@ pub fn gpu_ids() -> Vec<&'static str> {
 }
 
 /// Every WGSL shader of the GPU methods: its name and source (for validation by naga).
-pub const GPU_SHADERS: &[(&str, &str)] = &[(gaussian::gpu::SHADER_NAME, gaussian::gpu::SHADER)];
+pub const GPU_SHADERS: &[(&str, &str)] = &[
+    (hammon::gpu::SHADER_NAME, hammon::gpu::SHADER),
+    (gaussian::gpu::SHADER_NAME, gaussian::gpu::SHADER),
+];
 
 /// Builds every pipeline of every GPU method on `ctx` (compiled once, then cached there): a
 /// shader that does not build is an error naming it.
 pub fn prepare_gpu(ctx: &GpuContext) -> Result<()> {
+    hammon::gpu::prepare(ctx)?;
     gaussian::gpu::prepare(ctx)
 }
 
@@ -429,6 +433,7 @@ pub fn run_frame_on(
     if let Some(ctx) = gpu {
         check_gpu(settings.id())?;
         let out = match settings {
+            MethodSettings::Hammon(s) => hammon::gpu::render(ctx, c, d, l, s),
             MethodSettings::Gaussian(s) => gaussian::gpu::render(ctx, c, d, l, s),
             other => Err(Error::invalid(
                 "method",

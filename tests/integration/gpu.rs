@@ -8,6 +8,7 @@ use defocus::gpu::{self, AdapterDescription, AdapterLimits, AdapterType, Device,
 use defocus::image::{io, ColorImage, GrayImage};
 use defocus::lens::ThinLens;
 use defocus::methods::gaussian::{self, GaussianSettings};
+use defocus::methods::hammon::{self, CocMode, HammonSettings, LerpDistances};
 use defocus::methods::registry::{self, MethodSettings};
 use defocus::metrics;
 use defocus::random::SplitMix64;
@@ -167,7 +168,7 @@ fn every_gpu_pipeline_builds_on_the_adapter() {
 
 #[test]
 fn the_registry_marks_gaussian_as_the_gpu_method_and_refuses_the_others_by_name() {
-    assert!(registry::gpu_ids().contains(&"gaussian"));
+    assert_eq!(registry::gpu_ids(), ["hammon", "gaussian"]);
     registry::check_gpu("gaussian").unwrap();
     let e = registry::check_gpu("lowrank").unwrap_err().to_string();
     assert!(e.contains("lowrank") && e.contains("gaussian"), "{e}");
@@ -456,12 +457,12 @@ fn write_random_frame(dir: &std::path::Path) -> (std::path::PathBuf, std::path::
 }
 
 #[test]
-fn blur_on_the_gpu_writes_the_image_of_the_cpu_and_names_its_device() {
+fn blur_on_the_gpu_writes_the_images_of_the_cpu_and_names_its_device() {
     let Some(ctx) = context() else { return };
     let dir = temp_dir("gpu-blur");
     let (color, depth) = write_random_frame(&dir);
-    let run = |device: &str| {
-        let out = dir.join(format!("{device}.exr"));
+    let run = |device: &str, method: &str| {
+        let out = dir.join(format!("{method}-{device}.exr"));
         let done = defocus(&[
             "blur",
             "--color",
@@ -469,7 +470,7 @@ fn blur_on_the_gpu_writes_the_image_of_the_cpu_and_names_its_device() {
             "--depth",
             s(&depth),
             "--method",
-            "gaussian",
+            method,
             "--focus",
             "1.5",
             "--fstop",
@@ -485,23 +486,25 @@ fn blur_on_the_gpu_writes_the_image_of_the_cpu_and_names_its_device() {
         let json: serde_json::Value = serde_json::from_slice(&done.stdout).unwrap();
         (io::read_color(&out).unwrap(), json)
     };
-    let (cpu, cpu_json) = run("cpu");
-    let (gpu, gpu_json) = run("gpu");
-    assert_eq!(cpu_json["device"], "cpu");
     let label = ctx.description().label();
-    assert_eq!(gpu_json["device"], label.as_str());
-    let clocks: Vec<&str> = gpu_json["passes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|p| p["name"].as_str().unwrap().starts_with("gaussian/"))
-        .map(|p| p["clock"].as_str().unwrap())
-        .collect();
-    assert_eq!(clocks.len(), 3, "{gpu_json}");
-    assert!(clocks.iter().all(|c| *c != "wall"), "{gpu_json}");
-    let psnr = metrics::compare(&cpu, &gpu).unwrap().psnr_db;
-    eprintln!("blur --device gpu against --device cpu: {psnr:.1} dB");
-    assert!(psnr >= MIN_PSNR_DB, "{psnr} dB");
+    for (method, passes) in [("gaussian", 3), ("hammon", 4)] {
+        let (cpu, cpu_json) = run("cpu", method);
+        let (gpu, gpu_json) = run("gpu", method);
+        assert_eq!(cpu_json["device"], "cpu");
+        assert_eq!(gpu_json["device"], label.as_str());
+        let clocks: Vec<&str> = gpu_json["passes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|p| p["name"].as_str().unwrap().starts_with(method))
+            .map(|p| p["clock"].as_str().unwrap())
+            .collect();
+        assert_eq!(clocks.len(), passes, "{gpu_json}");
+        assert!(clocks.iter().all(|c| *c != "wall"), "{gpu_json}");
+        let psnr = metrics::compare(&cpu, &gpu).unwrap().psnr_db;
+        eprintln!("blur --method {method} --device gpu against --device cpu: {psnr:.1} dB");
+        assert!(psnr >= MIN_PSNR_DB, "{method}: {psnr} dB");
+    }
     // The table names the device too.
     let table = defocus(&[
         "blur",
@@ -612,4 +615,149 @@ fn a_method_without_gpu_passes_is_refused_on_the_gpu_naming_those_with() {
     assert!(auto.status.success(), "{}", stderr(&auto));
     let json: serde_json::Value = serde_json::from_slice(&auto.stdout).unwrap();
     assert_eq!(json["device"], "cpu");
+}
+
+/// PSNR (dB) of `gpu` against `cpu`, and their largest difference in any channel.
+fn psnr_and_max_diff(cpu: &ColorImage, gpu: &ColorImage) -> (f64, f32) {
+    let max_diff = cpu
+        .pixels()
+        .iter()
+        .zip(gpu.pixels())
+        .flat_map(|(a, b)| (0..4).map(move |k| (a[k] - b[k]).abs()))
+        .fold(0.0f32, f32::max);
+    (metrics::compare(cpu, gpu).unwrap().psnr_db, max_diff)
+}
+
+/// The GPU and the CPU hammon on one frame: PSNR (dB) and largest difference.
+fn hammon_gpu_against_cpu(
+    ctx: &GpuContext,
+    color: &ColorImage,
+    depth: &GrayImage,
+    lens: &ThinLens,
+    settings: &HammonSettings,
+) -> (f64, f32) {
+    let cpu = hammon::render(color, depth, lens, settings).unwrap().image;
+    let out = hammon::gpu::render(ctx, color, depth, lens, settings).unwrap();
+    let names: Vec<&str> = out.timings.passes.iter().map(|p| p.name.as_str()).collect();
+    for pass in [
+        "hammon/downsample",
+        "hammon/blur",
+        "hammon/near_coc",
+        "hammon/composite",
+    ] {
+        assert!(names.contains(&pass), "{names:?}");
+    }
+    psnr_and_max_diff(&cpu, &out.image)
+}
+
+#[test]
+fn gpu_hammon_matches_the_cpu_on_every_builtin_scene() {
+    let Some(ctx) = context() else { return };
+    for name in defocus::scene::builtin::NAMES {
+        let scene = defocus::scene::builtin::load(name).unwrap();
+        let mut camera = scene.defaults.clone().unwrap().camera;
+        (camera.width_px, camera.height_px) = (320, 180);
+        let pin = defocus::methods::pinhole::render(&scene, &camera, 1, 0, true).unwrap();
+        let lens = camera.thin_lens().unwrap();
+        let depth = pin.depth.unwrap();
+        let (psnr, max_diff) =
+            hammon_gpu_against_cpu(ctx, &pin.image, &depth, &lens, &HammonSettings::default());
+        eprintln!("hammon {name}: GPU against CPU {psnr:.1} dB, largest difference {max_diff:e}");
+        assert!(psnr >= MIN_PSNR_DB, "{name}: {psnr} dB");
+    }
+}
+
+#[test]
+fn gpu_hammon_matches_the_cpu_on_random_frames_with_either_curve() {
+    let Some(ctx) = context() else { return };
+    let artist = CocMode::Artist {
+        near_start_m: 0.4,
+        near_end_m: 1.2,
+        far_start_m: 2.0,
+        far_end_m: 9.0,
+    };
+    let settings = [
+        HammonSettings::default(),
+        HammonSettings {
+            sky_depth_m: 10.0,
+            far_to_near_ratio: 0.6,
+            ..HammonSettings::default()
+        },
+        HammonSettings {
+            sky_depth_m: f32::INFINITY,
+            lerp: Some(LerpDistances {
+                d0: 0.2,
+                d1: 0.3,
+                d2: 0.5,
+            }),
+            ..HammonSettings::default()
+        },
+        HammonSettings {
+            coc: artist,
+            ..HammonSettings::default()
+        },
+        HammonSettings {
+            coc: CocMode::Artist {
+                near_start_m: 1.0,
+                near_end_m: 1.0,
+                far_start_m: 2.0,
+                far_end_m: 2.0,
+            },
+            sky_depth_m: f32::INFINITY,
+            ..HammonSettings::default()
+        },
+    ];
+    for (i, &(w, h)) in [(97, 61), (1, 1), (5, 3), (13, 1), (1, 9), (200, 7)]
+        .iter()
+        .enumerate()
+    {
+        let (color, depth) = random_frame(w, h, 21 + i as u64);
+        let lens = crate::test_camera(w, h, 1.5, 1.4).thin_lens().unwrap();
+        for (j, s) in settings.iter().enumerate() {
+            let (psnr, max_diff) = hammon_gpu_against_cpu(ctx, &color, &depth, &lens, s);
+            eprintln!("hammon random {w}x{h}, settings {j}: {psnr:.1} dB, largest difference {max_diff:e}");
+            assert!(psnr >= MIN_PSNR_DB, "{w}x{h}, settings {j}: {psnr} dB");
+        }
+    }
+}
+
+#[test]
+fn hammon_on_the_gpu_keeps_a_constant_image_and_an_in_focus_plane() {
+    let Some(ctx) = context() else { return };
+    let (w, h) = (66, 42);
+    let (_, depth) = random_frame(w, h, 4);
+    let value = [0.3, 0.5, 0.7, 1.0];
+    let lens = crate::test_camera(w, h, 1.5, 1.4).thin_lens().unwrap();
+    let constant = ColorImage::new(w, h, value);
+    let out = hammon::gpu::render(ctx, &constant, &depth, &lens, &HammonSettings::default())
+        .unwrap()
+        .image;
+    for p in out.pixels() {
+        for k in 0..4 {
+            assert!((p[k] - value[k]).abs() < 1e-5, "{p:?}");
+        }
+    }
+    // Everything at the focus distance: no pixel is blurred, so the frame comes back as it is.
+    let (color, _) = random_frame(w, h, 5);
+    let focused = GrayImage::new(w, h, lens.focus_m);
+    let out = hammon::gpu::render(ctx, &color, &focused, &lens, &HammonSettings::default())
+        .unwrap()
+        .image;
+    assert_eq!(out.pixels(), color.pixels());
+}
+
+#[test]
+fn hammon_on_the_gpu_refuses_a_bad_depth_as_the_cpu_does() {
+    let Some(ctx) = context() else { return };
+    let (w, h) = (16, 8);
+    let color = ColorImage::new(w, h, [0.5, 0.5, 0.5, 1.0]);
+    let lens = crate::test_camera(w, h, 2.0, 1.4).thin_lens().unwrap();
+    for bad in [0.0, -2.0, f32::NAN] {
+        let mut depth = GrayImage::new(w, h, 3.0);
+        *depth.get_mut(7, 2) = bad;
+        let s = HammonSettings::default();
+        let cpu = hammon::render(&color, &depth, &lens, &s).unwrap_err();
+        let gpu = hammon::gpu::render(ctx, &color, &depth, &lens, &s).unwrap_err();
+        assert_eq!(gpu.to_string(), cpu.to_string());
+    }
 }

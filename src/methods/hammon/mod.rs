@@ -4,7 +4,8 @@
 //! Earl Hammon Jr., "Practical Post-Process Depth of Field", GPU Gems 3, chapter 28 (2007):
 //! section 28.4 (the near-CoC trick `D = 2 max(D0, DB) - D0`) and section 28.5 with
 //! Listings 28-1 to 28-4 (the passes). Input: a pinhole colour image (linear, premultiplied
-//! RGBA) and its view-axis depth in metres. Everything runs on the CPU, rows in parallel.
+//! RGBA) and its view-axis depth in metres. The passes run on the CPU, rows in parallel, and
+//! on the GPU ([`gpu`], WGSL compute shaders under the same pass names).
 //!
 //! # Passes, in order (each timed as `hammon/<pass>`, one file each)
 //! The signed blur amount `s` of a pixel, in [-1, 1], is `-near` in front of the in-focus
@@ -96,6 +97,7 @@ pub mod blur;
 pub mod coc;
 pub mod composite;
 pub mod downsample;
+pub mod gpu;
 pub mod near_coc;
 
 use crate::image::{ColorImage, GrayImage};
