@@ -12,6 +12,12 @@ use crate::{Error, Result};
 /// Buffers the pool keeps for reuse at most; the oldest is dropped beyond.
 const POOL_BUFFERS: usize = 32;
 
+/// Values the cache keeps at most ([`GpuContext::cached`]); the oldest is dropped beyond.
+const CACHE_ENTRIES: usize = 8;
+
+/// A value of the cache, by key.
+type CacheEntry = (String, Arc<dyn std::any::Any + Send + Sync>);
+
 /// The wgpu instance of the backends defocus uses (Vulkan, Metal, DX12; `WGPU_BACKEND`
 /// narrows them), without Vulkan's validation layers unless `WGPU_VALIDATION` asks.
 pub(crate) fn new_instance() -> wgpu::Instance {
@@ -41,6 +47,9 @@ pub struct GpuContext {
     pipelines: Mutex<HashMap<&'static str, wgpu::ComputePipeline>>,
     /// Buffers given back after a run, for the next one of the same size and use.
     pool: Mutex<Vec<wgpu::Buffer>>,
+    /// Per-frame constants uploaded once and reused by the frames that have the same (a
+    /// method's tap tables), newest last.
+    cache: Mutex<Vec<CacheEntry>>,
     /// Errors wgpu reported outside an error scope (validation, out of memory, device lost),
     /// returned by the next [`GpuContext::check`].
     errors: Arc<Mutex<Vec<String>>>,
@@ -126,6 +135,7 @@ impl GpuContext {
             modules: Mutex::new(HashMap::new()),
             pipelines: Mutex::new(HashMap::new()),
             pool: Mutex::new(Vec::new()),
+            cache: Mutex::new(Vec::new()),
             errors,
             _adapter: adapter,
             _instance: instance,
@@ -297,6 +307,80 @@ impl GpuContext {
         let buffer = self.buffer(label, data.len() as u64, usage);
         self.queue.write_buffer(&buffer, 0, data);
         buffer
+    }
+
+    /// The value cached under `key`, or `make`'s, cached for the next frames (a sequence, a
+    /// batch, a benchmark's repeats) that ask for the same key. `key` must say everything the
+    /// value depends on; a value of another type under the same key is replaced.
+    pub fn cached<T: std::any::Any + Send + Sync>(
+        &self,
+        key: &str,
+        make: impl FnOnce() -> Result<T>,
+    ) -> Result<Arc<T>> {
+        {
+            let cache = lock(&self.cache);
+            if let Some((_, v)) = cache.iter().find(|(k, _)| k == key) {
+                if let Ok(v) = Arc::clone(v).downcast::<T>() {
+                    return Ok(v);
+                }
+            }
+        }
+        let value = Arc::new(make()?);
+        let mut cache = lock(&self.cache);
+        cache.retain(|(k, _)| k != key);
+        cache.push((key.to_string(), Arc::clone(&value) as _));
+        let excess = cache.len().saturating_sub(CACHE_ENTRIES);
+        cache.drain(..excess);
+        Ok(value)
+    }
+
+    /// A bind group for group 0 of `pipeline` (its layout derived from the shader) holding
+    /// each `(binding, buffer)` whole.
+    pub fn bind(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        entries: &[(u32, &wgpu::Buffer)],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = entries
+            .iter()
+            .map(|&(binding, buffer)| wgpu::BindGroupEntry {
+                binding,
+                resource: buffer.as_entire_binding(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    }
+
+    /// The workgroups of a pass with one invocation a pixel of a `width` x `height` frame in
+    /// workgroups of `group_x` x 1: refused, naming `what` and the limit, where the adapter
+    /// allows fewer a dimension.
+    pub fn row_groups(
+        &self,
+        what: &str,
+        width: usize,
+        height: usize,
+        group_x: u32,
+    ) -> Result<[u32; 3]> {
+        let max = self.description.limits.max_compute_workgroups_per_dimension;
+        let groups = [
+            u32::try_from(width.div_ceil(group_x as usize)).unwrap_or(u32::MAX),
+            u32::try_from(height).unwrap_or(u32::MAX),
+            1,
+        ];
+        if groups[0] > max || groups[1] > max {
+            return Err(Error::Gpu(format!(
+                "{what} needs {} x {} workgroups; {} allows {max} a dimension (max compute \
+                 workgroups per dimension)",
+                groups[0],
+                groups[1],
+                self.description.label()
+            )));
+        }
+        Ok(groups)
     }
 
     /// Submits what was written and waits until the GPU has done it all.

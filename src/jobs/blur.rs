@@ -493,12 +493,15 @@ impl BlurJob {
                     Occlusion::Fill => fill::run_frame(settings, &frame, &FillSettings::default())?,
                 }
             }
-            (Input::TiltShift { .. }, _) if self.gpu.is_some() => {
-                registry::check_gpu("lowrank")?;
-                bail!("--tilt-shift does not run on the GPU yet: use --device cpu")
-            }
             (Input::TiltShift { coc_px }, MethodSettings::Lowrank(s)) => {
-                lowrank::render_coc(&self.color, coc_px, s)?
+                match self.gpu.as_deref() {
+                    Some(ctx) => {
+                        let out = lowrank::gpu::render_coc(ctx, &self.color, coc_px, s);
+                        ctx.check()?;
+                        out?
+                    }
+                    None => lowrank::render_coc(&self.color, coc_px, s)?,
+                }
             }
             (Input::TiltShift { .. }, _) => bail!("--tilt-shift works with --method lowrank"),
         };

@@ -332,9 +332,21 @@ impl LensEffects {
     #[inline]
     pub fn barrel(&self, lens: &ThinLens, p_px: Vec2) -> (Vec2, f32) {
         let c = Vec2::new(lens.width_px as f32, lens.height_px as f32) * 0.5;
-        let e = lens.lens_radius_m;
-        let shift = (p_px - c) * (self.barrel_distance_m / (lens.f_px * e));
-        (shift, self.barrel_radius_m.map_or(1.0, |r| r / e))
+        let shift = (p_px - c) * self.barrel_shift_per_px(lens);
+        (shift, self.barrel_radius(lens))
+    }
+
+    /// How far the barrel [`LensEffects::barrel`] shifts per pixel from the image centre, in
+    /// aperture radii.
+    #[inline]
+    pub fn barrel_shift_per_px(&self, lens: &ThinLens) -> f32 {
+        self.barrel_distance_m / (lens.f_px * lens.lens_radius_m)
+    }
+
+    /// The radius of the barrel's opening in aperture radii ([`LensEffects::barrel`]).
+    #[inline]
+    pub fn barrel_radius(&self, lens: &ThinLens) -> f32 {
+        self.barrel_radius_m.map_or(1.0, |r| r / lens.lens_radius_m)
     }
 
     /// Whether the lens point `v_lens` (in lens radii, after [`LensEffects::squeeze`]) reaches

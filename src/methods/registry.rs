@@ -102,7 +102,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "McGraw 2015, Fast bokeh effects using low-rank linear filters",
         input: InputKind::PinholeFrame,
         effects: super::lowrank::EFFECTS,
-        gpu: false,
+        gpu: true,
     },
     MethodInfo {
         id: "gaussian",
@@ -118,7 +118,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "after Scheuermann 2004",
         input: InputKind::PinholeFrame,
         effects: super::poisson::EFFECTS,
-        gpu: false,
+        gpu: true,
     },
     MethodInfo {
         id: "splat",
@@ -189,13 +189,17 @@ pub fn gpu_ids() -> Vec<&'static str> {
 pub const GPU_SHADERS: &[(&str, &str)] = &[
     (hammon::gpu::SHADER_NAME, hammon::gpu::SHADER),
     (gaussian::gpu::SHADER_NAME, gaussian::gpu::SHADER),
+    (poisson::gpu::SHADER_NAME, poisson::gpu::SHADER),
+    (lowrank::gpu::SHADER_NAME, lowrank::gpu::SHADER),
 ];
 
 /// Builds every pipeline of every GPU method on `ctx` (compiled once, then cached there): a
 /// shader that does not build is an error naming it.
 pub fn prepare_gpu(ctx: &GpuContext) -> Result<()> {
     hammon::gpu::prepare(ctx)?;
-    gaussian::gpu::prepare(ctx)
+    gaussian::gpu::prepare(ctx)?;
+    poisson::gpu::prepare(ctx)?;
+    lowrank::gpu::prepare(ctx)
 }
 
 /// Refuses `--device gpu` for method `id` when it has no GPU passes, naming those that have.
@@ -435,6 +439,8 @@ pub fn run_frame_on(
         let out = match settings {
             MethodSettings::Hammon(s) => hammon::gpu::render(ctx, c, d, l, s),
             MethodSettings::Gaussian(s) => gaussian::gpu::render(ctx, c, d, l, s),
+            MethodSettings::Poisson(s) => poisson::gpu::render(ctx, c, d, l, s),
+            MethodSettings::Lowrank(s) => lowrank::gpu::render(ctx, c, d, l, s),
             other => Err(Error::invalid(
                 "method",
                 format!(

@@ -18,11 +18,11 @@ use crate::cli::{defocus, s, stderr, temp_dir};
 /// Least PSNR of a GPU pass against its CPU twin. The passes compute the same f32 arithmetic
 /// in the same order; what differs is the GPU's division (WGSL allows 2.5 ulp) and fused
 /// multiply-adds, which move a CoC across a quantisation step (1/4 px) only at its edge.
-const MIN_PSNR_DB: f64 = 45.0;
+pub(crate) const MIN_PSNR_DB: f64 = 45.0;
 
 /// The GPU context of these tests (any adapter, software included), or `None`, with the
 /// printed reason, where the machine has no adapter at all.
-fn context() -> Option<&'static GpuContext> {
+pub(crate) fn context() -> Option<&'static GpuContext> {
     static CONTEXT: OnceLock<Option<GpuContext>> = OnceLock::new();
     let ctx = CONTEXT.get_or_init(|| {
         if gpu::adapters().is_empty() {
@@ -167,13 +167,16 @@ fn every_gpu_pipeline_builds_on_the_adapter() {
 }
 
 #[test]
-fn the_registry_marks_gaussian_as_the_gpu_method_and_refuses_the_others_by_name() {
-    assert_eq!(registry::gpu_ids(), ["hammon", "gaussian"]);
+fn the_registry_marks_the_gpu_methods_and_refuses_the_others_by_name() {
+    assert_eq!(
+        registry::gpu_ids(),
+        ["hammon", "lowrank", "gaussian", "poisson"]
+    );
     registry::check_gpu("gaussian").unwrap();
-    let e = registry::check_gpu("lowrank").unwrap_err().to_string();
-    assert!(e.contains("lowrank") && e.contains("gaussian"), "{e}");
+    let e = registry::check_gpu("splat").unwrap_err().to_string();
+    assert!(e.contains("splat") && e.contains("gaussian"), "{e}");
     // A CPU-only method on `auto` runs on the CPU without looking for an adapter.
-    assert!(registry::gpu_context(Device::Auto, "lowrank")
+    assert!(registry::gpu_context(Device::Auto, "splat")
         .unwrap()
         .is_none());
     assert!(registry::gpu_context(Device::Cpu, "gaussian")
@@ -226,7 +229,7 @@ fn gpu_gaussian_matches_the_cpu_on_every_builtin_scene() {
 }
 
 /// A seeded random frame: colour in [0, 4) (some HDR), depth from 0.3 to 30 m with some sky.
-fn random_frame(w: usize, h: usize, seed: u64) -> (ColorImage, GrayImage) {
+pub(crate) fn random_frame(w: usize, h: usize, seed: u64) -> (ColorImage, GrayImage) {
     let mut rng = SplitMix64::new(seed);
     let color = ColorImage::from_vec(
         w,
@@ -382,7 +385,7 @@ fn a_frame_over_the_adapters_buffer_limit_is_refused_naming_the_limit() {
 }
 
 #[test]
-fn the_registry_runs_gaussian_on_the_gpu_and_refuses_lowrank_there() {
+fn the_registry_runs_gaussian_on_the_gpu_and_refuses_splat_there() {
     let Some(ctx) = context() else { return };
     let (w, h) = (40, 24);
     let (color, depth) = random_frame(w, h, 11);
@@ -408,8 +411,8 @@ fn the_registry_runs_gaussian_on_the_gpu_and_refuses_lowrank_there() {
         defocus::timing::Clock::SubmitWait
     };
     assert!(clocks.iter().all(|&c| c == expected), "{clocks:?}");
-    let lowrank = MethodSettings::default_for("lowrank").unwrap();
-    let e = registry::run_frame_on(&lowrank, &frame, Some(ctx))
+    let splat = MethodSettings::default_for("splat").unwrap();
+    let e = registry::run_frame_on(&splat, &frame, Some(ctx))
         .unwrap_err()
         .to_string();
     assert!(e.contains("gaussian"), "{e}");
@@ -448,7 +451,9 @@ fn devices_lists_the_adapters_and_what_auto_takes() {
 }
 
 /// Writes a random frame as colour and depth EXRs in `dir`.
-fn write_random_frame(dir: &std::path::Path) -> (std::path::PathBuf, std::path::PathBuf) {
+pub(crate) fn write_random_frame(
+    dir: &std::path::Path,
+) -> (std::path::PathBuf, std::path::PathBuf) {
     let (color, depth) = random_frame(72, 40, 5);
     let (c, d) = (dir.join("color.exr"), dir.join("depth.exr"));
     io::write_color(&c, &color).unwrap();
@@ -487,7 +492,7 @@ fn blur_on_the_gpu_writes_the_images_of_the_cpu_and_names_its_device() {
         (io::read_color(&out).unwrap(), json)
     };
     let label = ctx.description().label();
-    for (method, passes) in [("gaussian", 3), ("hammon", 4)] {
+    for (method, passes) in [("gaussian", 3), ("hammon", 4), ("poisson", 2)] {
         let (cpu, cpu_json) = run("cpu", method);
         let (gpu, gpu_json) = run("gpu", method);
         assert_eq!(cpu_json["device"], "cpu");
@@ -569,7 +574,7 @@ fn a_method_without_gpu_passes_is_refused_on_the_gpu_naming_those_with() {
         "--depth",
         s(&depth),
         "--method",
-        "lowrank",
+        "splat",
         "--device",
         "gpu",
         "--out",
@@ -577,7 +582,7 @@ fn a_method_without_gpu_passes_is_refused_on_the_gpu_naming_those_with() {
     ]);
     assert!(!done.status.success());
     let err = stderr(&done);
-    assert!(err.contains("lowrank") && err.contains("gaussian"), "{err}");
+    assert!(err.contains("splat") && err.contains("gaussian"), "{err}");
     assert!(!out.exists());
     let render = defocus(&[
         "render",
@@ -606,7 +611,7 @@ fn a_method_without_gpu_passes_is_refused_on_the_gpu_naming_those_with() {
         "--depth",
         s(&depth),
         "--method",
-        "lowrank",
+        "splat",
         "--timings",
         "json",
         "--out",
@@ -618,7 +623,7 @@ fn a_method_without_gpu_passes_is_refused_on_the_gpu_naming_those_with() {
 }
 
 /// PSNR (dB) of `gpu` against `cpu`, and their largest difference in any channel.
-fn psnr_and_max_diff(cpu: &ColorImage, gpu: &ColorImage) -> (f64, f32) {
+pub(crate) fn psnr_and_max_diff(cpu: &ColorImage, gpu: &ColorImage) -> (f64, f32) {
     let max_diff = cpu
         .pixels()
         .iter()

@@ -58,7 +58,7 @@ fn kernel(aperture: &str, size: usize) -> GrayImage {
 }
 
 /// A lens with a long focal length so that bokeh are tens of pixels wide on a small image.
-fn tele_lens(size: usize, focus_m: f32, fstop: f32) -> ThinLens {
+pub(crate) fn tele_lens(size: usize, focus_m: f32, fstop: f32) -> ThinLens {
     defocus::lens::Camera {
         focal_length_mm: 150.0,
         ..test_camera(size, size, focus_m, fstop)
@@ -68,7 +68,7 @@ fn tele_lens(size: usize, focus_m: f32, fstop: f32) -> ThinLens {
 }
 
 /// Depth at which the lens has CoC `coc_px` (either sign).
-fn depth_for_coc(lens: &ThinLens, coc_px: f32) -> f32 {
+pub(crate) fn depth_for_coc(lens: &ThinLens, coc_px: f32) -> f32 {
     1.0 / (1.0 / lens.focus_m - coc_px / (lens.f_px * lens.lens_radius_m))
 }
 
@@ -514,7 +514,7 @@ fn rank_3_error_against_aberration_and_blade_radius_as_fig_9() {
 
 /// Bokeh extents from the light's centre (the corner at (c, c)) to the half-plateau crossing
 /// along +x, -x, +y, -y.
-fn extents(img: &ColorImage, c: usize) -> [f32; 4] {
+pub(crate) fn extents(img: &ColorImage, c: usize) -> [f32; 4] {
     let w = img.width();
     let lum: Vec<f32> = img.pixels().iter().map(|p| p[0]).collect();
     let mut lit: Vec<f32> = lum.iter().copied().filter(|&x| x > 1e-3).collect();
@@ -543,7 +543,7 @@ fn extents(img: &ColorImage, c: usize) -> [f32; 4] {
 }
 
 /// A 2x2 bright square centred on the corner (c, c) of a black image, all at depth `z`.
-fn point_light(size: usize, z: f32) -> (ColorImage, GrayImage) {
+pub(crate) fn point_light(size: usize, z: f32) -> (ColorImage, GrayImage) {
     let mut img = ColorImage::new(size, size, [0.0, 0.0, 0.0, 1.0]);
     let c = size / 2;
     for (x, y) in [(c - 1, c - 1), (c, c - 1), (c - 1, c), (c, c)] {

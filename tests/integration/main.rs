@@ -6,6 +6,7 @@ mod docs;
 mod fill;
 mod fuzz;
 mod gpu;
+mod gpu_gather;
 mod hammon;
 mod highlights;
 mod image_io;

@@ -1,5 +1,6 @@
 // gaussian on the GPU: the passes of methods/gaussian/mod.rs, one entry point per pass, each
-// computing what its CPU twin computes, in f32 and in the same order of summation.
+// computing what its CPU twin computes, in f32 and in the same order of summation
+// (gpu/common.wgsl is prepended).
 //
 // 1. coc:        depth -> signed CoC radius in pixels (ThinLens::coc_px), clamped to
 //                +-max_coc_px; the first pixel (row order) whose depth is not > 0 is recorded
@@ -35,11 +36,6 @@ struct Params {
 @group(0) @binding(7) var<storage, read> half_taps: array<u32>;
 @group(0) @binding(8) var<storage, read> weights: array<f32>;
 
-const INF_BITS: u32 = 0x7f800000u;
-const ABS_MASK: u32 = 0x7fffffffu;
-// CoC radii are quantised to steps of 1 / LEVELS_PER_PX pixel (coc_map::LEVELS_PER_PX).
-const LEVELS_PER_PX: f32 = 4.0;
-
 @compute @workgroup_size(64, 1, 1)
 fn coc(@builtin(global_invocation_id) id: vec3<u32>) {
     if (id.x >= params.width || id.y >= params.height) {
@@ -47,46 +43,16 @@ fn coc(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let i = id.y * params.width + id.x;
     let bits = depth_bits[i];
-    // Valid depths are > 0: positive finite, or +inf. Zero, negatives and NaN are refused.
-    if (bits == 0u || bits > INF_BITS) {
+    if (depth_is_bad(bits)) {
         atomicMin(&status[0], i);
         coc_px[i] = 0.0;
         return;
     }
-    // C(z) = f E (z - z_f) / (z_f z); where z_f z overflows (z infinite or huge), 1 / z_f.
-    var ratio: f32;
-    if (bits == INF_BITS) {
-        ratio = 1.0 / params.focus_m;
-    } else {
-        let z = bitcast<f32>(bits);
-        let den = params.focus_m * z;
-        if ((bitcast<u32>(den) & ABS_MASK) == INF_BITS) {
-            ratio = 1.0 / params.focus_m;
-        } else {
-            ratio = (z - params.focus_m) / den;
-        }
-    }
-    let c = params.f_times_e * ratio;
-    coc_px[i] = min(max(c, -params.max_coc_px), params.max_coc_px);
+    coc_px[i] = coc_of_depth(bits, params.f_times_e, params.focus_m, params.max_coc_px);
 }
 
-// coc_map::level_of: |c| LEVELS_PER_PX rounded half away from zero, at most levels - 1.
 fn level_of(c: f32) -> u32 {
-    let v = abs(c) * LEVELS_PER_PX;
-    let t = u32(v);
-    var rounded = t;
-    if (v - f32(t) >= 0.5) {
-        rounded = t + 1u;
-    }
-    return min(rounded, params.levels - 1u);
-}
-
-// poisson::rejection_weight: a tap sharper and in front of the centre does not leak into it.
-fn rejection_weight(c_centre: f32, c_tap: f32) -> f32 {
-    if (c_tap >= c_centre) {
-        return 1.0;
-    }
-    return min(abs(c_tap) / abs(c_centre), 1.0);
+    return level_in(c, params.levels);
 }
 
 @compute @workgroup_size(64, 1, 1)

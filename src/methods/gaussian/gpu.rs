@@ -24,7 +24,10 @@ use crate::timing::Timings;
 use crate::{Error, Result};
 
 /// The WGSL source of the passes.
-pub const SHADER: &str = include_str!("gaussian.wgsl");
+pub const SHADER: &str = concat!(
+    include_str!("../../gpu/common.wgsl"),
+    include_str!("gaussian.wgsl")
+);
 
 /// The name the shader is compiled under.
 pub const SHADER_NAME: &str = "gaussian.wgsl";

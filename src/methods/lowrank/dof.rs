@@ -67,21 +67,21 @@ pub use crate::methods::coc_map::{
 /// The tap tables of every radius level for one decomposed kernel at one rank.
 #[derive(Clone, Debug)]
 pub struct KernelBank {
-    rank: usize,
-    levels: usize,
-    nmax: usize,
-    stride: usize,
+    pub(crate) rank: usize,
+    pub(crate) levels: usize,
+    pub(crate) nmax: usize,
+    pub(crate) stride: usize,
     /// Taps on each side of the centre per table key (`sign * levels + level`): horizontal
     /// and vertical (they differ when the aperture is squeezed, [`KernelBank::with_squeeze`]).
-    half_h: Vec<usize>,
-    half_v: Vec<usize>,
+    pub(crate) half_h: Vec<usize>,
+    pub(crate) half_v: Vec<usize>,
     /// Per rank, whether its horizontal taps are even (1) or odd (-1) about the centre, exactly,
     /// or neither (0): see [`parity`].
     h_parity: Vec<i8>,
     /// `[(sign * levels + level) * rank + i] * stride + j`, the weight of offset `nmax - j`
     /// (far field, sign 0) or `j - nmax` (near field, sign 1), 0 beyond the level's taps.
-    horizontal: Vec<f32>,
-    vertical: Vec<f32>,
+    pub(crate) horizontal: Vec<f32>,
+    pub(crate) vertical: Vec<f32>,
 }
 
 /// Integral of the piecewise-constant function `base` on [-1, 1] from -1 to `t`, by the

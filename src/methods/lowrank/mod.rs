@@ -92,6 +92,7 @@
 
 pub mod dof;
 pub mod filter;
+pub mod gpu;
 pub mod kernel;
 pub mod svd;
 pub mod tiltshift;
@@ -372,24 +373,8 @@ fn run(
              (--tilt-shift, or the detailed outputs) has one lens",
         ));
     }
-    let squeeze = settings.effects.squeeze(glam::Vec2::ONE);
     let max_radius = coc_map::max_abs(coc_px.pixels());
-    let spec = settings.kernel_spec(max_radius);
-    let bank = timings.time("lowrank/kernel", || -> Result<dof::KernelBank> {
-        let lr = decompose(&kernel_image(&spec)?)?;
-        if settings.rank > lr.len() {
-            return Err(Error::invalid(
-                "rank",
-                format!(
-                    "{}: expected at most {} for a {} px kernel",
-                    settings.rank,
-                    lr.len(),
-                    spec.size_px
-                ),
-            ));
-        }
-        dof::KernelBank::with_squeeze(&lr, settings.rank, max_radius, squeeze.x, squeeze.y)
-    })?;
+    let bank = timings.time("lowrank/kernel", || kernel_bank(settings, max_radius))?;
     let edges = settings.use_mask.then(|| {
         timings.time("lowrank/edges", || {
             dof::edges(&coc_px, settings.edge_threshold_px)
@@ -410,15 +395,7 @@ fn run(
     let mut mask_image = (detailed && edges.is_some() && !any_edge)
         .then(|| GrayImage::new(color.width(), color.height(), 0.0));
     if let Some(filtered) = filtered_edges {
-        let mut taps = Taps::poisson_disc(
-            &settings.aperture,
-            settings.fallback_taps,
-            settings.seed,
-            settings.aberration,
-        )?;
-        for p in &mut taps.points {
-            *p = settings.effects.squeeze(*p);
-        }
+        let taps = fallback_taps(settings)?;
         let threshold = settings.mask_threshold;
         let mask: Vec<bool> = timings.time("lowrank/fallback", || {
             // A pixel has taps beyond its own (`half_taps > 0`) where its radius exceeds 1/2.
@@ -457,4 +434,40 @@ fn run(
         edges,
         mask: mask_image,
     })
+}
+
+/// Pass `kernel`: the base kernel for a frame whose largest CoC radius is `max_radius_px`
+/// ([`LowRankSettings::kernel_spec`]), rasterized, decomposed and tabulated for every radius
+/// level at the settings' rank, stretched by the anamorphic squeeze.
+pub fn kernel_bank(settings: &LowRankSettings, max_radius_px: f32) -> Result<dof::KernelBank> {
+    let spec = settings.kernel_spec(max_radius_px);
+    let lr = decompose(&kernel_image(&spec)?)?;
+    if settings.rank > lr.len() {
+        return Err(Error::invalid(
+            "rank",
+            format!(
+                "{}: expected at most {} for a {} px kernel",
+                settings.rank,
+                lr.len(),
+                spec.size_px
+            ),
+        ));
+    }
+    let squeeze = settings.effects.squeeze(glam::Vec2::ONE);
+    dof::KernelBank::with_squeeze(&lr, settings.rank, max_radius_px, squeeze.x, squeeze.y)
+}
+
+/// The taps of the fallback gather on masked pixels: `fallback_taps` Poisson-disc taps in the
+/// aperture, weighted by the aberration profile, squeezed by the anamorphic aspect.
+pub fn fallback_taps(settings: &LowRankSettings) -> Result<Taps> {
+    let mut taps = Taps::poisson_disc(
+        &settings.aperture,
+        settings.fallback_taps,
+        settings.seed,
+        settings.aberration,
+    )?;
+    for p in &mut taps.points {
+        *p = settings.effects.squeeze(*p);
+    }
+    Ok(taps)
 }

@@ -28,6 +28,10 @@
 //! is deterministic; pixels are independent, so it does not depend on the thread count.
 //!
 //! Pixels with `|C| < 0.5` (the blur stays inside the pixel) are copied unchanged.
+//!
+//! [`gpu`] runs the same two passes as WGSL compute shaders, under the same names.
+
+pub mod gpu;
 
 use glam::Vec2;
 use rayon::prelude::*;
