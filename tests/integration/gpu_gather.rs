@@ -423,3 +423,112 @@ fn every_gpu_method_matches_the_cpu_on_the_cycles_frames() {
         }
     }
 }
+
+/// `defocus bench` with `args`: its JSON.
+fn bench(args: &[&str]) -> serde_json::Value {
+    let mut all = vec![
+        "bench", "--sizes", "48x27", "--frames", "3", "--warmup", "1",
+    ];
+    all.extend_from_slice(args);
+    let done = defocus(&all);
+    assert!(done.status.success(), "{args:?}: {}", stderr(&done));
+    serde_json::from_slice(&done.stdout).unwrap()
+}
+
+/// Checks a bench record: its method's passes, medians within [least, +inf), the sum.
+fn check_bench_record(r: &serde_json::Value) {
+    let method = r["method"].as_str().unwrap();
+    let passes = r["passes"].as_array().unwrap();
+    let own: Vec<&serde_json::Value> = passes
+        .iter()
+        .filter(|p| {
+            p["name"]
+                .as_str()
+                .unwrap()
+                .starts_with(&format!("{method}/"))
+        })
+        .collect();
+    assert!(!own.is_empty(), "{r}");
+    for p in passes {
+        let (median, least) = (
+            p["median_ms"].as_f64().unwrap(),
+            p["min_ms"].as_f64().unwrap(),
+        );
+        assert!(least >= 0.0 && median >= least, "{p}");
+    }
+    let (median, least) = (
+        r["median_ms"].as_f64().unwrap(),
+        r["min_ms"].as_f64().unwrap(),
+    );
+    assert!(median >= least && least > 0.0, "{r}");
+    assert!(r["wall_median_ms"].as_f64().unwrap() >= least, "{r}");
+}
+
+#[test]
+fn bench_times_every_method_on_the_cpu_as_json() {
+    let dir = temp_dir("bench-cpu");
+    let out = dir.join("bench.json");
+    let json = bench(&[
+        "--device",
+        "cpu",
+        "--scenes",
+        "railing,lights",
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(json["device"], "cpu");
+    assert_eq!(json["frames"], 3);
+    let runs = json["runs"].as_array().unwrap();
+    let methods = defocus::methods::registry::gpu_ids();
+    assert_eq!(runs.len(), 2 * methods.len());
+    for r in runs {
+        assert_eq!(r["width"], 48);
+        assert_eq!(r["device"], "cpu");
+        check_bench_record(r);
+    }
+    let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    assert_eq!(written["runs"].as_array().unwrap().len(), runs.len());
+    // Refusals name what was wrong, and write nothing.
+    let out2 = dir.join("refused.json");
+    for (args, says) in [
+        (&["--methods", "reference"][..], "reference"),
+        (&["--sizes", "0x5"][..], "0x5"),
+        (&["--scenes", "nope"][..], "nope"),
+        (&["--frames", "0"][..], "--frames"),
+    ] {
+        let mut all = vec!["bench", "--device", "cpu", "--out", s(&out2)];
+        all.extend_from_slice(args);
+        let done = defocus(&all);
+        assert!(!done.status.success(), "{args:?}");
+        assert!(stderr(&done).contains(says), "{args:?}: {}", stderr(&done));
+        assert!(!out2.exists());
+    }
+}
+
+#[test]
+fn bench_times_every_gpu_method_per_pass_on_the_gpu() {
+    let Some(ctx) = context() else { return };
+    let json = bench(&["--device", "gpu", "--scenes", "grass"]);
+    assert_eq!(json["device"], ctx.description().label().as_str());
+    assert_eq!(json["software"], ctx.description().software);
+    let runs = json["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), defocus::methods::registry::gpu_ids().len());
+    for r in runs {
+        check_bench_record(r);
+        assert_eq!(r["gpu_timed"], ctx.has_timestamps(), "{r}");
+        let names: Vec<&str> = r["passes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["name"].as_str().unwrap())
+            .collect();
+        assert!(
+            names.contains(&"gpu/upload") && names.contains(&"gpu/download"),
+            "{names:?}"
+        );
+    }
+    // A method without GPU passes is refused on the GPU.
+    let done = defocus(&["bench", "--device", "gpu", "--methods", "splat"]);
+    assert!(!done.status.success());
+    assert!(stderr(&done).contains("splat"), "{}", stderr(&done));
+}

@@ -49,4 +49,7 @@ pub enum Command {
     /// The GPU adapters found (name, backend, type, software or not, limits) and the one
     /// `--device auto` takes.
     Devices(crate::devices::DevicesArgs),
+    /// Time the methods that run on the GPU on the built-in scenes, warm, per pass, as JSON on
+    /// standard output.
+    Bench(defocus::jobs::bench::BenchArgs),
 }

@@ -71,7 +71,32 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Command::Kernel(args) => crate::kernel::run(&args),
         Command::Devices(args) => crate::devices::run(&args),
+        Command::Bench(args) => bench(&args, cli.quiet),
     }
+}
+
+/// `bench`: a progress bar of its runs, the JSON on standard output (and in `--out`).
+fn bench(args: &defocus::jobs::bench::BenchArgs, quiet: bool) -> Result<()> {
+    if let Some(out) = &args.out {
+        check_output(out, "--out", &["json"])?;
+    }
+    let bar = progress_bar(quiet, 2, "runs");
+    let value = defocus::jobs::bench::run(args, &mut |p| {
+        bar.set_length(p.total as u64);
+        bar.set_position(p.done as u64);
+        bar.set_message(p.running.to_string());
+    });
+    bar.finish_and_clear();
+    let text = serde_json::to_string_pretty(&value?)?;
+    if let Some(out) = &args.out {
+        defocus::output::write_file(out, |w| {
+            use std::io::Write as _;
+            w.write_all(text.as_bytes())
+                .and_then(|()| w.write_all(b"\n"))
+                .map_err(|e| defocus::Error::io(out, e))
+        })?;
+    }
+    crate::common::print_output(&text)
 }
 
 /// `render`: the job, a progress bar of its views, the timings.
