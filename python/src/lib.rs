@@ -13,10 +13,12 @@
 
 use std::borrow::Cow;
 use std::path::Path;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use clap::{CommandFactory, Parser};
 use defocus::blur::{frame_lens, DepthKind, FocusChoice, Highlights, LensSpec};
+use defocus::gpu::{Device, GpuContext};
 use defocus::image::io::{self, DepthRead, Placement};
 use defocus::image::{ColorImage, GrayImage};
 use defocus::jobs::blur::BlurArgs;
@@ -427,6 +429,8 @@ mod recycled {
 
 /// Everything of a `blur` call but the pixels.
 struct BlurParams {
+    /// The GPU the method runs on; `None`: the CPU.
+    gpu: Option<Arc<GpuContext>>,
     method: String,
     kind: DepthKind,
     depth_scale: f32,
@@ -436,6 +440,46 @@ struct BlurParams {
     aperture: String,
     seed: u64,
     post: PostArgs,
+}
+
+/// The GPU contexts opened so far, one per `device` value: a context is costly to open (the
+/// driver, the device, the compiled pipelines), so the calls of a program share it, as the
+/// frames of a command-line sequence do.
+static CONTEXTS: Mutex<Vec<(Device, Arc<GpuContext>)>> = Mutex::new(Vec::new());
+
+/// The GPU context a call of `method` takes for `device` (`"cpu"`, `"gpu"` or `"auto"`, as
+/// `--device`), or `None` for the CPU; opened on first use, then shared.
+fn gpu_for(device: &str, method: &str) -> PyResult<Option<Arc<GpuContext>>> {
+    let d = match device {
+        "cpu" => Device::Cpu,
+        "gpu" => Device::Gpu,
+        "auto" => Device::Auto,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "invalid device '{other}': expected 'cpu', 'gpu' or 'auto'"
+            )))
+        }
+    };
+    let info = registry::find(method).map_err(py_err)?;
+    match d {
+        Device::Cpu => return Ok(None),
+        Device::Auto if !info.gpu => return Ok(None),
+        Device::Gpu if !info.gpu => {
+            registry::check_gpu(method).map_err(py_err)?;
+        }
+        _ => {}
+    }
+    let mut contexts = CONTEXTS.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, ctx)) = contexts.iter().find(|(k, _)| *k == d) {
+        return Ok(Some(Arc::clone(ctx)));
+    }
+    let opened = GpuContext::open(d)
+        .map_err(|e| PyValueError::new_err(format!("device: {e}")))?
+        .map(Arc::new);
+    if let Some(ctx) = &opened {
+        contexts.push((d, Arc::clone(ctx)));
+    }
+    Ok(opened)
 }
 
 /// One frame of `blur`: the image and the method's per-pass timings.
@@ -483,7 +527,11 @@ fn blur_one(
         lens: &fl.lens,
     };
     let mut out = match p.post.occlusion {
-        Occlusion::None => registry::run_frame(&settings, &frame)?,
+        Occlusion::None => registry::run_frame_on(&settings, &frame, p.gpu.as_deref())?,
+        Occlusion::Fill if p.gpu.is_some() => return Err(defocus::Error::Option(
+            "occlusion='fill' runs on the CPU only so far: use device='cpu', or occlusion='none'"
+                .to_string(),
+        )),
         Occlusion::Fill => fill::run_frame(&settings, &frame, &FillSettings::default())?,
     };
     // The whole library call, its passes and the work between them, as the last row.
@@ -530,7 +578,7 @@ fn focus_choice(
 
 /// Depth of field for colour images with their depth (see `defocus.blur`).
 #[pyfunction]
-#[pyo3(signature = (color, depth, method, depth_kind, depth_scale, zero_depth_is_far, focus, focus_pixel, fstop, focal_length, sensor_width, aperture, seed, flags, highlights=None, timings=false))]
+#[pyo3(signature = (color, depth, method, depth_kind, depth_scale, zero_depth_is_far, focus, focus_pixel, fstop, focal_length, sensor_width, aperture, seed, flags, highlights=None, timings=false, device="auto"))]
 #[expect(
     clippy::too_many_arguments,
     reason = "the keyword arguments of defocus.blur"
@@ -553,6 +601,7 @@ fn blur(
     flags: Vec<String>,
     highlights: Option<String>,
     timings: bool,
+    device: &str,
 ) -> PyResult<Py<PyAny>> {
     let color = ColorArray::of(color, "color")?;
     // Shapes first: nothing is read, copied or converted before they and the memory they need
@@ -626,6 +675,7 @@ fn blur(
     let batch = ColorBatch::new(&color, layout);
     let dvalues = samples_of(&depth);
     let params = BlurParams {
+        gpu: gpu_for(device, &method)?,
         method,
         kind,
         depth_scale,
@@ -692,7 +742,7 @@ fn blur(
 /// Renders a scene (see `defocus.render`): colour `HxWx4` float32 (linear, premultiplied) and,
 /// with `with_depth`, view-axis depth `HxW` in metres (inf where nothing was hit).
 #[pyfunction]
-#[pyo3(signature = (scene, method, width, height, samples, seed, sampler, focus, focus_pixel, fstop, focal_length, sensor_width, aperture, camera, allow_external_files, with_depth, flags))]
+#[pyo3(signature = (scene, method, width, height, samples, seed, sampler, focus, focus_pixel, fstop, focal_length, sensor_width, aperture, camera, allow_external_files, with_depth, flags, device="auto"))]
 #[expect(
     clippy::too_many_arguments,
     reason = "the keyword arguments of defocus.render"
@@ -716,8 +766,10 @@ fn render(
     allow_external_files: bool,
     with_depth: bool,
     flags: Vec<String>,
+    device: &str,
 ) -> PyResult<(Py<PyAny>, Option<Py<PyAny>>)> {
     registry::find(&method).map_err(py_err)?;
+    let gpu = gpu_for(device, &method)?;
     let focus = match (focus, focus_pixel) {
         (f, p) if f.is_none_or(|f| f.is_none()) && p.is_none() => None,
         (f, p) => Some(focus_choice(f, p)?),
@@ -780,7 +832,13 @@ fn render(
             with_depth,
             occlusion: post.occlusion,
         };
-        registry::run_scene(&settings, &scene, &cam, &options, &mut |_, _| {})
+        if gpu.is_some() && post.occlusion == Occlusion::Fill {
+            return Err(defocus::Error::Option(
+                "occlusion='fill' runs on the CPU only so far: use device='cpu', or occlusion='none'"
+                    .to_string(),
+            ));
+        }
+        registry::run_scene_on(&settings, &scene, &cam, &options, gpu.as_deref(), &mut |_, _| {})
     });
     let out = result.map_err(py_err)?;
     let (w, h) = (out.image.width(), out.image.height());

@@ -403,3 +403,44 @@ def test_occlusion_fill_reaches_python_and_keeps_a_constant_image():
     assert np.abs(a - b).max() > 0.01
     with pytest.raises(ValueError, match="occlusion"):
         defocus.blur(board, depth, "lowrank", focus=4.0, occlusion="fil")
+
+
+def gpu_or_skip(call):
+    """`call()`, or a skip where no GPU adapter can be had (a machine without Vulkan)."""
+    try:
+        return call()
+    except ValueError as e:
+        if "adapter" in str(e):
+            pytest.skip(f"no GPU adapter: {e}")
+        raise
+
+
+@pytest.mark.parametrize("method", ["hammon", "lowrank", "gaussian", "poisson"])
+def test_blur_and_render_on_the_gpu_match_the_cpu(method):
+    image, depth = defocus.render(
+        scene="railing", method="pinhole", width=96, height=54, return_depth=True
+    )
+    cpu = defocus.blur(image, depth, method=method, focus=2.0, fstop=1.4, device="cpu")
+    gpu = gpu_or_skip(
+        lambda: defocus.blur(image, depth, method=method, focus=2.0, fstop=1.4, device="gpu")
+    )
+    assert defocus.compare(cpu, gpu)["psnr"] >= 45
+    # A batch shares the GPU; each image is the single call's.
+    batch = defocus.blur(np.stack([image, image]), np.stack([depth, depth]), method=method,
+                         focus=2.0, fstop=1.4, device="gpu")
+    assert defocus.compare(batch[1], gpu)["psnr"] >= 45
+    scene_cpu = defocus.render(scene="lights", method=method, width=64, height=36, device="cpu")
+    scene_gpu = defocus.render(scene="lights", method=method, width=64, height=36, device="gpu")
+    assert defocus.compare(scene_cpu, scene_gpu)["psnr"] >= 45
+
+
+def test_device_values_are_checked_before_any_work():
+    image, depth = checkerboard(), two_planes()
+    with pytest.raises(ValueError, match="invalid device 'tpu'"):
+        defocus.blur(image, depth, device="tpu")
+    # A method without GPU passes is refused on the GPU, naming those that have them.
+    with pytest.raises(ValueError, match="splat.*lowrank"):
+        defocus.blur(image, depth, method="splat", device="gpu")
+    # `auto` runs such a method on the CPU.
+    out = defocus.blur(image, depth, method="splat", device="auto")
+    assert out.shape == image.shape

@@ -10,8 +10,10 @@
 use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use crate::error::shown;
+use crate::gpu::GpuContext;
 use crate::image::{io, ColorImage};
 use crate::methods::registry::{self, MethodInfo, METHODS};
 use crate::methods::MethodOutput;
@@ -22,7 +24,9 @@ use base64::Engine as _;
 use serde::Serialize;
 
 use super::blur::{BlurArgs, BlurJob, DepthKind};
-use super::flags::{check_input, parse_focus, DeviceArg, ExrArgs, ExrCompressionArg, Focus};
+use super::flags::{
+    check_input, device_name, parse_focus, DeviceArg, ExrArgs, ExrCompressionArg, Focus,
+};
 use super::grid;
 use super::render::{RenderArgs, RenderJob, ViewArgs};
 use crate::options::PostArgs;
@@ -93,6 +97,19 @@ pub struct CompareArgs {
         help_heading = "Report"
     )]
     pub methods: String,
+    /// Report: where the methods run, one or a comma-separated list: `cpu`, `gpu` (any
+    /// adapter, a software one included), `auto` (a hardware GPU, else the CPU). With
+    /// `cpu,gpu` each method that runs on the GPU runs on both, side by side; a method without
+    /// GPU passes runs on the CPU only. The reference runs on the CPU.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "cpu",
+        value_name = "cpu|gpu|auto,...",
+        help_heading = "Report"
+    )]
+    pub device: Vec<DeviceArg>,
     /// Report: lens samples of the reference.
     #[arg(long, default_value_t = 256, value_name = "N", help_heading = "Report")]
     pub reference_samples: usize,
@@ -178,14 +195,22 @@ impl CompareArgs {
 struct Run {
     info: &'static MethodInfo,
     setting: Option<(String, String)>,
+    /// Whether it runs on the report's GPU (else the CPU).
+    on_gpu: bool,
 }
 
 impl Run {
-    /// File-name-safe label: `lowrank`, `splat-merge4`, `multilayer-filter-steps1-3`.
+    /// File-name-safe label: `lowrank`, `splat-merge4`, `multilayer-filter-steps1-3`, and
+    /// `-gpu` after a run on the GPU: `lowrank-gpu`.
     fn label(&self) -> String {
-        match &self.setting {
+        let base = match &self.setting {
             None => self.info.id.to_string(),
             Some((k, v)) => format!("{}-{k}{}", self.info.id, v.replace(['/', ' ', '.'], "-")),
+        };
+        if self.on_gpu {
+            format!("{base}-gpu")
+        } else {
+            base
         }
     }
 
@@ -203,6 +228,8 @@ struct RunResult {
     method: String,
     setting: String,
     label: String,
+    /// `cpu`, or the adapter's label.
+    device: String,
     status: String,
     error: Option<String>,
     psnr_db: Option<f64>,
@@ -380,27 +407,71 @@ fn parse_sweeps(specs: &[String], methods: &[&'static MethodInfo]) -> Result<Vec
     Ok(out)
 }
 
-fn runs(methods: &[&'static MethodInfo], sweeps: &[Sweep]) -> Vec<Run> {
+/// Every run of the report: each method (once per sweep value that applies to it) on each
+/// device of `devices` (`false` the CPU, `true` the GPU) that it runs on; a method without GPU
+/// passes runs on the CPU once.
+fn runs(methods: &[&'static MethodInfo], sweeps: &[Sweep], devices: &[bool]) -> Vec<Run> {
     let mut out = Vec::new();
     for &info in methods {
-        let mut swept = false;
-        for sweep in sweeps.iter().filter(|s| s.applies_to(info.id)) {
-            swept = true;
-            for v in &sweep.values {
+        let mut on: Vec<bool> = devices
+            .iter()
+            .copied()
+            .filter(|&gpu| !gpu || info.gpu)
+            .collect();
+        if on.is_empty() {
+            on.push(false);
+        }
+        let settings: Vec<Option<(String, String)>> = {
+            let swept: Vec<_> = sweeps
+                .iter()
+                .filter(|s| s.applies_to(info.id))
+                .flat_map(|s| s.values.iter().map(|v| Some((s.key.clone(), v.clone()))))
+                .collect();
+            if swept.is_empty() {
+                vec![None]
+            } else {
+                swept
+            }
+        };
+        for setting in settings {
+            for &on_gpu in &on {
                 out.push(Run {
                     info,
-                    setting: Some((sweep.key.clone(), v.clone())),
+                    setting: setting.clone(),
+                    on_gpu,
                 });
             }
         }
-        if !swept {
-            out.push(Run {
-                info,
-                setting: None,
-            });
-        }
     }
     out
+}
+
+/// The devices of `--device` as the report runs them (`false` the CPU, `true` the GPU, each
+/// once) and the GPU context they share, opened once; `auto` is the GPU where there is a
+/// hardware one, else the CPU.
+fn report_devices(list: &[DeviceArg]) -> Result<(Vec<bool>, Option<Arc<GpuContext>>)> {
+    let mut gpu: Option<Arc<GpuContext>> = None;
+    let mut devices = Vec::new();
+    for &d in list {
+        let on_gpu = match d {
+            DeviceArg::Cpu => false,
+            DeviceArg::Gpu | DeviceArg::Auto => {
+                if gpu.is_none() {
+                    gpu = GpuContext::open(d.into())
+                        .context("--device")?
+                        .map(Arc::new);
+                }
+                gpu.is_some()
+            }
+        };
+        if !devices.contains(&on_gpu) {
+            devices.push(on_gpu);
+        }
+    }
+    if devices.is_empty() {
+        devices.push(false);
+    }
+    Ok((devices, gpu))
 }
 
 /// Applies a sweep setting to the flags.
@@ -605,7 +676,8 @@ pub fn write(
     }
     let methods = parse_methods(&a.methods)?;
     let sweeps = parse_sweeps(&a.sweep, &methods)?;
-    let runs = runs(&methods, &sweeps);
+    let (devices, gpu) = report_devices(&a.device)?;
+    let runs = runs(&methods, &sweeps, &devices);
     // No file the report writes may be one of its inputs: checked before anything is read.
     let names = file_names(&runs);
     let mut inputs = named_inputs(a)?;
@@ -794,7 +866,8 @@ pub fn write(
                 let mut args =
                     render_args(a, a.scene.as_deref().unwrap_or(""), run.info.id, &out_path);
                 apply_setting(&mut args.post, &mut args.samples, &run.setting)?;
-                RenderJob::new(args, notes)?.compute(&mut |_, _| {})
+                let on = gpu.clone().filter(|_| run.on_gpu);
+                RenderJob::new_on(args, on, notes)?.compute(&mut |_, _| {})
             } else {
                 if run.info.input.needs_scene() {
                     bail!("not applicable: needs {}", run.info.input.describe());
@@ -805,13 +878,15 @@ pub fn write(
                 if samples.is_some() {
                     bail!("not applicable: the frame is given, so its samples cannot change");
                 }
-                BlurJob::new(&args, notes)?.compute()
+                let on = gpu.clone().filter(|_| run.on_gpu);
+                BlurJob::new_on(&args, on, notes)?.compute()
             }
         })();
         let mut r = RunResult {
             method: run.info.id.to_string(),
             setting: run.setting_text(),
             label: label.clone(),
+            device: device_name(gpu.as_deref().filter(|_| run.on_gpu)),
             status: "ok".to_string(),
             error: None,
             psnr_db: None,
@@ -1283,11 +1358,14 @@ fn plot(report: &Report) -> Result<String> {
         .filter_map(|r| {
             let (t, p) = (r.total_ms?, r.psnr_db?);
             (t > 0.0 && p.is_finite()).then(|| {
-                let name = if r.setting.is_empty() {
+                let mut name = if r.setting.is_empty() {
                     r.method.clone()
                 } else {
                     format!("{} {}", r.method, r.setting)
                 };
+                if r.device != "cpu" {
+                    name.push_str(" (GPU)");
+                }
                 (t, p, name)
             })
         })
@@ -1427,7 +1505,7 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
     );
     h.push_str(
         "<h2>Quality and time</h2><p>PSNR and SSIM (Wang 2004) on the sRGB image clamped to [0, 1]; MSE in linear light; time: the method's own passes (file reading and writing excluded; post-process methods on a scene include rendering their pinhole frame).</p>\n\
-<table id=\"results\"><tr><th class=\"l\">method</th><th class=\"l\">setting</th><th>PSNR dB</th><th>SSIM</th><th>MSE</th><th>total ms</th><th class=\"l\">passes (ms)</th><th>peak MiB</th><th class=\"l\">frontier</th></tr>\n",
+<table id=\"results\"><tr><th class=\"l\">method</th><th class=\"l\">setting</th><th class=\"l\">device</th><th>PSNR dB</th><th>SSIM</th><th>MSE</th><th>total ms</th><th class=\"l\">passes (ms)</th><th>peak MiB</th><th class=\"l\">frontier</th></tr>\n",
     );
     for r in &report.runs {
         let passes: Vec<String> = r
@@ -1440,9 +1518,10 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
             None => {
                 let _ = writeln!(
                     h,
-                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{:.2}</td><td>{:.4}</td><td>{:.3e}</td><td>{:.1}</td><td class=\"l\">{}</td><td>{}</td><td class=\"l\">{}</td></tr>",
+                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{:.2}</td><td>{:.4}</td><td>{:.3e}</td><td>{:.1}</td><td class=\"l\">{}</td><td>{}</td><td class=\"l\">{}</td></tr>",
                     esc(&r.method),
                     esc(&r.setting),
+                    esc(&r.device),
                     r.psnr_db.unwrap_or(f64::NAN),
                     r.ssim.unwrap_or(f64::NAN),
                     r.mse.unwrap_or(f64::NAN),
@@ -1462,9 +1541,10 @@ figure img{{display:block;max-width:480px;image-rendering:pixelated}}figcaption{
                 };
                 let _ = writeln!(
                     h,
-                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td class=\"l {class}\" colspan=\"7\">{}: {}</td></tr>",
+                    "<tr class=\"run\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td><td class=\"l {class}\" colspan=\"7\">{}: {}</td></tr>",
                     esc(&r.method),
                     esc(&r.setting),
+                    esc(&r.device),
                     esc(&r.status),
                     esc(e)
                 );

@@ -532,3 +532,71 @@ fn bench_times_every_gpu_method_per_pass_on_the_gpu() {
     assert!(!done.status.success());
     assert!(stderr(&done).contains("splat"), "{}", stderr(&done));
 }
+
+#[test]
+fn compare_runs_each_gpu_method_on_both_devices_side_by_side() {
+    let Some(ctx) = context() else { return };
+    let dir = temp_dir("gpu-compare");
+    let out = dir.join("report");
+    let done = defocus(&[
+        "compare",
+        "--scene",
+        "railing",
+        "--width",
+        "96",
+        "--height",
+        "54",
+        "--reference-samples",
+        "8",
+        "--methods",
+        "hammon,lowrank,poisson,splat",
+        "--device",
+        "cpu,gpu",
+        "--out",
+        s(&out),
+    ]);
+    assert!(done.status.success(), "{}", stderr(&done));
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
+    let runs = json["runs"].as_array().unwrap();
+    let labels: Vec<&str> = runs.iter().map(|r| r["label"].as_str().unwrap()).collect();
+    assert_eq!(
+        labels,
+        [
+            "hammon",
+            "hammon-gpu",
+            "lowrank",
+            "lowrank-gpu",
+            "poisson",
+            "poisson-gpu",
+            "splat"
+        ]
+    );
+    let label = ctx.description().label();
+    for pair in runs.chunks(2).take(3) {
+        assert_eq!(pair[0]["device"], "cpu");
+        assert_eq!(pair[1]["device"], label.as_str());
+        // The same quality against the reference on either device.
+        let (a, b) = (
+            pair[0]["psnr_db"].as_f64().unwrap(),
+            pair[1]["psnr_db"].as_f64().unwrap(),
+        );
+        assert!(
+            (a - b).abs() < 0.01,
+            "{}: {a} against {b}",
+            pair[0]["method"]
+        );
+        let read = |r: &serde_json::Value| {
+            defocus::image::io::read_color(&out.join(r["image_exr"].as_str().unwrap())).unwrap()
+        };
+        let (psnr, _) = psnr_and_max_diff(&read(&pair[0]), &read(&pair[1]));
+        assert!(psnr >= MIN_PSNR_DB, "{}: {psnr} dB", pair[0]["method"]);
+    }
+    // A method without GPU passes runs once, on the CPU.
+    assert_eq!(runs[6]["device"], "cpu");
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(
+        html.contains("<th class=\"l\">device</th>"),
+        "no device column"
+    );
+}

@@ -28,6 +28,7 @@ def blur(
     flags: List[str],
     highlights: Optional[str] = None,
     timings: bool = False,
+    device: str = "auto",
 ) -> Union[np.ndarray, Tuple[np.ndarray, Dict[str, Any]]]: ...
 def render(
     scene: str,
@@ -47,6 +48,7 @@ def render(
     allow_external_files: bool,
     with_depth: bool,
     flags: List[str],
+    device: str = "auto",
 ) -> Tuple[np.ndarray, Optional[np.ndarray]]: ...
 def compare(a: np.ndarray, b: np.ndarray) -> Dict[str, float]: ...
 def report(flags: List[str]) -> Tuple[str, str, List[str]]: ...
