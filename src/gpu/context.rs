@@ -12,6 +12,10 @@ use crate::{Error, Result};
 /// Buffers the pool keeps for reuse at most; the oldest is dropped beyond.
 const POOL_BUFFERS: usize = 32;
 
+/// Bytes the pool keeps for reuse at most; the oldest buffers are dropped beyond (a frame of
+/// another size does not keep the last one's buffers alive).
+const POOL_BYTES: u64 = 512 << 20;
+
 /// Values the cache keeps at most ([`GpuContext::cached`]); the oldest is dropped beyond.
 const CACHE_ENTRIES: usize = 8;
 
@@ -53,6 +57,8 @@ pub struct GpuContext {
     /// Errors wgpu reported outside an error scope (validation, out of memory, device lost),
     /// returned by the next [`GpuContext::check`].
     errors: Arc<Mutex<Vec<String>>>,
+    /// Why the device was lost, once it was: every later run is refused with it.
+    lost: Arc<Mutex<Option<String>>>,
     // Kept so that the adapter outlives the device on every backend.
     _adapter: wgpu::Adapter,
     _instance: wgpu::Instance,
@@ -123,9 +129,15 @@ impl GpuContext {
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
             lock(&sink).push(e.to_string());
         }));
-        let sink = Arc::clone(&errors);
+        let lost = Arc::new(Mutex::new(None));
+        let sink = Arc::clone(&lost);
         device.set_device_lost_callback(move |reason, message| {
-            lock(&sink).push(format!("the device was lost ({reason:?}): {message}"));
+            let why = if message.trim().is_empty() {
+                format!("{reason:?}")
+            } else {
+                format!("{reason:?}: {message}")
+            };
+            *lock(&sink) = Some(why);
         });
         Ok(Self {
             device,
@@ -137,6 +149,7 @@ impl GpuContext {
             pool: Mutex::new(Vec::new()),
             cache: Mutex::new(Vec::new()),
             errors,
+            lost,
             _adapter: adapter,
             _instance: instance,
         })
@@ -167,6 +180,13 @@ impl GpuContext {
     /// device), as [`Error::Gpu`] naming the adapter; `Ok` when there was none.
     pub fn check(&self) -> Result<()> {
         let errors: Vec<String> = std::mem::take(&mut *lock(&self.errors));
+        if let Some(why) = lock(&self.lost).as_ref() {
+            return Err(Error::Gpu(format!(
+                "{}: the device was lost ({why}; a driver reset, a hung GPU or too little \
+                 memory): nothing more runs on it, run again",
+                self.description.label()
+            )));
+        }
         if errors.is_empty() {
             Ok(())
         } else {
@@ -223,6 +243,19 @@ impl GpuContext {
         Ok(pipeline)
     }
 
+    /// Checks a run's GPU memory before anything is allocated: its largest buffer,
+    /// `largest_bytes`, against the adapter's limits ([`GpuContext::check_storage`]), and all
+    /// it allocates, `total_bytes` (the read-back copy included), against the memory budget
+    /// (`--memory-budget`), naming `what`.
+    pub fn plan(&self, what: &str, largest_bytes: u64, total_bytes: u64) -> Result<()> {
+        self.check_storage(what, largest_bytes)?;
+        crate::budget::check(
+            total_bytes,
+            &format!("{what} on {}", self.description.label()),
+            "the resolution",
+        )
+    }
+
     /// Checks that a storage buffer of `bytes` fits the adapter's limits, naming `what` it
     /// holds and the limit it passes, before anything is allocated.
     pub fn check_storage(&self, what: &str, bytes: u64) -> Result<()> {
@@ -270,12 +303,17 @@ impl GpuContext {
         })
     }
 
-    /// Gives buffers back to the pool for the next run (the oldest are dropped beyond a few).
+    /// Gives buffers back to the pool for the next run (the oldest are dropped beyond 32
+    /// buffers or 512 MiB).
     pub fn recycle(&self, buffers: impl IntoIterator<Item = wgpu::Buffer>) {
         let mut pool = lock(&self.pool);
         pool.extend(buffers);
         let excess = pool.len().saturating_sub(POOL_BUFFERS);
         pool.drain(..excess);
+        let mut bytes: u64 = pool.iter().map(|b| b.size()).sum();
+        while bytes > POOL_BYTES && !pool.is_empty() {
+            bytes -= pool.remove(0).size();
+        }
     }
 
     /// A storage buffer holding `data`, checked against the limits first.

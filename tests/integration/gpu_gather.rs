@@ -600,3 +600,55 @@ fn compare_runs_each_gpu_method_on_both_devices_side_by_side() {
         "no device column"
     );
 }
+
+#[test]
+fn a_gpu_run_is_planned_against_the_budget_and_the_adapters_limits() {
+    let Some(ctx) = context() else { return };
+    // Within both.
+    ctx.plan("a small frame", 1 << 20, 8 << 20).unwrap();
+    // More than the memory budget (16 GiB unless set) in all: refused before any allocation,
+    // naming the budget and the flag to raise.
+    let e = ctx
+        .plan("a frame", 1 << 20, 1 << 40)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("a frame") && e.contains("budget") && e.contains("--memory-budget"),
+        "{e}"
+    );
+    // One buffer over the adapter's limit: refused naming the limit.
+    let limit = ctx.description().limits.max_storage_buffer_binding_size;
+    let e = ctx
+        .plan("a huge frame", limit + 4, limit + 4)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("max storage buffer binding size"), "{e}");
+    ctx.check().unwrap();
+}
+
+#[test]
+fn a_lost_device_is_an_error_naming_it_not_a_crash() {
+    if context().is_none() {
+        return;
+    }
+    // A context of its own, whose device is then destroyed: what a driver reset does.
+    let ctx = defocus::gpu::GpuContext::open(defocus::gpu::Device::Gpu)
+        .unwrap()
+        .unwrap();
+    let (color, depth) = random_frame(40, 24, 1);
+    let lens = crate::test_camera(40, 24, 1.5, 1.4).thin_lens().unwrap();
+    poisson::gpu::render(&ctx, &color, &depth, &lens, &PoissonSettings::default()).unwrap();
+    ctx.device().destroy();
+    for run in 0..2 {
+        let e = lowrank::gpu::render(&ctx, &color, &depth, &lens, &LowRankSettings::default())
+            .map(|_| ())
+            .and_then(|()| ctx.check())
+            .unwrap_err()
+            .to_string();
+        eprintln!("after the device was destroyed, run {run}: {e}");
+        assert!(
+            e.contains(&ctx.description().label()) && e.contains("the device was lost"),
+            "{e}"
+        );
+    }
+}

@@ -77,21 +77,9 @@ pub fn render(
     let (w, h) = (color.width(), color.height());
     let pixels = (w * h) as u64;
     let what = format!("gaussian at {w}x{h}");
-    ctx.check_storage(&what, pixels * 16)?;
-    let groups = [(w as u32).div_ceil(WORKGROUP_X), h as u32, 1];
-    let max_groups = ctx
-        .description()
-        .limits
-        .max_compute_workgroups_per_dimension;
-    if groups[0] > max_groups || groups[1] > max_groups {
-        return Err(Error::Gpu(format!(
-            "{what} needs {} x {} workgroups; {} allows {max_groups} a dimension (max compute \
-             workgroups per dimension)",
-            groups[0],
-            groups[1],
-            ctx.description().label()
-        )));
-    }
+    // Depth, CoC, colour, rows, the output and its read-back copy.
+    ctx.plan(&what, pixels * 16, pixels * (4 + 4 + 16 + 16 + 16 + 16))?;
+    let groups = ctx.row_groups(&what, w, h, WORKGROUP_X)?;
     let pipelines = PASSES
         .iter()
         .map(|pass| ctx.pipeline(SHADER_NAME, SHADER, pass))
@@ -124,18 +112,7 @@ pub fn render(
     timings.add("gpu/upload", start.elapsed().as_secs_f64() * 1e3);
 
     let bind = |pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
-        let entries: Vec<wgpu::BindGroupEntry> = entries
-            .iter()
-            .map(|&(binding, buffer)| wgpu::BindGroupEntry {
-                binding,
-                resource: buffer.as_entire_binding(),
-            })
-            .collect();
-        ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
-            label: None,
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        })
+        ctx.bind(pipeline, entries)
     };
     let groups_of = [
         bind(

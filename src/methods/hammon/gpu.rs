@@ -162,23 +162,16 @@ pub fn render(
     let (qw, qh) = quarter_size(w, h);
     let (pixels, texels) = ((w * h) as u64, (qw * qh) as u64);
     let what = format!("hammon at {w}x{h}");
-    ctx.check_storage(&what, pixels * 16)?;
-    let full_groups = [(w as u32).div_ceil(64), h as u32, 1];
+    // Colour, depth, the output and its read-back copy at full size; four quarter-size
+    // colour and CoC pairs.
+    ctx.plan(
+        &what,
+        pixels * 16,
+        pixels * (16 + 4 + 16 + 16) + texels * 4 * 20,
+    )?;
+    let full_groups = ctx.row_groups(&what, w, h, 64)?;
     let quarter_groups = [(qw as u32).div_ceil(64), qh as u32, 1];
     let block_groups = [(qw as u32).div_ceil(8), (qh as u32).div_ceil(8), 1];
-    let max_groups = ctx
-        .description()
-        .limits
-        .max_compute_workgroups_per_dimension;
-    if full_groups[1] > max_groups || full_groups[0] > max_groups {
-        return Err(Error::Gpu(format!(
-            "{what} needs {} x {} workgroups; {} allows {max_groups} a dimension (max compute \
-             workgroups per dimension)",
-            full_groups[0],
-            full_groups[1],
-            ctx.description().label()
-        )));
-    }
     let pipelines = PIPELINES
         .iter()
         .map(|p| ctx.pipeline(SHADER_NAME, SHADER, p))
@@ -202,18 +195,7 @@ pub fn render(
     timings.add("gpu/upload", start.elapsed().as_secs_f64() * 1e3);
 
     let bind = |pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
-        let entries: Vec<wgpu::BindGroupEntry> = entries
-            .iter()
-            .map(|&(binding, buffer)| wgpu::BindGroupEntry {
-                binding,
-                resource: buffer.as_entire_binding(),
-            })
-            .collect();
-        ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
-            label: None,
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        })
+        ctx.bind(pipeline, entries)
     };
     let groups = [
         bind(

@@ -189,7 +189,13 @@ fn run(
     let (w, h) = (color.width(), color.height());
     let pixels = (w * h) as u64;
     let what = format!("lowrank at {w}x{h}");
-    ctx.check_storage(&what, pixels * 16)?;
+    // Colour, depth, CoC, edges, one rank's intermediate colour and edges, the output and its
+    // filtered edges, and the output's read-back copy.
+    ctx.plan(
+        &what,
+        pixels * 16,
+        pixels * (16 + 4 + 4 + 4 + 16 + 4 + 16 + 4 + 16),
+    )?;
     let groups = ctx.row_groups(&what, w, h, WORKGROUP_X)?;
     let pipelines = PASSES
         .iter()

@@ -101,7 +101,8 @@ pub fn render(
     let (w, h) = (color.width(), color.height());
     let pixels = (w * h) as u64;
     let what = format!("poisson at {w}x{h}");
-    ctx.check_storage(&what, pixels * 16)?;
+    // Depth, CoC, colour, the output and its read-back copy.
+    ctx.plan(&what, pixels * 16, pixels * (4 + 4 + 16 + 16 + 16))?;
     let groups = ctx.row_groups(&what, w, h, WORKGROUP_X)?;
     let pipelines = PASSES
         .iter()
