@@ -526,7 +526,13 @@ fn blur_one(
         depth: &fl.depth,
         lens: &fl.lens,
     };
+    let layered = registry::find(&p.method)?.input == registry::InputKind::FragmentLists
+        || matches!(
+            (&settings, p.post.occlusion),
+            (registry::MethodSettings::Splat(_), Occlusion::Fill)
+        );
     let mut out = match p.post.occlusion {
+        _ if layered => fill::run_layered(&settings, &frame, p.post.occlusion)?,
         Occlusion::None => registry::run_frame_on(&settings, &frame, p.gpu.as_deref())?,
         Occlusion::Fill if p.gpu.is_some() => return Err(defocus::Error::Option(
             "occlusion='fill' runs on the CPU only so far: use device='cpu', or occlusion='none'"
@@ -645,7 +651,7 @@ fn blur(
         }
     };
     let info = registry::find(&method).map_err(py_err)?;
-    if info.input.needs_scene() {
+    if !info.input.takes_frame() {
         return Err(PyValueError::new_err(format!(
             "method {method} needs {}, not a colour image with depth: use defocus.render(scene, method='{method}')",
             info.input.describe()
@@ -1054,7 +1060,7 @@ fn methods(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
         d.set_item("description", m.description)?;
         d.set_item("paper", m.paper)?;
         d.set_item("input", m.input.describe())?;
-        d.set_item("needs_scene", m.input.needs_scene())?;
+        d.set_item("needs_scene", !m.input.takes_frame())?;
         d.set_item("effects", m.effects.to_vec())?;
         let opts = PyList::empty(py);
         for (name, flag, help, default, applies, takes_value) in &options {

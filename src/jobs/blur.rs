@@ -14,7 +14,7 @@ use crate::image::{ColorImage, GrayImage};
 use crate::lens::ThinLens;
 use crate::methods::fill::{self, FillSettings, Occlusion};
 use crate::methods::lowrank::{self, tilt_shift_coc_in_frame, TiltShift};
-use crate::methods::registry::{self, Frame, MethodSettings};
+use crate::methods::registry::{self, Frame, InputKind, MethodSettings};
 use crate::methods::MethodOutput;
 use crate::timing::{self, Timings};
 use anyhow::{bail, Context, Result};
@@ -270,7 +270,7 @@ impl BlurJob {
         let tilt_shift = a.tilt_shift.as_deref().map(parse_tilt_shift).transpose()?;
         let method = method_of(a)?;
         let info = registry::find(method)?;
-        if info.input.needs_scene() {
+        if !info.input.takes_frame() {
             bail!(
                 "--method {method} needs {}, not a colour image with a depth pass: run `defocus render --method {method} --scene ...` instead",
                 info.input.describe()
@@ -483,7 +483,18 @@ impl BlurJob {
                     depth,
                     lens,
                 };
+                let layered = registry::find(settings.id())?.input == InputKind::FragmentLists
+                    || matches!(
+                        (settings, self.occlusion),
+                        (MethodSettings::Splat(_), Occlusion::Fill)
+                    );
                 match self.occlusion {
+                    _ if layered => {
+                        if self.gpu.is_some() {
+                            registry::check_gpu(settings.id())?;
+                        }
+                        fill::run_layered(settings, &frame, self.occlusion)?
+                    }
                     Occlusion::None => {
                         registry::run_frame_on(settings, &frame, self.gpu.as_deref())?
                     }

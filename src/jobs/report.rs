@@ -869,7 +869,7 @@ pub fn write(
                 let on = gpu.clone().filter(|_| run.on_gpu);
                 RenderJob::new_on(args, on, notes)?.compute(&mut |_, _| {})
             } else {
-                if run.info.input.needs_scene() {
+                if !run.info.input.takes_frame() {
                     bail!("not applicable: needs {}", run.info.input.describe());
                 }
                 let mut args = blur_args(a, run.info.id, &out_path)?;

@@ -25,9 +25,11 @@
 
 use rayon::prelude::*;
 
+use super::coc_map;
 use super::registry::{self, Frame, MethodSettings};
 use super::MethodOutput;
 use crate::image::{ColorImage, GrayImage, Rgba};
+use crate::raster::FragmentLists;
 use crate::timing::Timings;
 use crate::{Error, Result};
 
@@ -97,9 +99,53 @@ pub fn run_frame(
     frame: &Frame,
     fill: &FillSettings,
 ) -> Result<MethodOutput> {
-    let (w, h) = (frame.color.width(), frame.color.height());
-    let mut timings = Timings::default();
     let start = std::time::Instant::now();
+    let Some(layers) = decompose(frame, fill)? else {
+        return registry::run_frame(settings, frame);
+    };
+    let mut timings = Timings::default();
+    timings.add(pass::DECOMPOSE, start.elapsed().as_secs_f64() * 1e3);
+    let back = registry::run_frame(
+        settings,
+        &Frame {
+            color: &layers.back_color,
+            depth: &layers.back_depth,
+            lens: frame.lens,
+        },
+    )?;
+    let front = registry::run_frame(
+        settings,
+        &Frame {
+            color: &layers.near_color,
+            depth: &layers.near_depth,
+            lens: frame.lens,
+        },
+    )?;
+    timings.extend(&back.timings);
+    timings.extend(&front.timings);
+    let image = timings.time(pass::COMPOSITE, || over(&front.image, &back.image))?;
+    Ok(MethodOutput {
+        image,
+        depth: None,
+        timings,
+        memory_bytes: None,
+    })
+}
+
+/// A frame split in two layers (see the module documentation).
+struct Layers {
+    /// The near pixels (row-major).
+    near: Vec<bool>,
+    near_color: ColorImage,
+    near_depth: GrayImage,
+    back_color: ColorImage,
+    back_depth: GrayImage,
+}
+
+/// Pass `decompose`: the frame's near layer and its filled back layer, or `None` when no pixel
+/// is near.
+fn decompose(frame: &Frame, fill: &FillSettings) -> Result<Option<Layers>> {
+    let (w, h) = (frame.color.width(), frame.color.height());
     let near: Vec<bool> = frame
         .depth
         .pixels()
@@ -107,7 +153,7 @@ pub fn run_frame(
         .map(|&z| frame.lens.coc_px(z) <= -fill.near_coc_px)
         .collect();
     if !near.iter().any(|&n| n) {
-        return registry::run_frame(settings, frame);
+        return Ok(None);
     }
     let hole = dilate(&near, w, h, fill.dilate_px);
     // The back layer: its own pixels, and the hole filled from them.
@@ -144,32 +190,80 @@ pub fn run_frame(
             .map(|(&c, &n)| if n { c } else { [0.0; 4] })
             .collect(),
     )?;
-    timings.add(pass::DECOMPOSE, start.elapsed().as_secs_f64() * 1e3);
-    let back = registry::run_frame(
-        settings,
-        &Frame {
-            color: &back_color,
-            depth: &back_depth,
-            lens: frame.lens,
-        },
-    )?;
-    let front = registry::run_frame(
-        settings,
-        &Frame {
-            color: &near_color,
-            depth: &near_depth,
-            lens: frame.lens,
-        },
-    )?;
-    timings.extend(&back.timings);
-    timings.extend(&front.timings);
-    let image = timings.time(pass::COMPOSITE, || over(&front.image, &back.image))?;
-    Ok(MethodOutput {
-        image,
-        depth: None,
-        timings,
-        memory_bytes: None,
-    })
+    Ok(Some(Layers {
+        near,
+        near_color,
+        near_depth,
+        back_color,
+        back_depth,
+    }))
+}
+
+/// The fragment lists of a frame for the layered methods: with `fill`, each near pixel holds
+/// its own fragment and, behind it, the filled back layer's; every other pixel the back
+/// layer's (where the near layer's widened edge hid it, filled). Without, one fragment a
+/// pixel: the frame as it is.
+pub fn fragment_lists(frame: &Frame, fill: Option<&FillSettings>) -> Result<FragmentLists> {
+    coc_map::check_frame(frame.color, frame.depth, frame.lens)?;
+    let (w, h) = (frame.color.width(), frame.color.height());
+    let layers = match fill {
+        Some(fill) => decompose(frame, fill)?,
+        None => None,
+    };
+    let pixels: Vec<Vec<(f32, Rgba)>> = match &layers {
+        None => frame
+            .depth
+            .pixels()
+            .par_iter()
+            .zip(frame.color.pixels())
+            .map(|(&z, &c)| vec![(z, c)])
+            .collect(),
+        Some(l) => (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let back = (l.back_depth.pixels()[i], l.back_color.pixels()[i]);
+                if l.near[i] {
+                    vec![(frame.depth.pixels()[i], frame.color.pixels()[i]), back]
+                } else {
+                    vec![back]
+                }
+            })
+            .collect(),
+    };
+    Ok(FragmentLists::from_pixels(w, h, 2, &pixels))
+}
+
+/// A layered method (`multilayer`, `splat`) on a frame: its fragment lists
+/// ([`fragment_lists`]; decomposed and filled with `occlusion` `fill`), then the method's
+/// passes on them. Timed as `fill/decompose` and the method's passes.
+pub fn run_layered(
+    settings: &MethodSettings,
+    frame: &Frame,
+    occlusion: Occlusion,
+) -> Result<MethodOutput> {
+    let start = std::time::Instant::now();
+    let fill = FillSettings::default();
+    let lists = fragment_lists(frame, (occlusion == Occlusion::Fill).then_some(&fill))?;
+    let decompose_ms = start.elapsed().as_secs_f64() * 1e3;
+    let mut out = match settings {
+        MethodSettings::Multilayer(s) => super::multilayer::render_lists(lists, frame.lens, s)?,
+        MethodSettings::Splat(s) => super::splat::render_lists(lists, frame.lens, s)?.0,
+        other => {
+            return Err(Error::invalid(
+                "method",
+                format!(
+                    "{} does not take fragment lists; the layered methods that blur a frame: \
+                     multilayer, splat",
+                    other.id()
+                ),
+            ))
+        }
+    };
+    let mut timings = Timings::default();
+    timings.add(pass::DECOMPOSE, decompose_ms);
+    timings.extend(&out.timings);
+    out.timings = timings;
+    Ok(out)
 }
 
 /// `front` over `back`, premultiplied: `front + (1 - front alpha) back`.

@@ -42,6 +42,12 @@ impl InputKind {
         !matches!(self, InputKind::PinholeFrame)
     }
 
+    /// True when a colour image with a depth pass can be made into the input: a frame, or
+    /// fragment lists (the frame decomposed into layers, [`super::fill::fragment_lists`]).
+    pub fn takes_frame(self) -> bool {
+        matches!(self, InputKind::PinholeFrame | InputKind::FragmentLists)
+    }
+
     /// A short phrase for messages and reports.
     pub fn describe(self) -> &'static str {
         match self {

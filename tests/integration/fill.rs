@@ -153,3 +153,238 @@ fn a_near_bar_reveals_the_board_behind_it() {
         assert!(p2 >= p1 + MARGIN_DB, "{id}: fill {p2} against none {p1}");
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// The layered methods on a frame: its fragment lists (one layer, or decomposed and filled).
+
+/// The layered methods that blur a frame through its fragment lists.
+const LAYERED: [&str; 2] = ["multilayer", "splat"];
+
+#[test]
+fn a_frames_lists_hold_the_frame_and_with_fill_the_filled_back_layer_behind_near_pixels() {
+    let camera = camera();
+    let scene = board(&camera, true);
+    let (color, depth) = frame_of(&scene, &camera);
+    let lens = camera.thin_lens().unwrap();
+    let frame = Frame {
+        color: &color,
+        depth: &depth,
+        lens: &lens,
+    };
+    let one = fill::fragment_lists(&frame, None).unwrap();
+    assert_eq!(one.len(), 96 * 64);
+    for (i, (&z, &c)) in depth.pixels().iter().zip(color.pixels()).enumerate() {
+        let (zs, cs) = one.pixel(i % 96, i / 96);
+        assert_eq!(zs, [z]);
+        let back = defocus::raster::from_half(&cs[0]);
+        for k in 0..4 {
+            assert!((back[k] - c[k]).abs() <= 1e-3 * c[k].abs().max(1.0), "{i}");
+        }
+    }
+    let two = fill::fragment_lists(&frame, Some(&FillSettings::default())).unwrap();
+    // Each bar pixel (at 1 m) holds the bar, then the board (at 2 m) behind it.
+    let (zs, _) = two.pixel(48, 30);
+    assert_eq!(zs.len(), 2, "{zs:?}");
+    assert!(
+        (zs[0] - 1.0).abs() < 1e-3 && (zs[1] - 2.0).abs() < 0.05,
+        "{zs:?}"
+    );
+    let (zs, _) = two.pixel(10, 30);
+    assert_eq!(zs.len(), 1);
+}
+
+#[test]
+fn the_layered_methods_on_a_frame_keep_a_constant_image_and_an_in_focus_board() {
+    let camera = camera();
+    let lens = camera.thin_lens().unwrap();
+    let (w, h) = (96, 64);
+    let color = ColorImage::new(w, h, [0.37, 0.2, 0.6, 1.0]);
+    let depth = defocus::image::GrayImage::from_vec(
+        w,
+        h,
+        (0..w * h)
+            .map(|i| if i % w < w / 2 { 1.0 } else { 2.0 })
+            .collect(),
+    )
+    .unwrap();
+    let frame = Frame {
+        color: &color,
+        depth: &depth,
+        lens: &lens,
+    };
+    for id in LAYERED {
+        for occlusion in [fill::Occlusion::None, fill::Occlusion::Fill] {
+            let settings = MethodSettings::default_for(id).unwrap();
+            let out = fill::run_layered(&settings, &frame, occlusion).unwrap();
+            // Away from the borders, which gather nothing beyond the frame. From one layer,
+            // the near half's blur turns transparent within its CoC (11 px) of the in-focus
+            // half, with nothing behind it: there only the filled frame stays constant.
+            let columns: Vec<usize> = match occlusion {
+                fill::Occlusion::Fill => (16..80).collect(),
+                fill::Occlusion::None => (16..34).chain(62..80).collect(),
+            };
+            for y in 16..48 {
+                for &x in &columns {
+                    let p = out.image.get(x, y);
+                    for (a, b) in p.iter().zip([0.37, 0.2, 0.6, 1.0]) {
+                        assert!((a - b).abs() < 2e-2, "{id} {occlusion:?} ({x}, {y}): {p:?}");
+                    }
+                }
+            }
+        }
+    }
+    // A board wholly in focus comes back as it is.
+    let scene = board(&camera, false);
+    let (color, depth) = frame_of(&scene, &camera);
+    let frame = Frame {
+        color: &color,
+        depth: &depth,
+        lens: &lens,
+    };
+    for id in LAYERED {
+        let settings = MethodSettings::default_for(id).unwrap();
+        let out = fill::run_layered(&settings, &frame, fill::Occlusion::Fill).unwrap();
+        let psnr = metrics::compare(&out.image, &color).unwrap().psnr_db;
+        assert!(psnr > 40.0, "{id}: {psnr} dB");
+    }
+}
+
+/// With the fill, the layered methods see the board behind the near bar, as they do from the
+/// scene: each is at least 3 dB closer to `reference` over the bar's blur than from the frame
+/// alone, and within 3 dB of its own render from the scene there.
+#[test]
+fn the_layered_methods_on_a_filled_frame_reveal_the_board_behind_the_bar() {
+    const MARGIN_DB: f64 = 3.0;
+    let camera = camera();
+    let scene = board(&camera, true);
+    let (color, depth) = frame_of(&scene, &camera);
+    let lens = camera.thin_lens().unwrap();
+    let c = lens.coc_px(1.0);
+    let truth = reference::render(
+        &scene,
+        &camera,
+        &ReferenceSettings {
+            samples: 256,
+            ..Default::default()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap()
+    .image;
+    let (x0, x1) = ((48.0 + c - 3.0) as usize, (48.0 - c + 3.0) as usize);
+    let crop = |img: &ColorImage| img.crop(x0, 8, x1 - x0, 48);
+    let psnr = |img: &ColorImage| metrics::compare(&crop(img), &crop(&truth)).unwrap().psnr_db;
+    let frame = Frame {
+        color: &color,
+        depth: &depth,
+        lens: &lens,
+    };
+    for id in LAYERED {
+        let settings = MethodSettings::default_for(id).unwrap();
+        let one = fill::run_layered(&settings, &frame, fill::Occlusion::None).unwrap();
+        let two = fill::run_layered(&settings, &frame, fill::Occlusion::Fill).unwrap();
+        let scene_settings = match id {
+            "splat" => MethodSettings::Splat(defocus::methods::splat::SplatSettings {
+                layers: 2,
+                ..Default::default()
+            }),
+            _ => settings.clone(),
+        };
+        let options = registry::SceneOptions::default();
+        let from_scene =
+            registry::run_scene(&scene_settings, &scene, &camera, &options, &mut |_, _| {})
+                .unwrap();
+        let (p1, p2, p3) = (psnr(&one.image), psnr(&two.image), psnr(&from_scene.image));
+        eprintln!("{id}: frame {p1:.2} dB, filled frame {p2:.2} dB, scene {p3:.2} dB");
+        assert!(p2 >= p1 + MARGIN_DB, "{id}: fill {p2} against none {p1}");
+        assert!(
+            p2 >= p3 - 3.0,
+            "{id}: filled frame {p2} against the scene's {p3}"
+        );
+    }
+}
+
+#[test]
+fn blur_runs_the_layered_methods_on_a_frame_and_refuses_multiview_naming_render() {
+    use crate::cli::{defocus, s, stderr, temp_dir};
+    let dir = temp_dir("blur-layered");
+    let camera = camera();
+    let scene = board(&camera, true);
+    let (color, depth) = frame_of(&scene, &camera);
+    let (c, d) = (dir.join("c.exr"), dir.join("d.exr"));
+    defocus::image::io::write_color(&c, &color).unwrap();
+    defocus::image::io::write_depth_exr(&d, &depth).unwrap();
+    let lens = [
+        "--focal-length",
+        "150",
+        "--sensor-width",
+        "36",
+        "--fstop",
+        "1.4",
+        "--focus",
+        "2",
+    ];
+    for (method, occlusion) in [
+        ("multilayer", "none"),
+        ("multilayer", "fill"),
+        ("splat", "fill"),
+    ] {
+        let out = dir.join(format!("{method}-{occlusion}.exr"));
+        let mut args = vec![
+            "blur",
+            "--color",
+            s(&c),
+            "--depth",
+            s(&d),
+            "--method",
+            method,
+        ];
+        args.extend_from_slice(&lens);
+        args.extend_from_slice(&[
+            "--occlusion",
+            occlusion,
+            "--timings",
+            "json",
+            "--out",
+            s(&out),
+        ]);
+        let done = defocus(&args);
+        assert!(
+            done.status.success(),
+            "{method} {occlusion}: {}",
+            stderr(&done)
+        );
+        let json: serde_json::Value = serde_json::from_slice(&done.stdout).unwrap();
+        let names: Vec<&str> = json["passes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["name"].as_str().unwrap())
+            .collect();
+        assert!(names.contains(&"fill/decompose"), "{names:?}");
+        assert!(
+            names.iter().any(|n| n.starts_with(&format!("{method}/"))),
+            "{names:?}"
+        );
+        assert!(out.exists());
+    }
+    let out = dir.join("multiview.exr");
+    let mut args = vec![
+        "blur",
+        "--color",
+        s(&c),
+        "--depth",
+        s(&d),
+        "--method",
+        "multiview",
+    ];
+    args.extend_from_slice(&["--out", s(&out)]);
+    let done = defocus(&args);
+    assert!(!done.status.success());
+    assert!(
+        stderr(&done).contains("defocus render"),
+        "{}",
+        stderr(&done)
+    );
+    assert!(!out.exists());
+}

@@ -126,7 +126,7 @@ fn blur_refuses_a_method_that_needs_a_scene_with_exit_code_1() {
         s(&depth),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    for m in METHODS.iter().filter(|m| m.input.needs_scene()) {
+    for m in METHODS.iter().filter(|m| !m.input.takes_frame()) {
         let out = dir.join("out.exr");
         let o = defocus(&[
             "blur",

@@ -244,7 +244,7 @@ fn frame_report_lists_scene_methods_as_not_applicable() {
         "--fstop",
         "2",
         "--methods",
-        "hammon,multilayer",
+        "hammon,multilayer,multiview",
         "--out",
         s(&out),
     ]);
@@ -252,8 +252,10 @@ fn frame_report_lists_scene_methods_as_not_applicable() {
     let r = results(&out);
     let runs = r["runs"].as_array().unwrap();
     assert_eq!(runs[0]["status"], "ok");
-    assert_eq!(runs[1]["status"], "not applicable");
-    assert!(runs[1]["error"].as_str().unwrap().contains("scene"));
+    // multilayer runs on the frame's fragment lists; multiview needs the scene's layers.
+    assert_eq!(runs[1]["status"], "ok");
+    assert_eq!(runs[2]["status"], "not applicable");
+    assert!(runs[2]["error"].as_str().unwrap().contains("scene"));
     std::fs::remove_dir_all(dir).unwrap();
 }
 

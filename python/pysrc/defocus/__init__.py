@@ -138,7 +138,9 @@ def blur(
         ``zero_depth_is_far``).
     method : str, default "lowrank"
         A method that blurs a frame: ``"lowrank"`` (bokeh in the aperture's shape),
-        ``"hammon"``, ``"gaussian"``, ``"poisson"`` or ``"splat"``. ``methods()`` lists every
+        ``"hammon"``, ``"gaussian"``, ``"poisson"``, ``"splat"`` or ``"multilayer"`` (the
+        layered ones on the frame's fragment lists; with ``occlusion="fill"``, the frame
+        decomposed into a near and a filled back layer). ``methods()`` lists every
         method with its options; those with ``needs_scene`` run in ``render`` only.
     focus : float or str or None, default "auto"
         Focus distance in metres along the view axis, or ``"auto"`` (``None`` is the same):

@@ -635,7 +635,72 @@ fn render_with(
     let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
     check_memory(&lens, settings)?;
-    let mut lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
+    let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
+    let fitted = Fitted { lens, guard, frame };
+    from_lists(lists, &fitted, settings, timings, (accumulate_fn, step_fn))
+}
+
+/// Where fragment lists lie: the lens of the lists (the frame and its guard band), the band's
+/// width in pixels, and the frame's own lens.
+struct Fitted {
+    lens: ThinLens,
+    guard: usize,
+    frame: ThinLens,
+}
+
+/// Filters and accumulates fragment lists that do not come from a scene (a frame decomposed
+/// into layers, [`crate::methods::fill`]): `lists` cover exactly the frame of `lens` (no guard
+/// band; the filter clamps at its borders), at its resolution. Passes `highlights`, `filter`
+/// and `accumulate`, as [`render`] after its `collect`.
+pub fn render_lists(
+    lists: FragmentLists,
+    lens: &ThinLens,
+    settings: &MultilayerSettings,
+) -> Result<MethodOutput> {
+    settings.validate()?;
+    if settings.supersample != 1 {
+        return Err(Error::invalid(
+            "supersample",
+            format!(
+                "{}: fragment lists given at the frame's resolution take 1 (supersampling \
+                 needs a scene)",
+                settings.supersample
+            ),
+        ));
+    }
+    if (lists.width(), lists.height()) != (lens.width_px, lens.height_px) {
+        return Err(Error::Mismatch(format!(
+            "fragment lists of {}x{} for a lens of {}x{}",
+            lists.width(),
+            lists.height(),
+            lens.width_px,
+            lens.height_px
+        )));
+    }
+    check_memory(lens, settings)?;
+    let fitted = Fitted {
+        lens: *lens,
+        guard: 0,
+        frame: *lens,
+    };
+    from_lists(
+        lists,
+        &fitted,
+        settings,
+        Timings::default(),
+        (accumulate_for, filter::step),
+    )
+}
+
+/// Passes `highlights`, `filter` and `accumulate` of `lists` lying as `fitted` says.
+fn from_lists(
+    mut lists: FragmentLists,
+    fitted: &Fitted,
+    settings: &MultilayerSettings,
+    mut timings: Timings,
+    (accumulate_fn, step_fn): (AccumulateFn, StepFn),
+) -> Result<MethodOutput> {
+    let Fitted { lens, guard, frame } = *fitted;
     let k = settings.supersample;
     let fine = ThinLens {
         width_px: lens.width_px * k,

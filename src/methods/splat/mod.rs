@@ -365,8 +365,61 @@ pub fn render_scene(
     let guard = (settings.input.guard_band_px(&prepared, &frame) as f32 * stretch).ceil() as usize;
     let lens = frame.with_guard_band(guard);
     check(&lens)?;
-    let mut lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
-    let (w, h) = (frame.width_px, frame.height_px);
+    let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
+    from_lists(lists, lens, guard, settings, timings)
+}
+
+/// Splats fragment lists that do not come from a scene (a frame decomposed into layers,
+/// [`crate::methods::fill`]): `lists` cover exactly the frame of `lens`, at its resolution,
+/// and every fragment of a pixel is splatted (the lists hold what `layers` would keep).
+/// Passes `highlights`, `build`, `sort` and `blend`, as [`render_scene`] after its `collect`.
+pub fn render_lists(
+    lists: FragmentLists,
+    lens: &ThinLens,
+    settings: &SplatSettings,
+) -> Result<(MethodOutput, SplatStats)> {
+    settings.validate()?;
+    settings.effects.check_supported("splat", EFFECTS)?;
+    if settings.effects.is_chromatic() {
+        return Err(Error::invalid(
+            "chromatic aberration",
+            "each channel needs its own CoCs: splat renders it from a scene or a frame, not \
+             from given fragment lists",
+        ));
+    }
+    if (lists.width(), lists.height()) != (lens.width_px, lens.height_px) {
+        return Err(Error::Mismatch(format!(
+            "fragment lists of {}x{} for a lens of {}x{}",
+            lists.width(),
+            lists.height(),
+            lens.width_px,
+            lens.height_px
+        )));
+    }
+    let px = (lens.width_px * lens.height_px) as u64;
+    crate::budget::check(
+        px * lists.cap() as u64 * (12 + 16 + 4) + px * 32,
+        &format!(
+            "splat at {}x{} with {} layers",
+            lens.width_px,
+            lens.height_px,
+            lists.cap()
+        ),
+        "the resolution",
+    )?;
+    from_lists(lists, *lens, 0, settings, Timings::default())
+}
+
+/// Passes `highlights`, `build`, `sort` and `blend` of `lists` covering `lens`'s frame and its
+/// guard band of `guard` pixels.
+fn from_lists(
+    mut lists: FragmentLists,
+    lens: ThinLens,
+    guard: usize,
+    settings: &SplatSettings,
+    mut timings: Timings,
+) -> Result<(MethodOutput, SplatStats)> {
+    let (w, h) = (lens.width_px - 2 * guard, lens.height_px - 2 * guard);
     let highlights = settings.highlights.map(|threshold| {
         timings.time(pass::HIGHLIGHTS, || {
             highlights::take(&mut lists, &lens, 1.0, threshold, settings.max_coc_px)
