@@ -372,6 +372,40 @@ impl GpuContext {
         Ok(value)
     }
 
+    /// The compute pipelines of `passes` (each an entry point of `shader`, see
+    /// [`GpuContext::pipeline`]), in their order.
+    pub fn pipelines(
+        &self,
+        shader_name: &'static str,
+        shader: &'static str,
+        passes: &[&'static str],
+    ) -> Result<Vec<wgpu::ComputePipeline>> {
+        passes
+            .iter()
+            .map(|pass| self.pipeline(shader_name, shader, pass))
+            .collect()
+    }
+
+    /// A frame's result read back with its status word in one submit: the `width` x `height`
+    /// RGBA image of `out`, or `Err` with the first failing pixel that a pass recorded in
+    /// `status` (a value other than `u32::MAX`).
+    pub fn read_frame(
+        &self,
+        status: &wgpu::Buffer,
+        out: &wgpu::Buffer,
+        width: usize,
+        height: usize,
+    ) -> Result<std::result::Result<crate::image::ColorImage, u32>> {
+        let pixels = (width * height) as u64;
+        let read = self.read(&[(status, 4), (out, pixels * 16)])?;
+        let failed = u32::from_le_bytes(read[0][..4].try_into().unwrap_or([0; 4]));
+        if failed != super::NO_FAILURE {
+            return Ok(Err(failed));
+        }
+        let rgba: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read[1]);
+        Ok(Ok(crate::image::ColorImage::from_vec(width, height, rgba)?))
+    }
+
     /// A bind group for group 0 of `pipeline` (its layout derived from the shader) holding
     /// each `(binding, buffer)` whole.
     pub fn bind(

@@ -31,6 +31,10 @@ pub use adapter::{
 };
 pub use context::{GpuContext, PassTimer};
 
+/// The value of a status word no pass has written: no failing pixel
+/// ([`GpuContext::read_frame`]).
+pub const NO_FAILURE: u32 = u32::MAX;
+
 /// Parses and validates WGSL `source` with naga, as wgpu does before it builds a pipeline, but
 /// without an adapter: `Err` ([`crate::Error::Gpu`]) with naga's message.
 pub fn naga_check(source: &str) -> crate::Result<()> {

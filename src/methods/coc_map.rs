@@ -86,6 +86,19 @@ pub(crate) fn bad_depth(depth: &GrayImage, i: usize) -> Error {
     )
 }
 
+/// The error of a GPU `coc` pass that recorded pixel `failed` of `depth` as failing: the CPU's
+/// ([`bad_depth`]), or, for an index beyond the frame, one naming `what` ran.
+pub(crate) fn gpu_bad_depth(depth: &GrayImage, failed: u32, what: &str) -> Error {
+    if (failed as usize) < depth.pixels().len() {
+        bad_depth(depth, failed as usize)
+    } else {
+        Error::Gpu(format!(
+            "{what}: the coc pass reported pixel {failed} of {}",
+            depth.pixels().len()
+        ))
+    }
+}
+
 /// Values per parallel block of [`map_checked`], [`max_abs`] and the per-pixel passes like them:
 /// 64 KB, big enough that the threads' hand-offs cost nothing next to the block.
 pub(crate) const MAP_BLOCK: usize = 1 << 14;

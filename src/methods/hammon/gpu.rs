@@ -17,7 +17,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::{quarter_size, Constants, Curve, HammonSettings};
-use crate::gpu::{GpuContext, PassTimer};
+use crate::gpu::{GpuContext, PassTimer, NO_FAILURE};
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::ThinLens;
 use crate::methods::MethodOutput;
@@ -47,9 +47,6 @@ pub const PASSES: [&str; 5] = [
     "hammon/near_coc",
     "hammon/composite",
 ];
-
-/// No failing pixel in the `status` buffer.
-const NO_FAILURE: u32 = u32::MAX;
 
 /// The shader's `Params`.
 #[repr(C)]
@@ -133,10 +130,7 @@ impl Params {
 
 /// Builds every pipeline of the method on `ctx` (compiled once, then cached in it).
 pub fn prepare(ctx: &GpuContext) -> Result<()> {
-    for pipeline in PIPELINES {
-        ctx.pipeline(SHADER_NAME, SHADER, pipeline)?;
-    }
-    Ok(())
+    ctx.pipelines(SHADER_NAME, SHADER, &PIPELINES).map(|_| ())
 }
 
 /// Renders depth of field from a pinhole colour image and its view-axis depth in metres, on
@@ -172,10 +166,7 @@ pub fn render(
     let full_groups = ctx.row_groups(&what, w, h, 64)?;
     let quarter_groups = [(qw as u32).div_ceil(64), qh as u32, 1];
     let block_groups = [(qw as u32).div_ceil(8), (qh as u32).div_ceil(8), 1];
-    let pipelines = PIPELINES
-        .iter()
-        .map(|p| ctx.pipeline(SHADER_NAME, SHADER, p))
-        .collect::<Result<Vec<_>>>()?;
+    let pipelines = ctx.pipelines(SHADER_NAME, SHADER, &PIPELINES)?;
 
     let mut timings = Timings::default();
     let start = std::time::Instant::now();
@@ -269,14 +260,7 @@ pub fn render(
     timings.extend(&timer.finish()?);
 
     let start = std::time::Instant::now();
-    let read = ctx.read(&[(&status_buf, 4), (&out_buf, pixels * 16)])?;
-    let failed = u32::from_le_bytes(read[0][..4].try_into().unwrap_or([0; 4]));
-    let image = if failed == NO_FAILURE {
-        let rgba: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read[1]);
-        Some(ColorImage::from_vec(w, h, rgba)?)
-    } else {
-        None
-    };
+    let image = ctx.read_frame(&status_buf, &out_buf, w, h)?;
     timings.add("gpu/download", start.elapsed().as_secs_f64() * 1e3);
     ctx.recycle([
         params,
@@ -294,7 +278,7 @@ pub fn render(
         medium_coc,
         out_buf,
     ]);
-    let image = image.ok_or_else(|| super::coc::invalid_depth(depth))?;
+    let image = image.map_err(|_| super::coc::invalid_depth(depth))?;
     Ok(MethodOutput {
         image,
         depth: None,

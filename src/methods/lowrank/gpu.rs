@@ -23,7 +23,7 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 
 use super::{coc_map, fallback_taps, kernel_bank, LowRankSettings, EFFECTS};
-use crate::gpu::{GpuContext, PassTimer};
+use crate::gpu::{GpuContext, PassTimer, NO_FAILURE};
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::ThinLens;
 use crate::methods::poisson::gpu::tap_table;
@@ -52,9 +52,6 @@ pub const PASSES: [&str; 5] = [
 
 /// Invocations of a workgroup along x (the shader's `@workgroup_size`).
 const WORKGROUP_X: u32 = 64;
-
-/// No failing pixel in the first word of the `status` buffer.
-const NO_FAILURE: u32 = u32::MAX;
 
 /// The shader's `Params`.
 #[repr(C)]
@@ -102,10 +99,7 @@ enum Source<'a> {
 
 /// Builds every pipeline of the method on `ctx` (compiled once, then cached in it).
 pub fn prepare(ctx: &GpuContext) -> Result<()> {
-    for pass in PASSES {
-        ctx.pipeline(SHADER_NAME, SHADER, pass)?;
-    }
-    Ok(())
+    ctx.pipelines(SHADER_NAME, SHADER, &PASSES).map(|_| ())
 }
 
 /// Renders depth of field from a pinhole colour image and its view-axis depth in metres, on
@@ -148,21 +142,7 @@ pub fn render_coc(
     settings: &LowRankSettings,
 ) -> Result<MethodOutput> {
     settings.validate()?;
-    if !color.same_size(coc_px) {
-        return Err(Error::Mismatch(format!(
-            "colour image is {}x{} but the CoC map is {}x{}",
-            color.width(),
-            color.height(),
-            coc_px.width(),
-            coc_px.height()
-        )));
-    }
-    if color.width() == 0 || color.height() == 0 {
-        return Err(Error::invalid(
-            "image size",
-            "0 pixels: expected at least 1x1",
-        ));
-    }
+    super::check_coc_frame(color, coc_px)?;
     let mut timings = Timings::default();
     let coc_px = timings.time("lowrank/coc", || {
         coc_map::clamp_coc(coc_px, settings.max_coc_px)
@@ -197,10 +177,7 @@ fn run(
         pixels * (16 + 4 + 4 + 4 + 16 + 4 + 16 + 4 + 16),
     )?;
     let groups = ctx.row_groups(&what, w, h, WORKGROUP_X)?;
-    let pipelines = PASSES
-        .iter()
-        .map(|pass| ctx.pipeline(SHADER_NAME, SHADER, pass))
-        .collect::<Result<Vec<_>>>()?;
+    let pipelines = ctx.pipelines(SHADER_NAME, SHADER, &PASSES)?;
     let [coc_pipe, edges_pipe, horizontal_pipe, vertical_pipe, fallback_pipe] = &pipelines[..]
     else {
         return Err(Error::Gpu(format!(
@@ -273,13 +250,7 @@ fn run(
             let failed = word(0);
             if failed != NO_FAILURE {
                 ctx.recycle([color_buf, coc_buf]);
-                return Err(if (failed as usize) < depth.pixels().len() {
-                    coc_map::bad_depth(depth, failed as usize)
-                } else {
-                    Error::Gpu(format!(
-                        "{what}: the coc pass reported pixel {failed} of {pixels}"
-                    ))
-                });
+                return Err(coc_map::gpu_bad_depth(depth, failed, &what));
             }
             timings.add("lowrank/kernel", start.elapsed().as_secs_f64() * 1e3);
             (f32::from_bits(word(1)), word(2) == 0)

@@ -335,21 +335,7 @@ fn render_coc_with(
     detailed: bool,
 ) -> Result<Detailed> {
     settings.validate()?;
-    if !color.same_size(coc_px) {
-        return Err(Error::Mismatch(format!(
-            "colour image is {}x{} but the CoC map is {}x{}",
-            color.width(),
-            color.height(),
-            coc_px.width(),
-            coc_px.height()
-        )));
-    }
-    if color.width() == 0 || color.height() == 0 {
-        return Err(Error::invalid(
-            "image size",
-            "0 pixels: expected at least 1x1",
-        ));
-    }
+    check_coc_frame(color, coc_px)?;
     let mut timings = Timings::default();
     let coc_px = timings.time("lowrank/coc", || {
         coc_map::clamp_coc(coc_px, settings.max_coc_px)
@@ -470,4 +456,24 @@ pub fn fallback_taps(settings: &LowRankSettings) -> Result<Taps> {
         *p = settings.effects.squeeze(*p);
     }
     Ok(taps)
+}
+
+/// Checks a colour image and the CoC map it is filtered with: one size, at least 1x1.
+pub fn check_coc_frame(color: &ColorImage, coc_px: &GrayImage) -> Result<()> {
+    if !color.same_size(coc_px) {
+        return Err(Error::Mismatch(format!(
+            "colour image is {}x{} but the CoC map is {}x{}",
+            color.width(),
+            color.height(),
+            coc_px.width(),
+            coc_px.height()
+        )));
+    }
+    if color.width() == 0 || color.height() == 0 {
+        return Err(Error::invalid(
+            "image size",
+            "0 pixels: expected at least 1x1",
+        ));
+    }
+    Ok(())
 }

@@ -12,12 +12,12 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::{PoissonSettings, Taps, EFFECTS};
-use crate::gpu::{GpuContext, PassTimer};
+use crate::gpu::{GpuContext, PassTimer, NO_FAILURE};
 use crate::image::{ColorImage, GrayImage};
 use crate::lens::ThinLens;
 use crate::methods::{coc_map, MethodOutput};
 use crate::timing::Timings;
-use crate::{Error, Result};
+use crate::Result;
 
 /// The WGSL source of the passes: the shared functions, the gather, the entry points.
 pub const SHADER: &str = concat!(
@@ -34,9 +34,6 @@ pub const PASSES: [&str; 2] = ["poisson/coc", "poisson/gather"];
 
 /// Invocations of a workgroup along x (the shader's `@workgroup_size`).
 const WORKGROUP_X: u32 = 64;
-
-/// No failing pixel in the `status` buffer.
-const NO_FAILURE: u32 = u32::MAX;
 
 /// The shader's `Params`.
 #[repr(C)]
@@ -66,10 +63,7 @@ pub(crate) fn tap_table(taps: &Taps) -> Vec<[f32; 4]> {
 
 /// Builds every pipeline of the method on `ctx` (compiled once, then cached in it).
 pub fn prepare(ctx: &GpuContext) -> Result<()> {
-    for pass in PASSES {
-        ctx.pipeline(SHADER_NAME, SHADER, pass)?;
-    }
-    Ok(())
+    ctx.pipelines(SHADER_NAME, SHADER, &PASSES).map(|_| ())
 }
 
 /// Renders depth of field from a pinhole colour image and its view-axis depth in metres, on
@@ -104,10 +98,7 @@ pub fn render(
     // Depth, CoC, colour, the output and its read-back copy.
     ctx.plan(&what, pixels * 16, pixels * (4 + 4 + 16 + 16 + 16))?;
     let groups = ctx.row_groups(&what, w, h, WORKGROUP_X)?;
-    let pipelines = PASSES
-        .iter()
-        .map(|pass| ctx.pipeline(SHADER_NAME, SHADER, pass))
-        .collect::<Result<Vec<_>>>()?;
+    let pipelines = ctx.pipelines(SHADER_NAME, SHADER, &PASSES)?;
 
     let mut timings = Timings::default();
     let start = std::time::Instant::now();
@@ -163,29 +154,12 @@ pub fn render(
     timings.extend(&timer.finish()?);
 
     let start = std::time::Instant::now();
-    let read = ctx.read(&[(&status_buf, 4), (&out_buf, pixels * 16)])?;
-    let failed = u32::from_le_bytes(read[0][..4].try_into().unwrap_or([0; 4]));
-    let image = if failed == NO_FAILURE {
-        let rgba: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read[1]);
-        Some(ColorImage::from_vec(w, h, rgba)?)
-    } else {
-        None
-    };
+    let image = ctx.read_frame(&status_buf, &out_buf, w, h)?;
     timings.add("gpu/download", start.elapsed().as_secs_f64() * 1e3);
     ctx.recycle([
         params_buf, depth_buf, color_buf, taps_buf, status_buf, coc_buf, out_buf,
     ]);
-    let image = match image {
-        Some(image) => image,
-        None if (failed as usize) < depth.pixels().len() => {
-            return Err(coc_map::bad_depth(depth, failed as usize))
-        }
-        None => {
-            return Err(Error::Gpu(format!(
-                "{what}: the coc pass reported pixel {failed} of {pixels}"
-            )))
-        }
-    };
+    let image = image.map_err(|failed| coc_map::gpu_bad_depth(depth, failed, &what))?;
     Ok(MethodOutput {
         image,
         depth: None,
