@@ -71,6 +71,19 @@ fn without_near_blur_fill_changes_nothing() {
     }
 }
 
+/// Depth of a `w`x`h` frame whose left half is near (1 m, a CoC of about -11 px through
+/// [`camera`]) and right half in focus (2 m).
+fn half_near_depth(w: usize, h: usize) -> defocus::image::GrayImage {
+    defocus::image::GrayImage::from_vec(
+        w,
+        h,
+        (0..w * h)
+            .map(|i| if i % w < w / 2 { 1.0 } else { 2.0 })
+            .collect(),
+    )
+    .unwrap()
+}
+
 #[test]
 fn a_constant_frame_stays_constant_with_a_near_layer() {
     let camera = camera();
@@ -78,14 +91,7 @@ fn a_constant_frame_stays_constant_with_a_near_layer() {
     let (w, h) = (96, 64);
     let color = ColorImage::new(w, h, [0.37, 0.2, 0.6, 1.0]);
     // Left half near (CoC about -11 px), right half in focus.
-    let depth = defocus::image::GrayImage::from_vec(
-        w,
-        h,
-        (0..w * h)
-            .map(|i| if i % w < w / 2 { 1.0 } else { 2.0 })
-            .collect(),
-    )
-    .unwrap();
+    let depth = half_near_depth(w, h);
     assert!(lens.coc_px(1.0) < -10.0);
     let frame = Frame {
         color: &color,
@@ -199,14 +205,7 @@ fn the_layered_methods_on_a_frame_keep_a_constant_image_and_an_in_focus_board() 
     let lens = camera.thin_lens().unwrap();
     let (w, h) = (96, 64);
     let color = ColorImage::new(w, h, [0.37, 0.2, 0.6, 1.0]);
-    let depth = defocus::image::GrayImage::from_vec(
-        w,
-        h,
-        (0..w * h)
-            .map(|i| if i % w < w / 2 { 1.0 } else { 2.0 })
-            .collect(),
-    )
-    .unwrap();
+    let depth = half_near_depth(w, h);
     let frame = Frame {
         color: &color,
         depth: &depth,
