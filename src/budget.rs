@@ -56,11 +56,21 @@ pub fn check(bytes: u64, what: &str, lower: &str) -> Result<()> {
         return Err(Error::invalid(
             "memory",
             format!(
-                "{what} needs about {:.1} GiB, more than the budget of {:.1} GiB: lower {lower} (or raise --memory-budget)",
-                bytes as f64 / (1u64 << 30) as f64,
-                budget as f64 / (1u64 << 30) as f64
+                "{what} needs about {}, more than the budget of {}: lower {lower} (or raise --memory-budget)",
+                gib_text(bytes),
+                gib_text(budget)
             ),
         ));
     }
     Ok(())
+}
+
+/// `bytes` in GiB for messages: two decimals below 10 GiB (`0.25 GiB`), one above.
+pub fn gib_text(bytes: u64) -> String {
+    let gib = bytes as f64 / (1u64 << 30) as f64;
+    if gib < 10.0 {
+        format!("{gib:.2} GiB")
+    } else {
+        format!("{gib:.1} GiB")
+    }
 }

@@ -349,6 +349,12 @@ fn render_coc_with(
             "0 pixels: expected at least 1x1",
         ));
     }
+    // The frame's estimate, as a run from a depth map is held to (a CoC map in place of it).
+    super::registry::check_budget(
+        &super::registry::MethodSettings::Lowrank(settings.clone()),
+        color.width(),
+        color.height(),
+    )?;
     let mut timings = Timings::default();
     let coc_px = timings.time("lowrank/coc", || {
         coc_map::clamp_coc(coc_px, settings.max_coc_px)
