@@ -65,6 +65,85 @@ pub fn check(bytes: u64, what: &str, lower: &str) -> Result<()> {
     Ok(())
 }
 
+/// A running count of the bytes a job holds, for work that allocates step by step (a scene
+/// file's buffers, meshes and textures): each step reserves what it is about to allocate, and
+/// is refused, before allocating, when the count would pass the budget. Memory a step frees is
+/// released. Safe to share between threads (textures are decoded in parallel).
+#[derive(Debug)]
+pub struct Ledger {
+    budget: u64,
+    held: std::sync::atomic::AtomicU64,
+}
+
+impl Ledger {
+    /// An empty ledger under the budget ([`budget_bytes`]).
+    pub fn new() -> Result<Self> {
+        Ok(Self::with_budget(budget_bytes()?))
+    }
+
+    /// An empty ledger under `budget` bytes.
+    pub fn with_budget(budget: u64) -> Self {
+        Self {
+            budget,
+            held: std::sync::atomic::AtomicU64::new(0),
+        }
+    }
+
+    /// Counts `bytes` more, unless that passes the budget: then nothing is counted and the
+    /// error says what needs them (`what()`), what is held already and what to lower.
+    pub fn reserve(&self, bytes: u64, what: impl FnOnce() -> String, lower: &str) -> Result<()> {
+        if self.try_reserve(bytes) {
+            return Ok(());
+        }
+        let held = match self.held() {
+            0 => String::new(),
+            held => format!(" beside the {} held before it", gib_text(held)),
+        };
+        Err(Error::invalid(
+            "memory",
+            format!(
+                "{} needs about {}{held}, more than the budget of {}: lower {lower} (or raise \
+                 --memory-budget)",
+                what(),
+                gib_text(bytes),
+                gib_text(self.budget)
+            ),
+        ))
+    }
+
+    /// Counts `bytes` more if that stays within the budget; false (and nothing counted) when
+    /// it would not.
+    pub fn try_reserve(&self, bytes: u64) -> bool {
+        use std::sync::atomic::Ordering;
+        self.held
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |held| {
+                held.checked_add(bytes)
+                    .filter(|&total| total <= self.budget)
+            })
+            .is_ok()
+    }
+
+    /// The budget this ledger counts against, in bytes.
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Counts `bytes` fewer (memory a step freed).
+    pub fn release(&self, bytes: u64) {
+        use std::sync::atomic::Ordering;
+        let _ = self
+            .held
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |held| {
+                Some(held.saturating_sub(bytes))
+            });
+    }
+
+    /// The bytes counted now.
+    pub fn held(&self) -> u64 {
+        self.held.load(std::sync::atomic::Ordering::SeqCst)
+    }
+}
+
 /// `bytes` in GiB for messages: two decimals below 10 GiB (`0.25 GiB`), one above.
 pub fn gib_text(bytes: u64) -> String {
     let gib = bytes as f64 / (1u64 << 30) as f64;

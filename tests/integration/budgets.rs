@@ -363,3 +363,319 @@ fn blur_is_refused_from_the_headers_before_decoding() {
         );
     }
 }
+
+/// Asserts that a refused run allocated nothing of note before its refusal: its peak is within
+/// 16 MiB of `floor`, the peak of the same command refused at its first check.
+fn assert_refused_before_allocating(what: &str, peak: Option<u64>, floor: Option<u64>) {
+    if let (Some(peak), Some(floor)) = (peak, floor) {
+        eprintln!("{what}: peak {} MiB, floor {} MiB", peak / MIB, floor / MIB);
+        assert!(
+            peak <= floor + 16 * MIB,
+            "{what}: allocated before refusing: peak {peak} bytes, {floor} when refused at once"
+        );
+    }
+}
+
+/// `--focus auto` and `--focus-pixel` render a pinhole view of the whole frame: the run is
+/// refused before that render when its method would be (hammon at 2048x2048 under 0.1 GiB), as
+/// a run with a set focus is, with no more memory (it rendered an 84 MB G-buffer first).
+#[test]
+fn autofocus_is_refused_before_it_renders() {
+    let dir = temp_dir("budget-autofocus");
+    let out = dir.join("o.exr");
+    let render = |focus: &[&str]| {
+        let mut args = vec![
+            "--memory-budget",
+            "0.1",
+            "render",
+            "--scene",
+            "railing",
+            "--method",
+            "hammon",
+            "--width",
+            "2048",
+            "--height",
+            "2048",
+            "--out",
+            s(&out),
+        ];
+        args.extend_from_slice(focus);
+        peak_of(&dir, &args)
+    };
+    let (o, floor) = render(&["--focus", "2"]);
+    assert_refused("set focus", &o, 0.1, &["hammon at 2048x2048"], &[&out]);
+    for focus in [&["--focus", "auto"][..], &["--focus-pixel", "100,100"]] {
+        let (o, peak) = render(focus);
+        let what = focus.join(" ");
+        assert_refused(&what, &o, 0.1, &["hammon at 2048x2048"], &[&out]);
+        assert_refused_before_allocating(&what, peak, floor);
+    }
+}
+
+/// A glTF scene of `nodes` instances of one mesh whose buffer is `buffer` (`bytes` long, the
+/// positions of `triangles` separate triangles), with `image` as the base colour texture of its
+/// material when given (the mesh then has texture coordinates, all 0, after its positions).
+fn instanced_gltf(buffer: &str, triangles: usize, nodes: usize, image: Option<&str>) -> String {
+    let vertices = 3 * triangles;
+    let mut primitive = serde_json::json!({"attributes": {"POSITION": 0}});
+    let mut accessors = vec![serde_json::json!({
+        "bufferView": 0, "componentType": 5126, "count": vertices, "type": "VEC3",
+        "min": [-0.5, -0.5, -2.0], "max": [0.5, 0.5, -1.0],
+    })];
+    let mut views = vec![serde_json::json!({"buffer": 0, "byteLength": vertices * 12})];
+    let mut bytes = vertices * 12;
+    let mut gltf = serde_json::json!({});
+    if let Some(image) = image {
+        primitive["attributes"]["TEXCOORD_0"] = serde_json::json!(1);
+        primitive["material"] = serde_json::json!(0);
+        accessors.push(serde_json::json!({
+            "bufferView": 1, "componentType": 5126, "count": vertices, "type": "VEC2",
+        }));
+        views.push(serde_json::json!({
+            "buffer": 0, "byteOffset": bytes, "byteLength": vertices * 8,
+        }));
+        bytes += vertices * 8;
+        gltf["materials"] =
+            serde_json::json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
+        gltf["textures"] = serde_json::json!([{"source": 0}]);
+        gltf["images"] = serde_json::json!([{"uri": image}]);
+    }
+    gltf["asset"] = serde_json::json!({"version": "2.0"});
+    gltf["scene"] = serde_json::json!(0);
+    gltf["scenes"] = serde_json::json!([{"nodes": (0..nodes).collect::<Vec<_>>()}]);
+    gltf["nodes"] = serde_json::json!(vec![serde_json::json!({"mesh": 0}); nodes]);
+    gltf["meshes"] = serde_json::json!([{"primitives": [primitive]}]);
+    gltf["accessors"] = serde_json::json!(accessors);
+    gltf["bufferViews"] = serde_json::json!(views);
+    gltf["buffers"] = serde_json::json!([{"byteLength": bytes, "uri": buffer}]);
+    gltf.to_string()
+}
+
+/// The buffer of [`instanced_gltf`]: `triangles` small triangles spread over a square at 1 to
+/// 2 m, then (with `uvs`) texture coordinates of 0.
+fn triangles_buffer(triangles: usize, uvs: bool) -> Vec<u8> {
+    let mut out = Vec::with_capacity(triangles * (36 + if uvs { 24 } else { 0 }));
+    let side = (triangles as f32).sqrt().ceil() as usize;
+    for t in 0..triangles {
+        let (x, y) = ((t % side) as f32, (t / side) as f32);
+        let (x, y) = (x / side as f32 - 0.5, y / side as f32 - 0.5);
+        let z = -1.0 - t as f32 / triangles as f32;
+        let d = 0.5 / side as f32;
+        for v in [[x, y, z], [x + d, y, z], [x, y + d, z]] {
+            for c in v {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+    }
+    if uvs {
+        out.resize(out.len() + triangles * 24, 0);
+    }
+    out
+}
+
+/// A scene's meshes and decoded textures are counted against the budget as they are made,
+/// and the triangles a render makes of them before it renders:
+/// - a texture of a few kilobytes that decodes to 4096x4096 is refused from its header (it was
+///   decoded, 0.4 GiB, under a budget of 0.1, and the render ran);
+/// - 300 instances of a mesh of 10,000 triangles (0.14 GiB of meshes) are refused while they
+///   are made, under 0.1 GiB;
+/// - 150 of them load under 0.25 GiB, but their camera-space copy and set-up triangles do not
+///   fit beside them: the render is refused before it prepares the scene (it ran to 0.6 GiB).
+#[test]
+fn scene_meshes_and_textures_are_counted_before_they_are_made() {
+    let dir = temp_dir("budget-scene");
+    let out = dir.join("o.exr");
+    std::fs::write(dir.join("small.bin"), triangles_buffer(1, true)).unwrap();
+    flat_png(&dir.join("wall.png"), 4096, 4096);
+    assert!(std::fs::metadata(dir.join("wall.png")).unwrap().len() < 1 << 20);
+    let scene = dir.join("textured.gltf");
+    std::fs::write(&scene, instanced_gltf("small.bin", 1, 1, Some("wall.png"))).unwrap();
+    let render = |scene: &Path, budget: &str| {
+        peak_of(
+            &dir,
+            &[
+                "--memory-budget",
+                budget,
+                "render",
+                "--scene",
+                s(scene),
+                "--method",
+                "pinhole",
+                "--width",
+                "64",
+                "--height",
+                "64",
+                "--out",
+                s(&out),
+            ],
+        )
+    };
+    let (o, peak) = render(&scene, "0.1");
+    assert_refused(
+        "texture",
+        &o,
+        0.1,
+        &["textured.gltf", "wall.png", "4096x4096"],
+        &[&out],
+    );
+    assert_within("refused texture", peak, 0.1);
+
+    std::fs::write(dir.join("mesh.bin"), triangles_buffer(10_000, false)).unwrap();
+    let many = dir.join("many.gltf");
+    std::fs::write(&many, instanced_gltf("mesh.bin", 10_000, 300, None)).unwrap();
+    let (o, peak) = render(&many, "0.1");
+    assert_refused(
+        "300 instances",
+        &o,
+        0.1,
+        &["many.gltf", "instance"],
+        &[&out],
+    );
+    assert_within("refused 300 instances", peak, 0.1);
+
+    let half = dir.join("half.gltf");
+    std::fs::write(&half, instanced_gltf("mesh.bin", 10_000, 150, None)).unwrap();
+    let (o, peak) = render(&half, "0.25");
+    assert_refused(
+        "150 instances",
+        &o,
+        0.25,
+        &["pinhole at 64x64", "1500000 triangles"],
+        &[&out],
+    );
+    assert_within("refused 150 instances", peak, 0.25);
+}
+
+/// Files are judged by their size before they are read: a scene file, an MTL library or a
+/// glTF buffer (its declared length) beyond the budget, a scene file beyond 4 GiB and a lens
+/// preset beyond 1 MiB are refused, naming the file, with no more memory than a run refused at
+/// once (they were read whole first: 0.3 GiB, 4 GiB, 0.2 GiB). Sparse files: no disk is used.
+#[test]
+fn files_are_refused_from_their_size_before_they_are_read() {
+    let dir = temp_dir("budget-files");
+    let out = dir.join("o.exr");
+    let sparse = |name: &str, bytes: u64| {
+        let path = dir.join(name);
+        std::fs::File::create(&path)
+            .unwrap()
+            .set_len(bytes)
+            .unwrap();
+        path
+    };
+    let render = |budget: &str, extra: &[&str]| {
+        let mut args = vec![
+            "--memory-budget",
+            budget,
+            "render",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--out",
+            s(&out),
+        ];
+        args.extend_from_slice(extra);
+        peak_of(&dir, &args)
+    };
+    // The floor: a scene file that is not there.
+    let (o, floor) = render("0.1", &["--scene", s(&dir.join("none.gltf"))]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+
+    let big = sparse("big.gltf", 300 << 20);
+    let (o, peak) = render("0.1", &["--scene", s(&big)]);
+    assert_refused("300 MB scene", &o, 0.1, &["big.gltf"], &[&out]);
+    assert_refused_before_allocating("300 MB scene", peak, floor);
+
+    let giant = sparse("giant.gltf", 5 << 30);
+    let (o, peak) = render("0.1", &["--scene", s(&giant)]);
+    let e = stderr(&o);
+    assert!(
+        e.contains("giant.gltf") && e.contains("larger than 4 GiB"),
+        "{e}"
+    );
+    assert_refused_before_allocating("5 GB scene", peak, floor);
+
+    sparse("huge.mtl", 300 << 20);
+    let obj = dir.join("m.obj");
+    std::fs::write(
+        &obj,
+        "mtllib huge.mtl\nv 0 0 -1\nv 1 0 -1\nv 0 1 -1\nf 1 2 3\n",
+    )
+    .unwrap();
+    let (o, peak) = render("0.1", &["--scene", s(&obj)]);
+    assert_refused(
+        "300 MB MTL",
+        &o,
+        0.1,
+        &["m.obj", "mtllib", "huge.mtl"],
+        &[&out],
+    );
+    assert_refused_before_allocating("300 MB MTL", peak, floor);
+
+    // A buffer whose declared length is 300 MB, in a file as long.
+    sparse("data.bin", 300 << 20);
+    let scene = dir.join("declared.gltf");
+    let mut gltf: serde_json::Value =
+        serde_json::from_str(&instanced_gltf("data.bin", 1, 1, None)).unwrap();
+    gltf["buffers"][0]["byteLength"] = serde_json::json!(300u64 << 20);
+    std::fs::write(&scene, gltf.to_string()).unwrap();
+    let (o, peak) = render("0.1", &["--scene", s(&scene)]);
+    assert_refused(
+        "300 MB buffer",
+        &o,
+        0.1,
+        &["declared.gltf", "buffers[0]", "data.bin"],
+        &[&out],
+    );
+    assert_refused_before_allocating("300 MB buffer", peak, floor);
+
+    // A lens preset: the floor is a run with a preset file that is not one.
+    let small = dir.join("small.json");
+    std::fs::write(&small, "{}").unwrap();
+    let (o, floor) = render("0.1", &["--scene", "railing", "--lens", s(&small)]);
+    assert!(stderr(&o).contains("not a lens preset"), "{}", stderr(&o));
+    let lens = sparse("lens.json", 200 << 20);
+    let (o, peak) = render("0.1", &["--scene", "railing", "--lens", s(&lens)]);
+    let e = stderr(&o);
+    assert!(e.contains("lens.json") && e.contains("larger than"), "{e}");
+    assert!(!out.exists());
+    assert_refused_before_allocating("200 MB lens preset", peak, floor);
+}
+
+/// A `results.json` in a report's folder that is far larger than any report's is judged by
+/// its size: the report does not read it (it read its first 64 MiB) and takes no more memory
+/// than with none.
+#[test]
+fn a_huge_results_json_is_not_read() {
+    let dir = temp_dir("budget-results");
+    let report = dir.join("report");
+    let run = || {
+        peak_of(
+            &dir,
+            &[
+                "compare",
+                "--scene",
+                "railing",
+                "--methods",
+                "pinhole",
+                "--width",
+                "32",
+                "--height",
+                "18",
+                "--reference-samples",
+                "2",
+                "--out",
+                s(&report),
+            ],
+        )
+    };
+    let (o, floor) = run();
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::File::create(report.join("results.json"))
+        .unwrap()
+        .set_len(3 << 30)
+        .unwrap();
+    let (o, peak) = run();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_refused_before_allocating("report beside a 3 GB results.json", peak, floor);
+}
