@@ -1,7 +1,11 @@
-//! The peak-memory budget: methods whose intermediate storage grows with their options (the
-//! fragment lists of `multilayer` and `splat --layers`, the depth layers of `multiview`, the tile
-//! lists of `splat`) estimate it before allocating and refuse, naming the option to lower,
-//! when it would exceed the budget, instead of exhausting the machine.
+//! The peak-memory budget: everything that grows with the input is counted before it is
+//! allocated, and a run that would exceed the budget is refused, naming what needs the memory
+//! and what to lower, instead of exhausting the machine: images from their headers
+//! ([`crate::image::io::read_peak_bytes`]), each method's frame and scene
+//! ([`crate::methods::registry::check_scene_budget`]), the storage that grows with a method's
+//! options (the fragment lists of `multilayer` and `splat --layers`, the depth layers of
+//! `multiview`, everything `splat` makes), and a scene file's buffers, meshes and textures as
+//! it loads ([`Ledger`], which counts step by step what a job holds).
 //!
 //! The budget is [`DEFAULT_BUDGET_BYTES`] unless the environment variable [`BUDGET_VARIABLE`]
 //! (`DEFOCUS_MEMORY_BUDGET_GIB`) gives another number of GiB (the command line's

@@ -238,7 +238,7 @@ impl Texture {
     pub fn bytes(&self) -> u64 {
         self.levels
             .iter()
-            .map(|l| (l.pixels().len() * std::mem::size_of::<Rgba>()) as u64)
+            .map(|l| std::mem::size_of_val(l.pixels()) as u64)
             .sum()
     }
 

@@ -190,8 +190,7 @@ const LOWER: &str = "--max-coc, raise --merge, or lower the resolution";
 /// before anything of that step is allocated.
 fn splat(
     layers: &build::PixelLayers,
-    width: usize,
-    height: usize,
+    (width, height): (usize, usize),
     region: (usize, usize, usize, usize),
     settings: &SplatSettings,
     held: u64,
@@ -352,8 +351,7 @@ fn render_detailed_with(
         super::registry::FIXED_PEAK_BYTES + color.pixels().len() as u64 * FRAME_BYTES_PER_PIXEL;
     let (image, stats, bytes) = splat(
         &layers,
-        color.width(),
-        color.height(),
+        (color.width(), color.height()),
         (0, 0, color.width(), color.height()),
         settings,
         held,
@@ -471,8 +469,7 @@ fn splat_lists(
     let (w, h) = (lens.width_px - 2 * guard, lens.height_px - 2 * guard);
     let (image, stats, bytes) = splat(
         &layers,
-        lens.width_px,
-        lens.height_px,
+        (lens.width_px, lens.height_px),
         (guard, guard, w, h),
         settings,
         held,
