@@ -430,10 +430,13 @@ fn build_texture(folder: &SceneFolder, names: &MapNames, job: &TextureJob) -> Re
     match (color, alpha) {
         (Some(c), None) => Ok(c),
         (color, Some(a)) => {
-            // The alpha map is dropped once its alpha is in the colour.
-            folder
-                .ledger()
-                .release(Texture::bytes_for(a.width(), a.height()));
+            // The alpha map is dropped once its alpha is in the colour (without a colour map,
+            // a white image of its size takes its place).
+            if color.is_some() {
+                folder
+                    .ledger()
+                    .release(Texture::bytes_for(a.width(), a.height()));
+            }
             let use_alpha = a.pixels().iter().any(|p| p[3] < 1.0);
             let opacity = |p: [f32; 4]| if use_alpha { p[3] } else { p[0] };
             let mut out = color.unwrap_or_else(|| ColorImage::new(a.width(), a.height(), [1.0; 4]));
