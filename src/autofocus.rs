@@ -9,6 +9,7 @@
 
 use crate::image::GrayImage;
 use crate::lens::Camera;
+use crate::methods::registry::{MethodSettings, PinholeSettings};
 use crate::raster::{render_gbuffer, PreparedScene, View};
 use crate::scene::Scene;
 use crate::{Error, Result};
@@ -31,7 +32,10 @@ pub struct FocusPick {
 
 /// The focus distance for pixel (`x_px`, `y_px`) of `camera`'s image: the median view-axis depth
 /// in metres of the window around it in a pinhole render. `None` when no opaque or alpha-tested
-/// surface is in view at all. The camera's own focus distance is not used.
+/// surface is in view at all. The camera's own focus distance is not used. The render is held to
+/// the memory budget as a one-sample `pinhole` run is
+/// ([`check_scene_budget`](crate::methods::registry::check_scene_budget)), before anything is
+/// allocated for it.
 pub fn focus_at_pixel(
     scene: &Scene,
     camera: &Camera,
@@ -61,6 +65,8 @@ pub fn focus_at_pixel(
         .max(2e-3 * pinhole.focal_length_mm)
         .min(pinhole.far_m);
     let lens = pinhole.thin_lens()?.pinhole();
+    let settings = MethodSettings::Pinhole(PinholeSettings::default());
+    crate::methods::registry::check_scene_budget(&settings, scene, camera)?;
     let prepared = PreparedScene::new(scene, &camera.camera_from_world)?;
     let depth = render_gbuffer(&prepared, &View::pinhole(lens)).depth;
     Ok(focus_in_depth(&depth, x_px, y_px))

@@ -59,11 +59,12 @@ pub struct Metrics {
     pub ssim: f64,
 }
 
-/// Computes all of [`Metrics`] for `a` against `b` (symmetric).
+/// Computes all of [`Metrics`] for `a` against `b` (symmetric). Refused, before its scratch
+/// is allocated, when the two images and the scratch ([`compare_peak_bytes`]) exceed the
+/// memory budget ([`crate::budget`]).
 pub fn compare(a: &ColorImage, b: &ColorImage) -> Result<Metrics> {
-    // The SSIM's luma planes, window sums and map, in double precision where they add up.
     crate::budget::check(
-        a.pixels().len() as u64 * COMPARE_BYTES_PER_PIXEL,
+        compare_peak_bytes(a.width(), a.height()),
         &format!("comparing {}x{} images", a.width(), a.height()),
         "the images' size",
     )?;
@@ -74,8 +75,50 @@ pub fn compare(a: &ColorImage, b: &ColorImage) -> Result<Metrics> {
     })
 }
 
-/// Scratch bytes a pixel of [`compare`] can take besides the two images.
+/// Scratch bytes a pixel of [`compare`] can take besides the two images: the SSIM's luma
+/// planes (2 x 8), its row-filtered moments (5 x 8) and its map (8), in double precision.
 const COMPARE_BYTES_PER_PIXEL: u64 = 64;
+
+/// Peak bytes of [`compare`] on two `width` x `height` images: the images (RGBA, 16 bytes a
+/// pixel each) and the scratch. An [`error_map`] of them takes less (its difference, a copy
+/// of it for the percentile and the map: 24 bytes a pixel).
+pub fn compare_peak_bytes(width: usize, height: usize) -> u64 {
+    (width * height) as u64
+        * (2 * std::mem::size_of::<crate::image::Rgba>() as u64 + COMPARE_BYTES_PER_PIXEL)
+}
+
+/// Checks, from the headers of the image files `a` and `b` (no pixel decoded), that they have
+/// one size and that reading them (`b` beside `a`) and comparing them ([`compare_peak_bytes`])
+/// fit the memory budget ([`crate::budget`]); errors name the files and the budget. A header
+/// that does not read is left to the read itself, whose error says what is wrong.
+pub fn check_files(a: &std::path::Path, b: &std::path::Path) -> Result<()> {
+    use crate::error::shown;
+    use crate::image::io::{read_peak_bytes, ReadAs};
+    let (Ok((read_a, (wa, ha))), Ok((read_b, (wb, hb)))) = (
+        read_peak_bytes(a, ReadAs::Color),
+        read_peak_bytes(b, ReadAs::Color),
+    ) else {
+        return Ok(());
+    };
+    if (wa, ha) != (wb, hb) {
+        return Err(Error::Mismatch(format!(
+            "{} is {wa}x{ha} but {} is {wb}x{hb}",
+            shown(&a),
+            shown(&b)
+        )));
+    }
+    let check = |bytes: u64, what: String| crate::budget::check(bytes, &what, "the images' size");
+    check(read_a, format!("decoding {} ({wa}x{ha})", shown(&a)))?;
+    let image_bytes = (wa * ha) as u64 * std::mem::size_of::<crate::image::Rgba>() as u64;
+    check(
+        image_bytes + read_b,
+        format!("decoding {} ({wb}x{hb}) beside {}", shown(&b), shown(&a)),
+    )?;
+    check(
+        compare_peak_bytes(wa, ha),
+        format!("comparing {} and {} ({wa}x{ha})", shown(&a), shown(&b)),
+    )
+}
 
 /// Fails with [`Error::Mismatch`] naming both sizes unless the images have the same size, and
 /// with [`Error::Invalid`] if they are empty.

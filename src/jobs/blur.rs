@@ -280,6 +280,7 @@ impl BlurJob {
         if tilt_shift.is_some() && a.depth.is_some() {
             bail!("--tilt-shift paints the blur itself: give no --depth with it");
         }
+        check_budget(a, method)?;
         let aperture = parse_aperture(&a.aperture)?;
         if let Some(p) = a.aperture.strip_prefix("image:") {
             io::ensure_not_same_file(Path::new(p), &a.out)?;
@@ -562,6 +563,46 @@ impl BlurJob {
             memory_bytes: output.memory_bytes,
         })
     }
+}
+
+/// Refuses a blur beyond the memory budget ([`crate::budget`]) from its images' headers,
+/// before any pixel is decoded: the peak of reading the colour (all its channels with
+/// `--verbose`, which lists them), of reading the depth while the colour is held, and the
+/// method's own estimate at the colour's size ([`registry::peak_bytes`]), whichever is the
+/// largest. Errors name the file or the method, and the budget. A header that does not read is
+/// left to the read itself, whose error says what is wrong with the file.
+fn check_budget(a: &BlurArgs, method: &str) -> Result<()> {
+    use io::ReadAs;
+    let Ok((mut color, (w, h))) = io::read_peak_bytes(&a.color, ReadAs::Color) else {
+        return Ok(());
+    };
+    if a.verbose && has_extension(&a.color, "exr") {
+        if let Ok((all, _)) = io::read_peak_bytes(&a.color, ReadAs::Channel) {
+            color = color.max(all);
+        }
+    }
+    crate::budget::check(
+        color,
+        &format!("decoding {} ({w}x{h})", shown(&a.color)),
+        "the image's size",
+    )?;
+    let image_bytes = (w * h) as u64 * std::mem::size_of::<crate::image::Rgba>() as u64;
+    if let Some(d) = &a.depth {
+        if let Ok((depth, (dw, dh))) = io::read_peak_bytes(d, ReadAs::Channel) {
+            crate::budget::check(
+                image_bytes + depth,
+                &format!("decoding {} ({dw}x{dh}) beside the colour image", shown(d)),
+                "the images' size",
+            )?;
+        }
+    }
+    let settings = MethodSettings::default_for(method)?;
+    crate::budget::check(
+        registry::peak_bytes(&settings, w, h),
+        &format!("blur --method {method} of {} ({w}x{h})", shown(&a.color)),
+        "the resolution",
+    )?;
+    Ok(())
 }
 
 /// Whether `path` ends in `.ext` (any case).

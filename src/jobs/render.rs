@@ -279,6 +279,9 @@ impl RenderJob {
             (_, pixel) => pixel,
         };
         if let Some((x, y)) = focus_pixel {
+            // The run would be refused at this size: refuse it before the autofocus renders.
+            let settings = MethodSettings::default_for(&a.method)?;
+            registry::check_scene_budget(&settings, &scene, &camera)?;
             let pick = autofocus::focus_at_pixel(&scene, &camera, x, y)
                 .context("invalid --focus auto / --focus-pixel")?
                 .with_context(|| {

@@ -1229,6 +1229,13 @@ fn previous_record(dir: &Path) -> Vec<(String, crate::output::Digest)> {
     let Ok(file) = crate::input::open_regular(&dir.join("results.json")) else {
         return Vec::new();
     };
+    // Judged by its size before it is read.
+    if !file
+        .metadata()
+        .is_ok_and(|m| m.len() <= MAX_RESULTS_JSON_BYTES)
+    {
+        return Vec::new();
+    }
     let mut text = String::new();
     if std::io::Read::read_to_string(
         &mut std::io::Read::take(file, MAX_RESULTS_JSON_BYTES + 1),

@@ -79,6 +79,9 @@ pub const PRESETS: &[(&str, &str)] = &[
     ("apochromat", include_str!("../../presets/apochromat.json")),
 ];
 
+/// Most bytes of a lens preset file: far more than its few lines of JSON need.
+pub const MAX_PRESET_FILE_BYTES: u64 = 1 << 20;
+
 /// A lens preset file: a description and any of the effects, in the units of the flags.
 #[derive(serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -131,7 +134,7 @@ impl LensEffects {
                         ),
                     )
                 };
-                let mut file = match crate::input::open_regular(path) {
+                let file = match crate::input::open_regular(path) {
                     Ok(f) => f,
                     Err(crate::input::OpenError::NotRegular(kind)) => {
                         return Err(not_a_file(&format!("it is {kind}")))
@@ -141,9 +144,30 @@ impl LensEffects {
                     }
                     Err(crate::input::OpenError::Io(e)) => return Err(Error::io(path, e)),
                 };
-                let mut text = String::new();
-                std::io::Read::read_to_string(&mut file, &mut text)
-                    .map_err(|e| Error::io(path, e))?;
+                // Refused from its size, before it is read: a preset is a few lines of JSON.
+                let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+                let too_large = || {
+                    Error::format(
+                        path,
+                        format!(
+                            "larger than {} KiB: expected a lens preset, a few lines of JSON",
+                            MAX_PRESET_FILE_BYTES >> 10
+                        ),
+                    )
+                };
+                if len > MAX_PRESET_FILE_BYTES {
+                    return Err(too_large());
+                }
+                let mut text = String::with_capacity(len as usize);
+                std::io::Read::read_to_string(
+                    &mut std::io::Read::take(file, MAX_PRESET_FILE_BYTES + 1),
+                    &mut text,
+                )
+                .map_err(|e| Error::io(path, e))?;
+                // It grew while it was read.
+                if text.len() as u64 > MAX_PRESET_FILE_BYTES {
+                    return Err(too_large());
+                }
                 (path.to_path_buf(), text)
             }
         };

@@ -425,6 +425,37 @@ pub fn check_budget(settings: &MethodSettings, width: usize, height: usize) -> R
     )
 }
 
+/// Bytes a run on `scene` holds for the scene besides its frame: the scene itself
+/// ([`Scene::bytes`]: meshes and decoded textures), its camera-space copy
+/// ([`PreparedScene::bytes_for`]) and the set-up and binned triangles of the views rendered at
+/// once ([`crate::raster::views::view_bytes`] times [`crate::raster::views::views_per_chunk`]).
+pub fn scene_peak_bytes(scene: &Scene) -> Result<u64> {
+    use crate::raster::views::{view_bytes, views_per_chunk};
+    let triangles = scene.triangle_count();
+    let views = views_per_chunk(triangles, crate::budget::budget_bytes()?) as u64;
+    Ok(scene.bytes()
+        + crate::raster::PreparedScene::bytes_for(scene)
+        + views * view_bytes(triangles))
+}
+
+/// Refuses a run of `settings` on `scene` through `camera` whose estimated peak, the frame's
+/// ([`peak_bytes`]) and the scene's ([`scene_peak_bytes`]), exceeds the memory budget, before
+/// anything is allocated for it.
+pub fn check_scene_budget(settings: &MethodSettings, scene: &Scene, camera: &Camera) -> Result<()> {
+    let (w, h) = (camera.width_px, camera.height_px);
+    crate::budget::check(
+        peak_bytes(settings, w, h) + scene_peak_bytes(scene)?,
+        &format!(
+            "{} at {w}x{h} on scene '{}' ({} triangles, {} textures)",
+            settings.id(),
+            crate::error::shown(&scene.name),
+            scene.triangle_count(),
+            scene.textures.len()
+        ),
+        "the resolution or the scene's size",
+    )
+}
+
 /// Runs a method that reads a pinhole frame. A method that needs a scene is refused with a
 /// message that says what it needs.
 pub fn run_frame(settings: &MethodSettings, frame: &Frame) -> Result<MethodOutput> {
@@ -541,7 +572,7 @@ pub fn run_scene_on(
     gpu: Option<&GpuContext>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<MethodOutput> {
-    check_budget(settings, camera.width_px, camera.height_px)?;
+    check_scene_budget(settings, scene, camera)?;
     if gpu.is_some() {
         check_gpu(settings.id())?;
     }

@@ -320,6 +320,14 @@ struct PreparedTriangle {
 }
 
 impl<'a> PreparedScene<'a> {
+    /// Bytes a prepared `scene` takes: its vertices' positions and texture coordinates (20
+    /// bytes each) and its triangles (16).
+    pub fn bytes_for(scene: &Scene) -> u64 {
+        scene.vertex_count() as u64
+            * (std::mem::size_of::<Vec3>() + std::mem::size_of::<Vec2>()) as u64
+            + scene.triangle_count() as u64 * std::mem::size_of::<PreparedTriangle>() as u64
+    }
+
     /// Transforms `scene` into the camera space of `camera_from_world` and validates it.
     pub fn new(scene: &'a Scene, camera_from_world: &glam::Affine3A) -> Result<Self> {
         scene.validate()?;

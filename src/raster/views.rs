@@ -56,6 +56,21 @@ pub fn render_view(
 /// one after another while its sum and buffers stay in cache.
 const VIEWS_PER_CHUNK: usize = 16;
 
+/// Bytes the set-up and binned triangles of one view of a scene of `triangles` triangles take,
+/// about (the upper bound the budget counts): each set-up triangle twice (its chunk's list and
+/// the joined list, [`SetupTriangle`]) and its sort key and entry in a tile's list.
+pub fn view_bytes(triangles: usize) -> u64 {
+    triangles.max(1) as u64 * (2 * std::mem::size_of::<SetupTriangle>() as u64 + 16)
+}
+
+/// Views [`accumulate_views`] sets up and bins at a time for a scene of `triangles` triangles
+/// under a memory budget of `budget` bytes: as many as [`CHUNK_BYTES`] and an eighth of the
+/// budget hold (at least one, at most [`VIEWS_PER_CHUNK`]).
+pub fn views_per_chunk(triangles: usize, budget: u64) -> usize {
+    let room = (CHUNK_BYTES as u64).min(budget / 8);
+    ((room / view_bytes(triangles)) as usize).clamp(1, VIEWS_PER_CHUNK)
+}
+
 /// Memory the binned views of one chunk may take; scenes with many triangles take fewer views
 /// per chunk.
 const CHUNK_BYTES: usize = 512 << 20;
@@ -95,9 +110,7 @@ pub fn accumulate_views_clipped(
     let clip = clip.filter(|e| e.has_cats_eye());
     let (w, h) = (lens.width_px, lens.height_px);
     let total = samples.len();
-    // Setup triangles and bin entries of one view, at most.
-    let view_bytes = prepared.triangle_count().max(1) * (std::mem::size_of::<SetupTriangle>() + 16);
-    let chunk = (CHUNK_BYTES / view_bytes).clamp(1, VIEWS_PER_CHUNK);
+    let chunk = views_per_chunk(prepared.triangle_count(), crate::budget::budget_bytes()?);
     // Per tile: its rectangle and the sum of its pixels, row-major within the tile; with a
     // clip, also each pixel's count of views that reach it.
     let mut sums: Vec<(TileRect, Vec<Rgba>)> = Vec::new();

@@ -180,7 +180,31 @@ impl Mesh {
     pub fn triangle_count(&self) -> usize {
         self.indices.len()
     }
+
+    /// Bytes the mesh takes: its arrays, and [`MESH_OVERHEAD_BYTES`] for itself in a scene's
+    /// list and its arrays' allocations.
+    pub fn bytes(&self) -> u64 {
+        (self.positions.capacity() * std::mem::size_of::<Vec3>()
+            + self.normals.capacity() * std::mem::size_of::<Vec3>()
+            + self.uvs.capacity() * std::mem::size_of::<Vec2>()
+            + self.indices.capacity() * std::mem::size_of::<[u32; 3]>()) as u64
+            + MESH_OVERHEAD_BYTES
+    }
+
+    /// Bytes of a mesh of `vertices` vertices (with normals and texture coordinates as
+    /// `normals` and `uvs` say) and `triangles` triangles, as [`Mesh::bytes`] counts them.
+    pub fn bytes_for(vertices: usize, normals: bool, uvs: bool, triangles: usize) -> u64 {
+        let per_vertex = std::mem::size_of::<Vec3>() * (1 + usize::from(normals))
+            + std::mem::size_of::<Vec2>() * usize::from(uvs);
+        (vertices * per_vertex + triangles * std::mem::size_of::<[u32; 3]>()) as u64
+            + MESH_OVERHEAD_BYTES
+    }
 }
+
+/// Bytes a mesh takes besides its arrays' contents: itself in a scene's list of meshes (which
+/// may have doubled as it grew) and the allocator's share of each of its four arrays. A scene
+/// of many small meshes (one triangle instanced by many nodes) is mostly this.
+pub const MESH_OVERHEAD_BYTES: u64 = 2 * std::mem::size_of::<Mesh>() as u64 + 4 * 16;
 
 /// Largest vertex coordinate in metres a scene may have (10,000 km): beyond it the depth and
 /// projection arithmetic of f32 loses the precision a camera needs.
@@ -226,6 +250,18 @@ impl Scene {
     /// Total number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.meshes.iter().map(Mesh::triangle_count).sum()
+    }
+
+    /// Total number of vertices.
+    pub fn vertex_count(&self) -> usize {
+        self.meshes.iter().map(|m| m.positions.len()).sum()
+    }
+
+    /// Bytes the scene's meshes and textures take (what a run holds for the scene itself,
+    /// besides what it makes from it).
+    pub fn bytes(&self) -> u64 {
+        self.meshes.iter().map(Mesh::bytes).sum::<u64>()
+            + self.textures.iter().map(Texture::bytes).sum::<u64>()
     }
 
     /// Axis-aligned bounds (min, max) of all vertices, or `None` for an empty scene.

@@ -221,6 +221,27 @@ fn widened_cell(c: usize, n: usize) -> Vec<usize> {
 }
 
 impl Texture {
+    /// Bytes the levels of a texture of `width` x `height` texels take (RGBA floats, level 0
+    /// and every mip level down to 1x1): about 4/3 of level 0.
+    pub fn bytes_for(width: usize, height: usize) -> u64 {
+        let (mut w, mut h) = (width.max(1) as u64, height.max(1) as u64);
+        let mut total = w * h;
+        while w > 1 || h > 1 {
+            w = (w / 2).max(1);
+            h = (h / 2).max(1);
+            total += w * h;
+        }
+        total * std::mem::size_of::<Rgba>() as u64
+    }
+
+    /// Bytes the levels of this texture take.
+    pub fn bytes(&self) -> u64 {
+        self.levels
+            .iter()
+            .map(|l| std::mem::size_of_val(l.pixels()) as u64)
+            .sum()
+    }
+
     /// Builds a texture and its mip chain from a linear-light image (straight alpha). Mips are
     /// averaged with alpha-weighted colour so cut-out edges do not darken.
     pub fn new(level0: ColorImage) -> Self {

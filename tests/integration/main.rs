@@ -1,5 +1,6 @@
 //! Behaviour tests of defocus: one binary, one module per area.
 
+mod budgets;
 mod cli;
 mod cli_post;
 mod docs;

@@ -405,7 +405,7 @@ fn every_method_refuses_a_frame_beyond_the_memory_budget_before_rendering() {
         assert_eq!(o.status.code(), Some(1), "{id}: {}", stderr(&o));
         let e = stderr(&o);
         assert!(
-            e.contains("budget of 0.2 GiB") && e.contains("lower"),
+            e.contains("budget of 0.25 GiB") && e.contains("lower"),
             "{id}: {e}"
         );
         assert!(!out.exists(), "{id}");

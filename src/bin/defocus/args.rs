@@ -23,9 +23,9 @@ pub struct Cli {
     #[arg(long, short, global = true)]
     pub quiet: bool,
     /// Peak memory a run may plan for, in GiB (default 16; also `DEFOCUS_MEMORY_BUDGET_GIB`):
-    /// images read, every method's frame and the layered methods' lists and layers are counted
-    /// before they are allocated, and a run that would need more is refused, naming the option
-    /// to lower.
+    /// images read (from their headers), scene files, meshes and textures, every method's frame
+    /// and scene, and the lists and layers of splat and the layered methods are counted before
+    /// they are allocated, and a run that would need more is refused, naming what to lower.
     #[arg(long, global = true, value_name = "GIB", allow_negative_numbers = true)]
     pub memory_budget: Option<f64>,
     /// Do not wait for each output to reach the disk (fsync) before it replaces its target.

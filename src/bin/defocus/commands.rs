@@ -164,6 +164,8 @@ fn compare(args: &CompareArgs) -> Result<()> {
         io::ensure_not_same_file(&args.a, diff)?;
         io::ensure_not_same_file(&args.b, diff)?;
     }
+    // Sizes and the memory budget from the headers, before any pixel is decoded.
+    metrics::check_files(&args.a, &args.b)?;
     let a = io::read_color(&args.a)?;
     let b = io::read_color(&args.b)?;
     io::check_finite_color(&args.a, &a)?;

@@ -120,6 +120,7 @@ pub fn run(a: &KernelArgs) -> Result<()> {
     }
     if let Some(input) = &a.filter {
         check_input(input, "--filter")?;
+        check_filter_budget(input, a)?;
     }
     let named: Vec<(&str, &std::path::Path)> = outputs
         .iter()
@@ -229,6 +230,39 @@ pub fn run(a: &KernelArgs) -> Result<()> {
         t.trim_end().to_string()
     };
     crate::common::print_output(&text)
+}
+
+/// Refuses a `--filter` beyond the memory budget from the image's header, before any pixel
+/// is decoded: reading it, then the low-rank filter and, with `--full-2d-out`, the full 2D
+/// filter beside the low-rank result and the metrics of the two ([`metrics::compare`]), while
+/// the image is held. A header that does not read is left to the read, whose error says why.
+fn check_filter_budget(input: &std::path::Path, a: &KernelArgs) -> Result<()> {
+    use defocus::budget::check;
+    use defocus::methods::lowrank::filter::{full_2d_bytes, SEPARABLE_BYTES_PER_PIXEL};
+    let Ok((read, (w, h))) = io::read_peak_bytes(input, io::ReadAs::Color) else {
+        return Ok(());
+    };
+    let name = defocus::error::shown(input);
+    check(
+        read,
+        &format!("decoding {name} ({w}x{h})"),
+        "the image's size",
+    )?;
+    let image = (w * h) as u64 * std::mem::size_of::<defocus::image::Rgba>() as u64;
+    let mut peak = image + (w * h) as u64 * SEPARABLE_BYTES_PER_PIXEL;
+    if a.full_2d_out.is_some() {
+        // The full filter beside the image and the low-rank result, then the metrics of the
+        // two results beside the image.
+        peak = peak
+            .max(2 * image + full_2d_bytes(w, h, a.size))
+            .max(image + metrics::compare_peak_bytes(w, h));
+    }
+    check(
+        peak,
+        &format!("kernel --filter {name} ({w}x{h})"),
+        "the image's size or --size",
+    )?;
+    Ok(())
 }
 
 /// What `--filter` measured.

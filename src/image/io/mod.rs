@@ -270,26 +270,66 @@ fn input_format(path: &Path, role: &'static str) -> Result<FileFormat> {
     }
 }
 
-/// Bytes a pixel of a decoded image can take at the peak of a read: the image (RGBA, 4 floats)
-/// and the decoder's own buffer of the file's samples (up to as many again).
+/// Bytes a pixel of a decoded PNG, JPEG or PFM file can take at the peak of a read: the
+/// decoder's samples (up to 8 bytes for 16-bit RGBA), their conversion to floats (up to 16),
+/// then those floats and the image (RGBA, 16).
 const DECODE_BYTES_PER_PIXEL: u64 = 32;
 
 /// [`check_size`] for a size read from a file header: the error names the file. The decoded
 /// size is also held against the memory budget ([`crate::budget`]) before any pixel memory is
-/// allocated (a small compressed file can claim a huge image).
-fn check_file_size(path: &Path, width: usize, height: usize) -> Result<()> {
+/// allocated (a small compressed file can claim a huge image): `bytes` is the peak of the read.
+fn check_decode(path: &Path, width: usize, height: usize, bytes: u64) -> Result<()> {
+    check_header_size(path, width, height)?;
+    crate::budget::check(
+        bytes,
+        &format!("decoding {} ({width}x{height})", shown(&path)),
+        "the image's size",
+    )
+}
+
+/// [`check_size`] for a size read from a file header: the error names the file.
+fn check_header_size(path: &Path, width: usize, height: usize) -> Result<()> {
     check_size(width, height).map_err(|e| {
         let reason = match e {
             Error::Invalid { message, .. } => message,
             other => other.to_string(),
         };
         Error::format(path, format!("image size from the header: {reason}"))
-    })?;
-    crate::budget::check(
+    })
+}
+
+/// [`check_decode`] for a PNG, JPEG or PFM file of `width` x `height` pixels.
+fn check_file_size(path: &Path, width: usize, height: usize) -> Result<()> {
+    check_decode(
+        path,
+        width,
+        height,
         (width * height) as u64 * DECODE_BYTES_PER_PIXEL,
-        &format!("decoding {} ({width}x{height})", shown(&path)),
-        "the image's size",
     )
+}
+
+/// How an image file is read, for [`read_peak_bytes`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReadAs {
+    /// As colour ([`read_color`]).
+    Color,
+    /// As depth or a CoC map ([`read_depth`], [`read_coc`]): an OpenEXR file's channels are
+    /// all decoded, to choose one.
+    Channel,
+}
+
+/// The peak bytes that reading the image at `path` as `read` says takes, from its header
+/// alone (no pixel is decoded), and its width and height; the size limits are checked (the
+/// error names the file). A PNG, JPEG or PFM file takes [`DECODE_BYTES_PER_PIXEL`] a pixel; an
+/// OpenEXR file its compressed chunks (the file's size) and its samples (see
+/// `exr_read_peak_bytes`), so a file with many channels counts them all.
+pub fn read_peak_bytes(path: &Path, read: ReadAs) -> Result<(u64, (usize, usize))> {
+    if input_format(path, "input image path")? == FileFormat::Exr {
+        return exr_read_peak_bytes(path, read == ReadAs::Color);
+    }
+    let (w, h) = image_size(path)?;
+    check_header_size(path, w, h)?;
+    Ok(((w * h) as u64 * DECODE_BYTES_PER_PIXEL, (w, h)))
 }
 
 /// Opens an image file for reading; a missing or unreadable file is an [`Error::Io`] naming

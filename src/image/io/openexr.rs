@@ -148,6 +148,7 @@ pub(super) fn ends_with_component(name: &str, suffix: &str) -> bool {
 /// Deep files are refused.
 pub fn read_exr_channels(path: &Path) -> Result<ExrChannels> {
     check_exr_windows(path)?;
+    check_exr_decode(path, false)?;
     let chunks = exr::block::read(BufReader::new(open(path)?), false)
         .map_err(|e| exr_read_error(path, e))?;
     exr_channels_from(path, chunks)
@@ -159,7 +160,7 @@ pub(super) fn exr_channels_from<R: Read + std::io::Seek>(
     chunks: exr::block::reader::Reader<R>,
 ) -> Result<ExrChannels> {
     for header in chunks.headers() {
-        check_file_size(path, header.layer_size.0, header.layer_size.1)?;
+        check_header_size(path, header.layer_size.0, header.layer_size.1)?;
         if header.deep {
             return Err(Error::format(
                 path,
@@ -292,6 +293,81 @@ pub(super) fn exr_read_error(path: &Path, err: exr::error::Error) -> Error {
     }
 }
 
+/// Whether a file of these headers is one part of R, G, B and perhaps A, every channel
+/// sampled at every pixel: its colour is decoded straight into the image's pixels.
+fn is_plain_rgba(headers: &[exr::meta::header::Header]) -> bool {
+    let [header] = headers else {
+        return false;
+    };
+    let names: Vec<String> = header
+        .channels
+        .list
+        .iter()
+        .map(|c| c.name.to_string())
+        .collect();
+    let subsampled = header
+        .channels
+        .list
+        .iter()
+        .any(|c| c.sampling != Vec2(1, 1));
+    !header.deep && !subsampled && (names == ["B", "G", "R"] || names == ["A", "B", "G", "R"])
+}
+
+/// Bytes of the colour image and of the samples a read adds per pixel besides its decoded
+/// channels: the image (RGBA, 16) and a plane of ones for a missing alpha, or the chosen
+/// depth channel's copy (4).
+const EXR_IMAGE_BYTES_PER_PIXEL: u64 = 20;
+
+/// The peak bytes of reading an OpenEXR file, from its headers (no pixel decoded), and its
+/// width and height (the first part's data window); every part's size is checked against the
+/// size limits. Every compressed chunk is held (the file's size), then:
+/// - a plain RGB(A) file read as colour ([`is_plain_rgba`]) is decoded straight into the
+///   image: 16 bytes a pixel;
+/// - any other read decodes every channel of every part: its samples as stored (2 or 4 bytes)
+///   and as floats (4), then the image or the depth chosen from them
+///   ([`EXR_IMAGE_BYTES_PER_PIXEL`]).
+pub(super) fn exr_read_peak_bytes(path: &Path, color: bool) -> Result<(u64, (usize, usize))> {
+    let file = open(path)?;
+    let file_bytes = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let meta = exr::meta::MetaData::read_from_buffered(BufReader::new(file), false)
+        .map_err(|e| exr_read_error(path, e))?;
+    let first = meta
+        .headers
+        .first()
+        .ok_or_else(|| Error::format(path, "the OpenEXR file has no layers"))?;
+    let size = first.layer_size;
+    let px = |h: &exr::meta::header::Header| (h.layer_size.0 * h.layer_size.1) as u64;
+    for h in meta.headers.iter() {
+        check_header_size(path, h.layer_size.0, h.layer_size.1)?;
+    }
+    let samples = if color && is_plain_rgba(&meta.headers) {
+        px(first) * 16
+    } else {
+        let planes: u64 = meta
+            .headers
+            .iter()
+            .map(|h| {
+                let per_pixel: u64 = h
+                    .channels
+                    .list
+                    .iter()
+                    .map(|c| c.sample_type.bytes_per_sample() as u64 + 4)
+                    .sum();
+                px(h) * per_pixel
+            })
+            .sum();
+        planes + px(first) * EXR_IMAGE_BYTES_PER_PIXEL
+    };
+    Ok((file_bytes + samples, (size.0, size.1)))
+}
+
+/// Checks an OpenEXR file's sizes from its headers, and the peak of reading it (as colour, or
+/// every channel: [`exr_read_peak_bytes`]) against the memory budget, before any chunk is read.
+fn check_exr_decode(path: &Path, color: bool) -> Result<()> {
+    let (bytes, (w, h)) = exr_read_peak_bytes(path, color)?;
+    check_decode(path, w, h, bytes)
+}
+
 /// The RGBA image in an EXR file's channels; see [`read_color`] for the rules.
 /// Reads the colour of an OpenEXR file. A file of one part whose only channels are R, G, B
 /// and perhaps A (the common case: a render's beauty pass) is decoded straight into the
@@ -299,32 +375,14 @@ pub(super) fn exr_read_error(path: &Path, err: exr::error::Error) -> Error {
 /// [`read_exr_channels`] and [`color_from_exr`], which pick the colour layer.
 pub(super) fn read_exr_color(path: &Path) -> Result<ColorImage> {
     check_exr_windows(path)?;
+    check_exr_decode(path, true)?;
     let chunks = exr::block::read(BufReader::new(open(path)?), false)
         .map_err(|e| exr_read_error(path, e))?;
-    let plain = match chunks.headers() {
-        [header] => {
-            let names: Vec<String> = header
-                .channels
-                .list
-                .iter()
-                .map(|c| c.name.to_string())
-                .collect();
-            let subsampled = header
-                .channels
-                .list
-                .iter()
-                .any(|c| c.sampling != Vec2(1, 1));
-            !header.deep
-                && !subsampled
-                && (names == ["B", "G", "R"] || names == ["A", "B", "G", "R"])
-        }
-        _ => false,
-    };
-    if !plain {
+    if !is_plain_rgba(chunks.headers()) {
         return color_from_exr(path, &exr_channels_from(path, chunks)?);
     }
     for header in chunks.headers() {
-        check_file_size(path, header.layer_size.0, header.layer_size.1)?;
+        check_header_size(path, header.layer_size.0, header.layer_size.1)?;
     }
     if let Some(blocks) = ScanlineBlocks::of(&chunks) {
         return blocks.read_rgba(path, chunks);

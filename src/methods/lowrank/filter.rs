@@ -1077,6 +1077,19 @@ pub(crate) fn with_alpha(w: usize, h: usize, rgb: &[[f32; 3]], alpha: f32) -> Co
     ColorImage::from_vec(w, h, pixels).expect("sizes agree by construction")
 }
 
+/// Bytes a pixel of [`filter_separable_with`] takes besides its input image, at most: the
+/// output (16) and, with the paper's schedule on an opaque image, its intermediate image and
+/// sums (12 + 12; the banded schedule's colour copy is 12).
+pub const SEPARABLE_BYTES_PER_PIXEL: u64 = 16 + 12 + 12;
+
+/// Bytes [`filter_full_2d`] takes besides its input image on a `width` x `height` image with
+/// a kernel `kernel_px` wide: its padded copy of the image (16 bytes a pixel of rows grown by
+/// the kernel) and its output (12, then 16 with alpha).
+pub fn full_2d_bytes(width: usize, height: usize, kernel_px: usize) -> u64 {
+    let padded = (width + kernel_px.saturating_sub(1)) * height;
+    padded as u64 * 16 + (width * height) as u64 * (12 + 16)
+}
+
 /// Convolves `img` with `kernel` (any size), the 2D filter that [`filter_separable`]
 /// approximates, with the same register blocks and strips as [`filter_separable`]; zero kernel
 /// entries are skipped. An opaque image is filtered in its colour channels only, with the same

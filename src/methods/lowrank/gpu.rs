@@ -142,7 +142,7 @@ pub fn render_coc(
     settings: &LowRankSettings,
 ) -> Result<MethodOutput> {
     settings.validate()?;
-    super::check_coc_frame(color, coc_px)?;
+    super::check_coc_frame(color, coc_px, settings)?;
     let mut timings = Timings::default();
     let coc_px = timings.time("lowrank/coc", || {
         coc_map::clamp_coc(coc_px, settings.max_coc_px)

@@ -335,7 +335,7 @@ fn render_coc_with(
     detailed: bool,
 ) -> Result<Detailed> {
     settings.validate()?;
-    check_coc_frame(color, coc_px)?;
+    check_coc_frame(color, coc_px, settings)?;
     let mut timings = Timings::default();
     let coc_px = timings.time("lowrank/coc", || {
         coc_map::clamp_coc(coc_px, settings.max_coc_px)
@@ -458,8 +458,13 @@ pub fn fallback_taps(settings: &LowRankSettings) -> Result<Taps> {
     Ok(taps)
 }
 
-/// Checks a colour image and the CoC map it is filtered with: one size, at least 1x1.
-pub fn check_coc_frame(color: &ColorImage, coc_px: &GrayImage) -> Result<()> {
+/// Checks a colour image and the CoC map it is filtered with: one size, at least 1x1, and the
+/// run's estimate within the memory budget, as a run from a depth map is held to.
+pub fn check_coc_frame(
+    color: &ColorImage,
+    coc_px: &GrayImage,
+    settings: &LowRankSettings,
+) -> Result<()> {
     if !color.same_size(coc_px) {
         return Err(Error::Mismatch(format!(
             "colour image is {}x{} but the CoC map is {}x{}",
@@ -475,5 +480,9 @@ pub fn check_coc_frame(color: &ColorImage, coc_px: &GrayImage) -> Result<()> {
             "0 pixels: expected at least 1x1",
         ));
     }
-    Ok(())
+    super::registry::check_budget(
+        &super::registry::MethodSettings::Lowrank(settings.clone()),
+        color.width(),
+        color.height(),
+    )
 }

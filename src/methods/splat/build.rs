@@ -87,6 +87,34 @@ impl PixelLayers {
         &mut self.items
     }
 
+    /// Number of fragments, over all pixels.
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    /// True when no pixel has a fragment.
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    /// Bytes the layers hold (their allocations).
+    pub fn bytes(&self) -> u64 {
+        (self.items.capacity() * std::mem::size_of::<(Rgba, f32)>()
+            + self.offsets.capacity() * std::mem::size_of::<u32>()) as u64
+    }
+
+    /// Empty layers with room for `pixels` pixels and `items` fragments, so that pushing them
+    /// allocates once (a growing vector holds up to twice what it needs, and three times while
+    /// it moves).
+    fn with_capacity(pixels: usize, items: usize) -> Self {
+        let mut offsets = Vec::with_capacity(pixels + 1);
+        offsets.push(0);
+        Self {
+            offsets,
+            items: Vec::with_capacity(items),
+        }
+    }
+
     /// Appends the fragments of the next pixel.
     fn push_pixel(&mut self, items: impl IntoIterator<Item = (Rgba, f32)>) {
         if self.offsets.is_empty() {
@@ -99,7 +127,9 @@ impl PixelLayers {
 
 /// Fragments of one layer: every pixel of a colour + CoC frame with some opacity.
 pub fn from_frame(color: &ColorImage, coc_px: &GrayImage) -> PixelLayers {
-    let mut out = PixelLayers::default();
+    let n = color.pixels().len();
+    let items = color.pixels().iter().filter(|c| c[3] > 0.0).count();
+    let mut out = PixelLayers::with_capacity(n, items);
     for (&c, &k) in color.pixels().iter().zip(coc_px.pixels()) {
         out.push_pixel((c[3] > 0.0).then_some((c, k)));
     }
@@ -112,7 +142,7 @@ pub fn from_frame(color: &ColorImage, coc_px: &GrayImage) -> PixelLayers {
 /// surface is never counted twice.
 pub fn from_lists(lists: &FragmentLists, lens: &ThinLens, group_px: f32) -> PixelLayers {
     let w = lists.width();
-    let mut out = PixelLayers::default();
+    let mut out = PixelLayers::with_capacity(w * lists.height(), lists.depths().len());
     let mut merged: Vec<(Rgba, f32)> = Vec::new();
     for i in 0..w * lists.height() {
         let (depths, colors) = lists.pixel(i % w, i / w);
@@ -292,24 +322,69 @@ impl TileWindow {
     }
 }
 
-/// Distributes `fragments` into the lists of the tiles of `window` they overlap (count, prefix
-/// sum, fill); a fragment that reaches none of them is left out.
-pub fn distribute(
+/// How many list entries each chunk of fragments puts into each tile (pass `build`'s count):
+/// what [`fill`] lays out, known before any list is allocated.
+#[derive(Clone, Debug)]
+pub struct TileCounts {
+    tiles_x: usize,
+    tiles_y: usize,
+    /// Fragments per chunk (the last chunk may hold fewer).
+    chunk: usize,
+    /// Per chunk, per tile: entries.
+    counts: Vec<Vec<u32>>,
+}
+
+impl TileCounts {
+    /// Number of tiles.
+    pub fn tiles(&self) -> usize {
+        self.tiles_x * self.tiles_y
+    }
+
+    /// Entries of every list together.
+    pub fn entries(&self) -> u64 {
+        self.counts.iter().flatten().map(|&c| u64::from(c)).sum()
+    }
+
+    /// Entries of the longest list.
+    pub fn longest(&self) -> u64 {
+        (0..self.tiles_x * self.tiles_y)
+            .map(|t| self.counts.iter().map(|c| u64::from(c[t])).sum::<u64>())
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Bytes the counts hold.
+    pub fn bytes(&self) -> u64 {
+        (self.counts.len() * self.tiles_x * self.tiles_y * std::mem::size_of::<u32>()) as u64
+    }
+
+    /// Bytes [`fill`] allocates: the entries, the offsets, and while it fills them one run (a
+    /// slice, 16 bytes) and one cursor per tile and chunk.
+    pub fn fill_bytes(&self) -> u64 {
+        let tiles = (self.tiles_x * self.tiles_y) as u64;
+        self.entries() * ENTRY_BYTES + (tiles + 1) * 8 + self.counts.len() as u64 * tiles * 24
+    }
+}
+
+/// Bytes of one tile-list entry: the depth key and the fragment index.
+pub const ENTRY_BYTES: u64 = std::mem::size_of::<(u32, u32)>() as u64;
+
+/// Counts the entries `fragments` make in the lists of the tiles of `window` they overlap, per
+/// chunk of fragments (in parallel); nothing is allocated per entry.
+pub fn count(
     fragments: &[SplatFragment],
     merge: usize,
     stretch: f32,
     width: usize,
     height: usize,
     window: &TileWindow,
-) -> crate::Result<TileLists> {
+) -> TileCounts {
     let tiles_x = width.div_ceil(TILE_PX).max(1);
     let tiles_y = height.div_ceil(TILE_PX).max(1);
     let tiles = tiles_x * tiles_y;
     let chunk = fragments.len().div_ceil(16).max(1024);
-    let chunks: Vec<&[SplatFragment]> = fragments.chunks(chunk).collect();
-    // Count per chunk and tile.
-    let counts: Vec<Vec<u32>> = chunks
-        .par_iter()
+    let counts: Vec<Vec<u32>> = fragments
+        .par_chunks(chunk)
         .map(|ch| {
             let mut count = vec![0u32; tiles];
             for f in ch.iter() {
@@ -323,16 +398,34 @@ pub fn distribute(
             count
         })
         .collect();
-    // The entries are counted: refuse before allocating them if they exceed the budget.
-    let total: u64 = counts.iter().flatten().map(|&c| c as u64).sum();
-    crate::budget::check(
-        total * 8,
-        &format!("splat's tile lists ({total} entries)"),
-        "--max-coc, raise --merge, or lower the resolution",
-    )?;
-    // Prefix sum over tiles; each tile's list is its chunks' runs in chunk order, so every
-    // list is in fragment order whatever the thread count. Each chunk fills its runs in place:
-    // the tile lists are cut into one run per tile and chunk.
+    TileCounts {
+        tiles_x,
+        tiles_y,
+        chunk,
+        counts,
+    }
+}
+
+/// Lays out the lists `counts` counted for `fragments` (with the same `merge`, `stretch` and
+/// `window`) and fills them, in parallel with no locks: each tile's list is its chunks' runs in
+/// chunk order, so every list is in fragment order whatever the thread count.
+pub fn fill(
+    fragments: &[SplatFragment],
+    counts: TileCounts,
+    merge: usize,
+    stretch: f32,
+    window: &TileWindow,
+) -> TileLists {
+    let TileCounts {
+        tiles_x,
+        tiles_y,
+        chunk,
+        counts,
+    } = counts;
+    let tiles = tiles_x * tiles_y;
+    let chunks: Vec<&[SplatFragment]> = fragments.chunks(chunk).collect();
+    // Prefix sum over tiles. Each chunk fills its runs in place: the tile lists are cut into
+    // one run per tile and chunk.
     let mut offsets = vec![0usize; tiles + 1];
     for t in 0..tiles {
         offsets[t + 1] = offsets[t] + counts.iter().map(|c| c[t] as usize).sum::<usize>();
@@ -349,6 +442,7 @@ pub fn distribute(
             rest = tail;
         }
     }
+    drop(counts);
     chunks
         .par_iter()
         .zip(runs.par_iter_mut())
@@ -369,10 +463,24 @@ pub fn distribute(
             }
         });
     drop(runs);
-    Ok(TileLists {
+    TileLists {
         tiles_x,
         tiles_y,
         offsets,
         entries,
-    })
+    }
+}
+
+/// Distributes `fragments` into the lists of the tiles of `window` they overlap ([`count`],
+/// then [`fill`]); a fragment that reaches none of them is left out.
+pub fn distribute(
+    fragments: &[SplatFragment],
+    merge: usize,
+    stretch: f32,
+    width: usize,
+    height: usize,
+    window: &TileWindow,
+) -> TileLists {
+    let counts = count(fragments, merge, stretch, width, height, window);
+    fill(fragments, counts, merge, stretch, window)
 }

@@ -164,13 +164,36 @@ pub struct SplatStats {
     pub mean_list_length: f64,
 }
 
+/// Bytes a pixel of the splatted frame takes in pass `blend`: each tile's pixels, then the
+/// image they are copied into.
+const BLEND_BYTES_PER_PIXEL: u64 = 2 * std::mem::size_of::<crate::image::Rgba>() as u64;
+
+/// Bytes one input fragment can take in pass `build`: its splat fragment twice (the rows'
+/// and the joined copy) and its norm.
+const FRAGMENT_BYTES: u64 = 2 * std::mem::size_of::<build::SplatFragment>() as u64 + 4;
+
+/// Bytes a pixel of a single-layer run holds besides what [`splat`] counts: the colour image,
+/// the depth and the CoC map.
+const FRAME_BYTES_PER_PIXEL: u64 = 16 + 4 + 4;
+
+/// What [`splat`]'s budget checks say to lower.
+const LOWER: &str = "--max-coc, raise --merge, or lower the resolution";
+
 /// Passes `build`, `sort` and `blend` on per-pixel layers `(premultiplied colour, CoC)`.
+///
+/// `held` is what the run holds already (the caller's frame and, with several layers, its
+/// fragment lists; `layers` are counted here). Everything the passes allocate is counted
+/// before it is: the fragments and norms from the number of layers (the fragments twice, while
+/// the rows are joined), then the tile lists, the offsets and runs that lay them out, the
+/// sort's scratch (one list per worker thread) and the blended image from the per-tile counts.
+/// A run beyond the memory budget ([`crate::budget`]) is refused at the first of these checks,
+/// before anything of that step is allocated.
 fn splat(
     layers: &build::PixelLayers,
-    width: usize,
-    height: usize,
+    (width, height): (usize, usize),
     region: (usize, usize, usize, usize),
     settings: &SplatSettings,
+    held: u64,
     timings: &mut Timings,
     blend_fn: BlendFn,
 ) -> Result<(ColorImage, SplatStats, usize)> {
@@ -183,16 +206,32 @@ fn splat(
             ),
         ));
     }
+    let what = |entries: Option<u64>| {
+        let lists = entries.map_or(String::new(), |e| format!(", {e} tile-list entries"));
+        format!(
+            "splat at {width}x{height} ({} fragments{lists})",
+            layers.len()
+        )
+    };
+    let held = held + layers.bytes();
+    crate::budget::check(
+        held + layers.len() as u64 * FRAGMENT_BYTES,
+        &what(None),
+        LOWER,
+    )?;
     let shape = blend::Shape::new(&settings.aperture).with_effects(&settings.effects);
-    let (fragments, norms, lists) = timings.time(pass::BUILD, || {
+    // Only the tiles of the region are blended (the guard band around it is a source).
+    let window = build::TileWindow::of(width, height, region);
+    let (fragments, norms, lists) = timings.time(pass::BUILD, || -> Result<_> {
         let fragments = build::fragments(layers, width, height, settings.merge, settings.group_px);
         let norms: Vec<f32> = fragments
             .par_iter()
             .map(|f| shape.norm(f.centre(), f.coc_px, f.soft_px(settings.merge)))
             .collect();
-        // Only the tiles of the region are blended (the guard band around it is a source).
-        let window = build::TileWindow::of(width, height, region);
-        let lists = build::distribute(
+        let held = held
+            + (fragments.capacity() * std::mem::size_of::<build::SplatFragment>()
+                + norms.capacity() * 4) as u64;
+        let counts = build::count(
             &fragments,
             settings.merge,
             shape.stretch(),
@@ -200,9 +239,23 @@ fn splat(
             height,
             &window,
         );
-        (fragments, norms, lists)
-    });
-    let mut lists = lists?;
+        // The lists are counted: refuse before allocating them if the run would exceed the
+        // budget. Past the fill, the counts are gone and the sort's scratch or the blend's
+        // image comes; the larger of the two is counted.
+        let scratch = counts.longest()
+            * build::ENTRY_BYTES
+            * rayon::current_num_threads().min(counts.tiles()) as u64;
+        let blended = (width * height) as u64 * BLEND_BYTES_PER_PIXEL;
+        let lists = counts.fill_bytes();
+        crate::budget::check(
+            held + lists + counts.bytes().max(scratch).max(blended),
+            &what(Some(counts.entries())),
+            LOWER,
+        )?;
+        let lists = build::fill(&fragments, counts, settings.merge, shape.stretch(), &window);
+        Ok((fragments, norms, lists))
+    })?;
+    let mut lists = lists;
     timings.time(pass::SORT, || {
         let tiles = lists.tiles_x * lists.tiles_y;
         let mut slices: Vec<&mut [(u32, u32)]> = Vec::with_capacity(tiles);
@@ -212,15 +265,9 @@ fn splat(
             slices.push(head);
             rest = tail;
         }
-        slices.into_par_iter().for_each_init(
-            || (Vec::new(), Vec::new()),
-            |(buf, scratch), slice| {
-                buf.clear();
-                buf.extend_from_slice(slice);
-                sort::radix_sort(buf, scratch);
-                slice.copy_from_slice(buf);
-            },
-        );
+        slices
+            .into_par_iter()
+            .for_each_init(Vec::new, |scratch, slice| sort::radix_sort(slice, scratch));
     });
     let image = timings.time(pass::BLEND, || {
         let input = blend::BlendInput {
@@ -300,12 +347,14 @@ fn render_detailed_with(
     let mut timings = Timings::default();
     let coc_px = timings.time(pass::COC, || coc_map::coc(depth, lens, settings.max_coc_px))?;
     let layers = build::from_frame(color, &coc_px);
+    let held =
+        super::registry::FIXED_PEAK_BYTES + color.pixels().len() as u64 * FRAME_BYTES_PER_PIXEL;
     let (image, stats, bytes) = splat(
         &layers,
-        color.width(),
-        color.height(),
+        (color.width(), color.height()),
         (0, 0, color.width(), color.height()),
         settings,
+        held,
         &mut timings,
         blend_fn,
     )?;
@@ -425,7 +474,8 @@ fn from_lists(
             highlights::take(&mut lists, &lens, 1.0, threshold, settings.max_coc_px)
         })
     });
-    let (mut image, stats, bytes) = splat_lists(&lists, lens, guard, settings, &mut timings)?;
+    let held = super::registry::FIXED_PEAK_BYTES + lists.bytes() as u64;
+    let (mut image, stats, bytes) = splat_lists(&lists, lens, guard, settings, held, &mut timings)?;
     if let Some(highlights) = highlights {
         let shape = blend::Shape::new(&settings.aperture).with_effects(&settings.effects);
         let seen = timings.time(pass::HIGHLIGHTS, || {
@@ -455,11 +505,13 @@ fn from_lists(
 
 /// The frame within `lens`'s guard band of `guard` pixels, splatted from `lists` (their CoCs
 /// clamped to the settings' limit): the image, the statistics and the bytes the splat held.
+/// `held` is what the run holds besides (see [`splat`]).
 fn splat_lists(
     lists: &FragmentLists,
     lens: ThinLens,
     guard: usize,
     settings: &SplatSettings,
+    held: u64,
     timings: &mut Timings,
 ) -> Result<(ColorImage, SplatStats, usize)> {
     let max = settings.max_coc_px;
@@ -470,10 +522,10 @@ fn splat_lists(
     let (w, h) = (lens.width_px - 2 * guard, lens.height_px - 2 * guard);
     let (image, stats, bytes) = splat(
         &layers,
-        lens.width_px,
-        lens.height_px,
+        (lens.width_px, lens.height_px),
         (guard, guard, w, h),
         settings,
+        held,
         timings,
         blend::blend,
     )?;
@@ -576,7 +628,7 @@ mod tests {
             let lens = frame.with_guard_band(guard);
             let image = |lists: &FragmentLists| {
                 let mut timings = Timings::default();
-                splat_lists(lists, lens, guard, &settings, &mut timings)
+                splat_lists(lists, lens, guard, &settings, 0, &mut timings)
                     .unwrap()
                     .0
             };

@@ -16,8 +16,9 @@ pub fn key(v: f32) -> u32 {
     }
 }
 
-/// Sorts `entries` (key, payload) by key, stably, with 8-bit digits; `scratch` is reused.
-pub fn radix_sort(entries: &mut Vec<(u32, u32)>, scratch: &mut Vec<(u32, u32)>) {
+/// Sorts `entries` (key, payload) by key, stably, with 8-bit digits, in place; `scratch` is
+/// reused (it grows to the length of `entries`).
+pub fn radix_sort(entries: &mut [(u32, u32)], scratch: &mut Vec<(u32, u32)>) {
     let n = entries.len();
     if n < 2 {
         return;
@@ -35,7 +36,7 @@ pub fn radix_sort(entries: &mut Vec<(u32, u32)>, scratch: &mut Vec<(u32, u32)>) 
     }
     scratch.clear();
     scratch.resize(n, (0, 0));
-    let (mut src, mut dst) = (entries, scratch);
+    let (mut src, mut dst) = (entries, &mut scratch[..]);
     let mut swapped = false;
     for pass in 0..4 {
         let shift = pass * 8;

@@ -5,14 +5,18 @@
 //!    external files ([`LoadOptions::allow_external_files`]).
 //! 2. Only regular files are read: a device (`/dev/zero`), a FIFO or a folder is refused before
 //!    it is opened, and checked again once open, so nothing blocks or reads without end.
-//! 3. At most a given number of bytes is read (a buffer's declared `byteLength`, an image's cap).
-//! 4. An error about a refused file names the scene file, the field and the path as written, and
+//! 3. At most a given number of bytes is read (a buffer's declared `byteLength`, an image's cap),
+//!    and a file longer than its cap is refused from its size, before it is read.
+//! 4. What is read is counted against the memory budget ([`crate::budget::Ledger`], with the
+//!    meshes and textures the loaders make), before it is read.
+//! 5. An error about a refused file names the scene file, the field and the path as written, and
 //!    says why: never anything read from the file, nor its size.
 
 use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 
 use super::LoadOptions;
+use crate::budget::{gib_text, Ledger};
 use crate::error::shown;
 use crate::input::OpenError;
 use crate::{Error, Result};
@@ -46,6 +50,8 @@ pub(super) struct SceneFolder {
     allow_external: bool,
     /// The files read so far through this folder, as resolved (links followed).
     read: std::sync::Mutex<Vec<PathBuf>>,
+    /// What the load holds: the files read, the meshes and textures made from them.
+    ledger: Ledger,
 }
 
 /// Why a referenced file is not read.
@@ -58,6 +64,8 @@ enum Refusal {
     Unreadable(std::io::Error),
     /// It is longer than the cap (only said of files the scene may read).
     TooLarge(u64),
+    /// Reading it would pass the memory budget (the budget and what the load held before it).
+    OverBudget { budget: u64, held: u64 },
 }
 
 impl SceneFolder {
@@ -74,7 +82,14 @@ impl SceneFolder {
             root,
             allow_external: options.allow_external_files,
             read: std::sync::Mutex::new(Vec::new()),
+            ledger: Ledger::new()?,
         })
+    }
+
+    /// What the load holds, counted against the memory budget: the files read through this
+    /// folder, and what the loaders reserve for the meshes and textures they make.
+    pub(super) fn ledger(&self) -> &Ledger {
+        &self.ledger
     }
 
     /// The files read through this folder so far (resolved, each once), in the order first
@@ -85,7 +100,7 @@ impl SceneFolder {
 
     /// Reads `path` (already resolved) and records it among [`Self::files_read`].
     fn read_recorded(&self, path: &Path, limit: Limit) -> std::result::Result<Vec<u8>, Refusal> {
-        let bytes = read_regular(path, limit)?;
+        let bytes = read_regular(path, limit, &self.ledger)?;
         let mut read = self.read.lock().unwrap_or_else(|e| e.into_inner());
         if !read.iter().any(|p| p == path) {
             read.push(path.to_path_buf());
@@ -121,6 +136,11 @@ impl SceneFolder {
             .map_err(|why| self.refused(field, reference, why))
     }
 
+    /// The scene file, as given.
+    pub(super) fn scene(&self) -> &Path {
+        &self.scene
+    }
+
     /// An error about the scene file.
     pub(super) fn error(&self, message: String) -> Error {
         Error::format(&self.scene, message)
@@ -140,6 +160,15 @@ impl SceneFolder {
             Refusal::TooLarge(cap) => format!(
                 "{field} '{reference}' is larger than {} MiB: expected a smaller file",
                 cap >> 20
+            ),
+            Refusal::OverBudget { budget, held } => format!(
+                "{field} '{reference}': reading it{} would pass the memory budget of {}: \
+                 expected a smaller file (or raise --memory-budget)",
+                match held {
+                    0 => String::new(),
+                    held => format!(" beside the {} the scene holds", gib_text(held)),
+                },
+                gib_text(budget)
             ),
         };
         self.error(message)
@@ -178,17 +207,33 @@ impl SceneFolder {
 }
 
 /// Reads `path`, which must be a regular file, as far as `limit` says (opened by
-/// [`crate::input::open_regular`]: a FIFO or a device is refused without blocking).
-fn read_regular(path: &Path, limit: Limit) -> std::result::Result<Vec<u8>, Refusal> {
+/// [`crate::input::open_regular`]: a FIFO or a device is refused without blocking). Its size
+/// decides before anything is read: a file longer than a cap is refused, and the bytes to read
+/// are reserved in `ledger` (refused when they would pass the budget), then read into a buffer
+/// of that size.
+fn read_regular(
+    path: &Path,
+    limit: Limit,
+    ledger: &Ledger,
+) -> std::result::Result<Vec<u8>, Refusal> {
     let file = crate::input::open_regular(path).map_err(|e| match e {
         OpenError::NotRegular(_) => Refusal::NotRegular,
         OpenError::Io(e) => Refusal::Unreadable(e),
     })?;
-    let (take, cap) = match limit {
-        Limit::Cap(cap) => (cap.saturating_add(1), Some(cap)),
-        Limit::Prefix(n) => (n, None),
+    let len = file.metadata().map_err(Refusal::Unreadable)?.len();
+    let (take, cap, expected) = match limit {
+        Limit::Cap(cap) if len > cap => return Err(Refusal::TooLarge(cap)),
+        // One byte more than the cap: a file that grows while it is read is caught too.
+        Limit::Cap(cap) => (cap.saturating_add(1), Some(cap), len),
+        Limit::Prefix(n) => (n, None, len.min(n)),
     };
-    let mut bytes = Vec::new();
+    if !ledger.try_reserve(expected) {
+        return Err(Refusal::OverBudget {
+            budget: ledger.budget(),
+            held: ledger.held(),
+        });
+    }
+    let mut bytes = Vec::with_capacity(usize::try_from(expected).unwrap_or(usize::MAX));
     file.take(take)
         .read_to_end(&mut bytes)
         .map_err(Refusal::Unreadable)?;
@@ -199,9 +244,11 @@ fn read_regular(path: &Path, limit: Limit) -> std::result::Result<Vec<u8>, Refus
 }
 
 /// Reads the scene file itself: a regular file of at most [`MAX_SCENE_FILE_BYTES`] (a link to
-/// a device or a FIFO given as the scene is refused, not read without end).
-pub(super) fn read_scene(path: &Path) -> Result<Vec<u8>> {
-    read_regular(path, Limit::Cap(MAX_SCENE_FILE_BYTES)).map_err(|why| match why {
+/// a device or a FIFO given as the scene is refused, not read without end), refused from its
+/// size when it is longer or when reading it would pass the memory budget (counted in
+/// `folder`'s ledger).
+pub(super) fn read_scene(path: &Path, folder: &SceneFolder) -> Result<Vec<u8>> {
+    read_regular(path, Limit::Cap(MAX_SCENE_FILE_BYTES), &folder.ledger).map_err(|why| match why {
         Refusal::Unreadable(e) => Error::io(path, e),
         Refusal::NotRegular | Refusal::Leaves => {
             Error::format(path, "not a regular file: expected a scene file")
@@ -211,6 +258,14 @@ pub(super) fn read_scene(path: &Path) -> Result<Vec<u8>> {
             format!(
                 "larger than {} GiB: expected a smaller scene file",
                 cap >> 30
+            ),
+        ),
+        Refusal::OverBudget { budget, .. } => Error::format(
+            path,
+            format!(
+                "reading the scene file would pass the memory budget of {}: expected a \
+                 smaller scene file (or raise --memory-budget)",
+                gib_text(budget)
             ),
         ),
     })

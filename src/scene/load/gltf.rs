@@ -41,14 +41,27 @@ const SUPPORTED_REQUIRED_EXTENSIONS: &[&str] = &[
 /// a tiny file cannot ask for gigabytes.
 const MAX_SPARSE_ONLY_ELEMENTS: usize = 1 << 24;
 
+/// Bytes a JSON object of a glTF file can take once parsed, at most: the largest of the
+/// `gltf` crate's structures (a node: its optional transform, children, name, weights and
+/// extras, about 250 bytes) in a list that may have doubled as it grew.
+const JSON_OBJECT_BYTES: usize = 512;
+
 /// GLB chunk types (little-endian "JSON" and "BIN\0").
 const CHUNK_JSON: u32 = 0x4E4F_534A;
 const CHUNK_BIN: u32 = 0x004E_4942;
 
 /// Loads a glTF or GLB file; the files it refers to are read from `folder`.
 pub(super) fn load(path: &Path, folder: &SceneFolder) -> Result<SceneFile> {
-    let bytes = external::read_scene(path)?;
+    let bytes = external::read_scene(path, folder)?;
     let (json, bin) = split_container(path, &bytes)?;
+    // The parsed document, counted before it is parsed: an object of a few bytes of text (a
+    // node `{"mesh":0}`) becomes a structure of hundreds.
+    let objects = json.iter().filter(|&&b| b == b'{').count();
+    folder.ledger().reserve(
+        (json.len() + objects * JSON_OBJECT_BYTES) as u64,
+        || format!("{}: parsing its {objects} JSON objects", shown(&path)),
+        "the scene's size",
+    )?;
     let root = gl::json::Root::from_slice(json)
         .map_err(|e| Error::format(path, format!("not valid glTF JSON: {e}")))?;
     check_required_extensions(path, &root)?;
@@ -224,6 +237,12 @@ fn read_uri(
         let (meta, payload) = rest
             .split_once(',')
             .ok_or_else(|| err("data URI without a ',' before its data".into()))?;
+        // Decoded, the data takes at most as many bytes as its text.
+        folder.ledger().reserve(
+            payload.len() as u64,
+            || format!("{}: {what} (data URI)", shown(&path)),
+            "the scene's size",
+        )?;
         return if meta.ends_with(";base64") {
             image_file::base64_decode(payload).map_err(err)
         } else {
@@ -431,6 +450,33 @@ impl<'a> Loader<'a> {
         Error::format(self.path, message)
     }
 
+    /// Counts `bytes` that `what` is about to allocate against the memory budget (the load's
+    /// ledger): refused, before allocating, when the scene would pass it.
+    fn reserve(&self, bytes: usize, what: impl FnOnce() -> String) -> Result<()> {
+        self.folder.ledger().reserve(
+            bytes as u64,
+            || format!("{}: {}", shown(&self.path), what()),
+            "the scene's size",
+        )
+    }
+
+    /// `make(&input)`, with its `len` elements counted against the budget before they are
+    /// made and `input` released once it is dropped: one form of the data to another.
+    fn convert<A, B>(
+        &self,
+        input: Vec<A>,
+        len: usize,
+        what: &str,
+        make: impl FnOnce(&[A]) -> Vec<B>,
+    ) -> Result<Vec<B>> {
+        self.reserve(len * std::mem::size_of::<B>(), || what.to_string())?;
+        let out = make(&input);
+        self.folder
+            .ledger()
+            .release((input.len() * std::mem::size_of::<A>()) as u64);
+        Ok(out)
+    }
+
     fn run(mut self) -> Result<SceneFile> {
         let doc = self.doc;
         let roots: Vec<gl::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
@@ -507,6 +553,22 @@ impl<'a> Loader<'a> {
         let normal_matrix = glam::Mat3::from_mat4(*world).inverse().transpose();
         for p in prims.iter() {
             let material = self.material(p.material)?;
+            self.reserve(
+                Mesh::bytes_for(
+                    p.positions.len(),
+                    !p.normals.is_empty(),
+                    !p.uvs.is_empty(),
+                    p.indices.len(),
+                ) as usize,
+                || {
+                    format!(
+                        "an instance of mesh {} ({} triangles, {} instances so far)",
+                        mesh.index(),
+                        p.indices.len(),
+                        self.scene.meshes.len()
+                    )
+                },
+            )?;
             self.scene.meshes.push(Mesh {
                 positions: p
                     .positions
@@ -558,7 +620,10 @@ impl<'a> Loader<'a> {
                 .get(&gl::Semantic::Positions)
                 .ok_or_else(|| self.err(format!("{what}: no POSITION attribute")))?;
             let flat = self.read_floats(&pos, &format!("{what} POSITION"), 3)?;
-            let positions: Vec<Vec3> = flat.chunks_exact(3).map(Vec3::from_slice).collect();
+            let positions: Vec<Vec3> =
+                self.convert(flat, pos.count(), &format!("{what} POSITION"), |f| {
+                    f.chunks_exact(3).map(Vec3::from_slice).collect()
+                })?;
             let n = positions.len();
             if n > u32::MAX as usize {
                 return Err(self.err(format!("{what}: {n} vertices is more than 2^32 - 1")));
@@ -573,7 +638,9 @@ impl<'a> Loader<'a> {
                             flat.len() / 3
                         )));
                     }
-                    flat.chunks_exact(3).map(Vec3::from_slice).collect()
+                    self.convert(flat, n, &format!("{what} NORMAL"), |f| {
+                        f.chunks_exact(3).map(Vec3::from_slice).collect()
+                    })?
                 }
             };
             let uvs = match uv_set(&prim.material()) {
@@ -592,12 +659,17 @@ impl<'a> Loader<'a> {
                             flat.len() / 2
                         )));
                     }
-                    flat.chunks_exact(2).map(Vec2::from_slice).collect()
+                    self.convert(flat, n, &format!("{what} TEXCOORD_{set}"), |f| {
+                        f.chunks_exact(2).map(Vec2::from_slice).collect()
+                    })?
                 }
             };
             let idx: Vec<u32> = match prim.indices() {
                 Some(acc) => self.read_indices(&acc, &format!("{what} indices"))?,
-                None => (0..n as u32).collect(),
+                None => {
+                    self.reserve(n * 4, || format!("{what} vertices as indices"))?;
+                    (0..n as u32).collect()
+                }
             };
             if let Some((k, &i)) = idx.iter().enumerate().find(|(_, &i)| i as usize >= n) {
                 return Err(self.err(format!(
@@ -605,30 +677,39 @@ impl<'a> Loader<'a> {
                      primitive has {n} vertices"
                 )));
             }
-            let indices: Vec<[u32; 3]> = match mode {
-                gl::mesh::Mode::Triangles => {
-                    if !idx.len().is_multiple_of(3) {
-                        return Err(self.err(format!(
-                            "{what}: {} indices (or vertices) for TRIANGLES: expected a multiple \
-                             of 3",
-                            idx.len()
-                        )));
-                    }
-                    idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect()
-                }
-                gl::mesh::Mode::TriangleStrip => (0..idx.len().saturating_sub(2))
-                    .map(|i| {
-                        if i % 2 == 0 {
-                            [idx[i], idx[i + 1], idx[i + 2]]
-                        } else {
-                            [idx[i + 1], idx[i], idx[i + 2]]
-                        }
-                    })
-                    .collect(),
-                _ => (1..idx.len().saturating_sub(1))
-                    .map(|i| [idx[i], idx[i + 1], idx[0]])
-                    .collect(),
+            if mode == gl::mesh::Mode::Triangles && !idx.len().is_multiple_of(3) {
+                return Err(self.err(format!(
+                    "{what}: {} indices (or vertices) for TRIANGLES: expected a multiple of 3",
+                    idx.len()
+                )));
+            }
+            let triangles = match mode {
+                gl::mesh::Mode::Triangles => idx.len() / 3,
+                gl::mesh::Mode::TriangleStrip => idx.len().saturating_sub(2),
+                _ => idx.len().saturating_sub(2),
             };
+            let indices: Vec<[u32; 3]> = self.convert(
+                idx,
+                triangles,
+                &format!("{what} triangles"),
+                |idx| match mode {
+                    gl::mesh::Mode::Triangles => {
+                        idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect()
+                    }
+                    gl::mesh::Mode::TriangleStrip => (0..idx.len().saturating_sub(2))
+                        .map(|i| {
+                            if i % 2 == 0 {
+                                [idx[i], idx[i + 1], idx[i + 2]]
+                            } else {
+                                [idx[i + 1], idx[i], idx[i + 2]]
+                            }
+                        })
+                        .collect(),
+                    _ => (1..idx.len().saturating_sub(1))
+                        .map(|i| [idx[i], idx[i + 1], idx[0]])
+                        .collect(),
+                },
+            )?;
             out.push(LocalPrimitive {
                 positions,
                 normals,
@@ -717,6 +798,9 @@ impl<'a> Loader<'a> {
                         data.len()
                     )));
                 }
+                self.reserve(count * ncomp * std::mem::size_of::<T>(), || {
+                    format!("{what}: {count} elements of accessor {ai}")
+                })?;
                 let mut out = vec![T::default(); count * ncomp];
                 read_into(&mut out, &data[start..end], stride);
                 out
@@ -728,6 +812,9 @@ impl<'a> Loader<'a> {
                          at most {MAX_SPARSE_ONLY_ELEMENTS}"
                     )));
                 }
+                self.reserve(count * ncomp * std::mem::size_of::<T>(), || {
+                    format!("{what}: {count} elements of accessor {ai}")
+                })?;
                 vec![T::default(); count * ncomp]
             }
         };
@@ -748,6 +835,7 @@ impl<'a> Loader<'a> {
                      of their buffer views"
                 )));
             }
+            // Within the checked views: no larger than the buffers, which are counted.
             let mut vals = vec![T::default(); k * ncomp];
             read_into(&mut vals, &vdata[vstart..vend], elem);
             let ibytes = &idata[istart..iend];
@@ -980,9 +1068,22 @@ impl<'a> Loader<'a> {
             .par_iter()
             .map(|&index| {
                 let (bytes, what) = this.image_bytes(index)?;
+                // Counted from the header before decoding: what the texture keeps, and what
+                // its decoding holds until it is done (with the file's bytes, read for it).
+                let (kept, passing, size) = image_file::decoded_bytes(&bytes)
+                    .map_err(|m| this.err(format!("{what}: {m}")))?;
+                this.reserve((kept + passing) as usize, || {
+                    format!("{what}, decoded to {size} pixels")
+                })?;
                 let img = image_file::decode(&bytes, Encoding::Srgb)
                     .map_err(|m| this.err(format!("{what}: {m}")))?;
-                Ok(Texture::new(img))
+                let texture = Texture::new(img);
+                let read = match bytes {
+                    Cow::Owned(b) => b.len() as u64,
+                    Cow::Borrowed(_) => 0,
+                };
+                this.folder.ledger().release(passing + read);
+                Ok(texture)
             })
             .collect();
         for t in textures {

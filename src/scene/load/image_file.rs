@@ -3,6 +3,7 @@
 use image::{DynamicImage, ImageFormat};
 
 use crate::image::{check_size, srgb_decode, ColorImage, Rgba};
+use crate::scene::Texture;
 
 /// How the colour channels of a texture are encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -11,6 +12,40 @@ pub(super) enum Encoding {
     Srgb,
     /// Values used as stored (alpha and other data textures).
     Linear,
+}
+
+/// The bytes decoding an encoded PNG or JPEG image takes, from its header alone (no pixel
+/// decoded): `(kept, passing)`, what the texture keeps (its levels, [`Texture::bytes_for`]) and
+/// what only its decoding holds (the decoder's pixels, and for other than 8-bit samples their
+/// conversion to floats), with a label of its size for messages. A size over the limits, or a
+/// header that does not read, is an error saying so.
+pub(super) fn decoded_bytes(bytes: &[u8]) -> Result<(u64, u64, String), String> {
+    use image::ImageDecoder;
+    let format = image::guess_format(bytes)
+        .map_err(|_| "not a PNG or JPEG image (unrecognised file signature)".to_string())?;
+    let name = match format {
+        ImageFormat::Png => "PNG",
+        ImageFormat::Jpeg => "JPEG",
+        other => {
+            return Err(format!(
+                "{other:?} images are not supported: expected PNG or JPEG"
+            ))
+        }
+    };
+    let decoder = image::ImageReader::with_format(std::io::Cursor::new(bytes), format)
+        .into_decoder()
+        .map_err(|e| format!("could not decode the {name} image (corrupt or truncated?): {e}"))?;
+    let (w, h) = decoder.dimensions();
+    let (w, h) = (w as usize, h as usize);
+    check_size(w, h).map_err(|e| e.to_string())?;
+    let color = decoder.color_type();
+    let eight_bit = color.bytes_per_pixel() == color.channel_count();
+    let per_pixel = color.bytes_per_pixel() as u64 + if eight_bit { 0 } else { 16 };
+    Ok((
+        Texture::bytes_for(w, h),
+        (w * h) as u64 * per_pixel,
+        format!("{w}x{h}"),
+    ))
 }
 
 /// Decodes a PNG or JPEG image to linear RGBA with straight (not premultiplied) alpha. Colour

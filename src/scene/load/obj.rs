@@ -108,11 +108,25 @@ fn check_mtl_lines(bytes: &[u8]) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// Bytes the OBJ reader (`tobj`, one index per vertex) makes of a byte of OBJ text while it
+/// parses, at most: a face corner (`12/34 `, 6 bytes or more once a file has more than a few
+/// hundred distinct corners) can make a vertex of its own (position, texture coordinates and
+/// normal, 32 bytes) with its index and its entry in the reader's table of corners seen (about
+/// 40). Measured: 5.5 times the text for 200,000 faces whose every corner is a new vertex.
+const OBJ_PARSE_BYTES_PER_BYTE: u64 = 12;
+
 /// Loads an OBJ file and the MTL libraries it names; those and the texture maps are read from
 /// `folder`.
 pub(super) fn load(path: &Path, folder: &SceneFolder) -> Result<SceneFile> {
-    let bytes = external::read_scene(path)?;
+    let bytes = external::read_scene(path, folder)?;
     check_lines(path, &bytes)?;
+    // What the reader makes of the text, counted before it parses it (then what it made).
+    let parsing = bytes.len() as u64 * OBJ_PARSE_BYTES_PER_BYTE;
+    folder.ledger().reserve(
+        parsing,
+        || format!("{}: parsing its {} bytes", shown(&path), bytes.len()),
+        "the scene's size",
+    )?;
     let file = std::io::Cursor::new(bytes);
     let mtl_error: RefCell<Option<Error>> = RefCell::new(None);
     let options = tobj::LoadOptions {
@@ -143,6 +157,22 @@ pub(super) fn load(path: &Path, folder: &SceneFolder) -> Result<SceneFile> {
         return Err(e);
     }
     let materials = materials.map_err(|e| Error::format(path, format!("material library: {e}")))?;
+    let parsed: usize = models
+        .iter()
+        .map(|m| {
+            let m = &m.mesh;
+            4 * (m.positions.capacity()
+                + m.texcoords.capacity()
+                + m.normals.capacity()
+                + m.indices.capacity())
+        })
+        .sum();
+    folder.ledger().release(parsing);
+    folder.ledger().reserve(
+        parsed as u64,
+        || format!("{}: its parsed meshes", shown(&path)),
+        "the scene's size",
+    )?;
 
     let mut scene = Scene {
         name: path
@@ -288,6 +318,16 @@ pub(super) fn load(path: &Path, folder: &SceneFolder) -> Result<SceneFile> {
                 format!("{what}: vertex index {i} is out of range: it has {n} vertices"),
             ));
         }
+        folder.ledger().reserve(
+            Mesh::bytes_for(
+                n,
+                !normals.is_empty(),
+                !uvs.is_empty(),
+                mesh.indices.len() / 3,
+            ),
+            || format!("{}: {what} ({n} vertices)", shown(&path)),
+            "the scene's size",
+        )?;
         scene.meshes.push(Mesh {
             positions,
             normals,
@@ -354,8 +394,24 @@ fn read_image(
         .map(|(f, w)| (f.as_str(), w.as_path()))
         .unwrap_or(("texture", file));
     let bytes = folder.read_resolved(field, written, file, Limit::Cap(MAX_IMAGE_FILE_BYTES))?;
-    image_file::decode(&bytes, encoding)
-        .map_err(|m| folder.error(format!("{field} '{}': {m}", shown(written))))
+    let error = |m: String| folder.error(format!("{field} '{}': {m}", shown(written)));
+    // Counted from the header before decoding: what the texture keeps, and what its decoding
+    // holds until it is done (with the file's bytes, read for it).
+    let (kept, passing, size) = image_file::decoded_bytes(&bytes).map_err(error)?;
+    folder.ledger().reserve(
+        kept + passing,
+        || {
+            format!(
+                "{}: {field} '{}', decoded to {size} pixels",
+                shown(&folder.scene()),
+                shown(written)
+            )
+        },
+        "the scene's size",
+    )?;
+    let image = image_file::decode(&bytes, encoding).map_err(error)?;
+    folder.ledger().release(passing + bytes.len() as u64);
+    Ok(image)
 }
 
 /// Builds a straight-alpha linear texture image: colour from `job.color` (sRGB, white if none),
@@ -374,6 +430,13 @@ fn build_texture(folder: &SceneFolder, names: &MapNames, job: &TextureJob) -> Re
     match (color, alpha) {
         (Some(c), None) => Ok(c),
         (color, Some(a)) => {
+            // The alpha map is dropped once its alpha is in the colour (without a colour map,
+            // a white image of its size takes its place).
+            if color.is_some() {
+                folder
+                    .ledger()
+                    .release(Texture::bytes_for(a.width(), a.height()));
+            }
             let use_alpha = a.pixels().iter().any(|p| p[3] < 1.0);
             let opacity = |p: [f32; 4]| if use_alpha { p[3] } else { p[0] };
             let mut out = color.unwrap_or_else(|| ColorImage::new(a.width(), a.height(), [1.0; 4]));
