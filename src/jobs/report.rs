@@ -854,7 +854,22 @@ pub fn write(
             running: &label,
         });
         let out_path = dir.join(format!("{label}.exr"));
+        // The images kept for the error maps (the truth's and every run's so far) are held
+        // while this run runs: counted with its estimate against the budget.
+        let kept = (outputs.len() as u64 + 1) * truth.pixels().len() as u64 * 16;
         let outcome: Result<MethodOutput> = (|| {
+            crate::budget::check(
+                kept + registry::peak_bytes(
+                    &registry::MethodSettings::default_for(run.info.id)?,
+                    truth.width(),
+                    truth.height(),
+                ),
+                &format!(
+                    "{label} beside the {} images the report keeps",
+                    outputs.len() + 1
+                ),
+                "--methods or the resolution",
+            )?;
             let missing = unsupported_effects(a, run.info)?;
             if !missing.is_empty() {
                 bail!(

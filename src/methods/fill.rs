@@ -29,7 +29,7 @@ use super::coc_map;
 use super::registry::{self, Frame, MethodSettings};
 use super::MethodOutput;
 use crate::image::{ColorImage, GrayImage, Rgba};
-use crate::raster::FragmentLists;
+use crate::raster::{to_half, FragmentLists};
 use crate::timing::Timings;
 use crate::{Error, Result};
 
@@ -99,6 +99,7 @@ pub fn run_frame(
     frame: &Frame,
     fill: &FillSettings,
 ) -> Result<MethodOutput> {
+    check_budget(settings, frame)?;
     let start = std::time::Instant::now();
     let Some(layers) = decompose(frame, fill)? else {
         return registry::run_frame(settings, frame);
@@ -130,6 +131,23 @@ pub fn run_frame(
         timings,
         memory_bytes: None,
     })
+}
+
+/// Bytes a pixel the decomposition holds at its peak besides the method's own run: the masks,
+/// the back and near layers' colour and depth, the pull-push pyramids of a colour and a depth
+/// (a third more than their base), the two-fragment lists of the layered methods, the back
+/// layer's blurred image while the near one is blurred, and the composite.
+pub const BYTES_PER_PIXEL: u64 = 160;
+
+/// Refuses a decomposition whose estimate (the method's, [`registry::peak_bytes`], and
+/// [`BYTES_PER_PIXEL`]) exceeds the memory budget, before anything is allocated.
+fn check_budget(settings: &MethodSettings, frame: &Frame) -> Result<()> {
+    let (w, h) = (frame.color.width(), frame.color.height());
+    crate::budget::check(
+        registry::peak_bytes(settings, w, h) + (w * h) as u64 * BYTES_PER_PIXEL,
+        &format!("{} with --occlusion fill at {w}x{h}", settings.id()),
+        "the resolution",
+    )
 }
 
 /// A frame split in two layers (see the module documentation).
@@ -210,27 +228,50 @@ pub fn fragment_lists(frame: &Frame, fill: Option<&FillSettings>) -> Result<Frag
         Some(fill) => decompose(frame, fill)?,
         None => None,
     };
-    let pixels: Vec<Vec<(f32, Rgba)>> = match &layers {
-        None => frame
-            .depth
-            .pixels()
-            .par_iter()
-            .zip(frame.color.pixels())
-            .map(|(&z, &c)| vec![(z, c)])
-            .collect(),
-        Some(l) => (0..w * h)
-            .into_par_iter()
-            .map(|i| {
-                let back = (l.back_depth.pixels()[i], l.back_color.pixels()[i]);
-                if l.near[i] {
-                    vec![(frame.depth.pixels()[i], frame.color.pixels()[i]), back]
-                } else {
-                    vec![back]
-                }
-            })
-            .collect(),
+    let (depth, color) = (frame.depth.pixels(), frame.color.pixels());
+    let Some(l) = layers else {
+        let offsets = (0..=(w * h) as u32).collect();
+        let color = color.par_iter().map(|&c| to_half(c)).collect();
+        return Ok(FragmentLists::from_parts(
+            w,
+            h,
+            offsets,
+            depth.to_vec(),
+            color,
+        ));
     };
-    Ok(FragmentLists::from_pixels(w, h, 2, &pixels))
+    // Offsets from the near pixels' counts (two fragments each), then the fragments, nearest
+    // first.
+    let mut offsets = Vec::with_capacity(w * h + 1);
+    offsets.push(0u32);
+    let mut total = 0u32;
+    for &n in &l.near {
+        total += 1 + u32::from(n);
+        offsets.push(total);
+    }
+    let mut zs = Vec::with_capacity(total as usize);
+    let mut cs = Vec::with_capacity(total as usize);
+    let (back_z, back_c) = (l.back_depth.pixels(), l.back_color.pixels());
+    for i in 0..w * h {
+        let back = (back_z[i], back_c[i]);
+        let mut put = |(z, c): (f32, Rgba)| {
+            zs.push(z);
+            cs.push(to_half(c));
+        };
+        if l.near[i] {
+            let own = (depth[i], color[i]);
+            let (first, second) = if own.0 <= back.0 {
+                (own, back)
+            } else {
+                (back, own)
+            };
+            put(first);
+            put(second);
+        } else {
+            put(back);
+        }
+    }
+    Ok(FragmentLists::from_parts(w, h, offsets, zs, cs))
 }
 
 /// A layered method (`multilayer`, `splat`) on a frame: its fragment lists
@@ -241,6 +282,7 @@ pub fn run_layered(
     frame: &Frame,
     occlusion: Occlusion,
 ) -> Result<MethodOutput> {
+    check_budget(settings, frame)?;
     let start = std::time::Instant::now();
     let fill = FillSettings::default();
     let lists = fragment_lists(frame, (occlusion == Occlusion::Fill).then_some(&fill))?;

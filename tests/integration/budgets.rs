@@ -679,3 +679,62 @@ fn a_huge_results_json_is_not_read() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert_refused_before_allocating("report beside a 3 GB results.json", peak, floor);
 }
+
+/// `--occlusion fill` counts its layers with the method's own estimate: at 1024x1024 a budget
+/// that holds `hammon`'s run and the frame's reads with 100 bytes a pixel to spare runs it with
+/// `--occlusion none`, and refuses it with `--occlusion fill` (its layers, pyramids and second
+/// image need 160 more), before decomposing, naming the option.
+#[test]
+fn occlusion_fill_counts_its_layers_against_the_budget() {
+    let dir = temp_dir("budget-fill");
+    let (w, h) = (1024usize, 1024usize);
+    // The left half near (0.5 m), so that the decomposition has work to do.
+    let (c, _) = flat_frame(&dir, w, h, 2.0);
+    let z = dir.join("near.exr");
+    io::write_depth_exr(
+        &z,
+        &GrayImage::from_vec(
+            w,
+            h,
+            (0..w * h)
+                .map(|i| if i % w < w / 2 { 0.5 } else { 2.0 })
+                .collect(),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let settings = defocus::methods::registry::MethodSettings::default_for("hammon").unwrap();
+    let estimate = defocus::methods::registry::peak_bytes(&settings, w, h);
+    let budget = (estimate + (w * h) as u64 * 100) as f64 / (1u64 << 30) as f64;
+    let budget = format!("{budget:.3}");
+    let out = dir.join("o.exr");
+    let run = |method: &str, occlusion: &str| {
+        crate::cli::defocus(&[
+            "--memory-budget",
+            &budget,
+            "blur",
+            "--color",
+            s(&c),
+            "--depth",
+            s(&z),
+            "--method",
+            method,
+            "--occlusion",
+            occlusion,
+            "--out",
+            s(&out),
+        ])
+    };
+    let o = run("hammon", "none");
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::remove_file(&out).unwrap();
+    let budget: f64 = budget.parse().unwrap();
+    let o = run("hammon", "fill");
+    assert_refused(
+        "hammon --occlusion fill",
+        &o,
+        budget,
+        &["hammon", "--occlusion fill"],
+        &[&out],
+    );
+}

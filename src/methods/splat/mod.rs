@@ -445,17 +445,7 @@ pub fn render_lists(
             lens.height_px
         )));
     }
-    let px = (lens.width_px * lens.height_px) as u64;
-    crate::budget::check(
-        px * lists.cap() as u64 * (12 + 16 + 4) + px * 32,
-        &format!(
-            "splat at {}x{} with {} layers",
-            lens.width_px,
-            lens.height_px,
-            lists.cap()
-        ),
-        "the resolution",
-    )?;
+    // The run's whole memory is checked by the splat pass itself, before it allocates.
     from_lists(lists, *lens, 0, settings, Timings::default())
 }
 
