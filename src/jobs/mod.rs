@@ -10,7 +10,7 @@
 //!   ([`report::write`]).
 //! - [`sequence`]: `render` and `blur` over frame sequences ([`sequence::blur`],
 //!   [`sequence::render`]).
-//! - [`bench`]: the GPU methods timed warm on the built-in scenes, as JSON
+//! - [`mod@bench`]: the GPU methods timed warm on the built-in scenes, as JSON
 //!   ([`bench::run`]).
 //! - [`flags`]: the flags they share and their parsers.
 //! - [`grid`]: the report's contact sheet of every method's image with its numbers.

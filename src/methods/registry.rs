@@ -427,7 +427,7 @@ pub fn check_budget(settings: &MethodSettings, width: usize, height: usize) -> R
 
 /// Bytes a run on `scene` holds for the scene besides its frame: the scene itself
 /// ([`Scene::bytes`]: meshes and decoded textures), its camera-space copy
-/// ([`PreparedScene::bytes_for`]) and the set-up and binned triangles of the views rendered at
+/// ([`crate::raster::PreparedScene::bytes_for`]) and the set-up and binned triangles of the views rendered at
 /// once ([`crate::raster::views::view_bytes`] times [`crate::raster::views::views_per_chunk`]).
 pub fn scene_peak_bytes(scene: &Scene) -> Result<u64> {
     use crate::raster::views::{view_bytes, views_per_chunk};

@@ -64,8 +64,8 @@ pub fn view_bytes(triangles: usize) -> u64 {
 }
 
 /// Views [`accumulate_views`] sets up and bins at a time for a scene of `triangles` triangles
-/// under a memory budget of `budget` bytes: as many as [`CHUNK_BYTES`] and an eighth of the
-/// budget hold (at least one, at most [`VIEWS_PER_CHUNK`]).
+/// under a memory budget of `budget` bytes: as many as `CHUNK_BYTES` and an eighth of the
+/// budget hold (at least one, at most `VIEWS_PER_CHUNK`).
 pub fn views_per_chunk(triangles: usize, budget: u64) -> usize {
     let room = (CHUNK_BYTES as u64).min(budget / 8);
     ((room / view_bytes(triangles)) as usize).clamp(1, VIEWS_PER_CHUNK)

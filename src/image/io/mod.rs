@@ -320,7 +320,7 @@ pub enum ReadAs {
 
 /// The peak bytes that reading the image at `path` as `read` says takes, from its header
 /// alone (no pixel is decoded), and its width and height; the size limits are checked (the
-/// error names the file). A PNG, JPEG or PFM file takes [`DECODE_BYTES_PER_PIXEL`] a pixel; an
+/// error names the file). A PNG, JPEG or PFM file takes `DECODE_BYTES_PER_PIXEL` a pixel; an
 /// OpenEXR file its compressed chunks (the file's size) and its samples (see
 /// `exr_read_peak_bytes`), so a file with many channels counts them all.
 pub fn read_peak_bytes(path: &Path, read: ReadAs) -> Result<(u64, (usize, usize))> {
