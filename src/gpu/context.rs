@@ -597,6 +597,24 @@ impl<'a> PassTimer<'a> {
         Ok(())
     }
 
+    /// Runs `passes` in order, each `(name, pipeline, bind group, workgroups)` as
+    /// [`PassTimer::dispatch`] takes them, and returns each pass's time.
+    pub fn run(
+        ctx: &'a GpuContext,
+        passes: &[(
+            &'static str,
+            &wgpu::ComputePipeline,
+            &wgpu::BindGroup,
+            [u32; 3],
+        )],
+    ) -> Result<Timings> {
+        let mut timer = Self::new(ctx, passes.len() as u32);
+        for &(name, pipeline, group, workgroups) in passes {
+            timer.dispatch(name, pipeline, group, workgroups)?;
+        }
+        timer.finish()
+    }
+
     /// Submits what is recorded, waits for it, and returns each pass's time.
     pub fn finish(mut self) -> Result<Timings> {
         let (Some(queries), Some(mut encoder)) = (self.queries.take(), self.encoder.take()) else {

@@ -113,48 +113,80 @@ fn a_constant_frame_stays_constant_with_a_near_layer() {
     }
 }
 
+/// The board with its near bar, as the bar tests read it: the scene, its camera and lens, the
+/// pinhole frame and depth, and `reference` at 256 lens samples.
+struct BarScene {
+    scene: Scene,
+    camera: Camera,
+    lens: defocus::lens::ThinLens,
+    color: ColorImage,
+    depth: defocus::image::GrayImage,
+    truth: ColorImage,
+}
+
+impl BarScene {
+    fn new() -> Self {
+        let camera = camera();
+        let scene = board(&camera, true);
+        let (color, depth) = frame_of(&scene, &camera);
+        let lens = camera.thin_lens().unwrap();
+        let c = lens.coc_px(1.0);
+        assert!(c < -10.0, "setup: {c}");
+        let truth = reference::render(
+            &scene,
+            &camera,
+            &ReferenceSettings {
+                samples: 256,
+                ..Default::default()
+            },
+            &mut |_, _| {},
+        )
+        .unwrap()
+        .image;
+        Self {
+            scene,
+            camera,
+            lens,
+            color,
+            depth,
+            truth,
+        }
+    }
+
+    fn frame(&self) -> Frame<'_> {
+        Frame {
+            color: &self.color,
+            depth: &self.depth,
+            lens: &self.lens,
+        }
+    }
+
+    /// PSNR of `img` against the truth over the bar's blur: columns 48 +- (3 + |C|), away from
+    /// the top and bottom borders.
+    fn psnr_over_blur(&self, img: &ColorImage) -> f64 {
+        let c = self.lens.coc_px(1.0);
+        let (x0, x1) = ((48.0 + c - 3.0) as usize, (48.0 - c + 3.0) as usize);
+        let crop = |img: &ColorImage| img.crop(x0, 8, x1 - x0, 48);
+        metrics::compare(&crop(img), &crop(&self.truth))
+            .unwrap()
+            .psnr_db
+    }
+}
+
 /// Where the near bar's blur turns transparent, the board behind it shows: each method with
 /// the fill is closer to `reference` over the bar's blur than without it, by at least 3 dB.
 #[test]
 fn a_near_bar_reveals_the_board_behind_it() {
     const MARGIN_DB: f64 = 3.0;
-    let camera = camera();
-    let scene = board(&camera, true);
-    let (color, depth) = frame_of(&scene, &camera);
-    let lens = camera.thin_lens().unwrap();
-    let c = lens.coc_px(1.0);
-    assert!(c < -10.0, "setup: {c}");
-    let truth = reference::render(
-        &scene,
-        &camera,
-        &ReferenceSettings {
-            samples: 256,
-            ..Default::default()
-        },
-        &mut |_, _| {},
-    )
-    .unwrap()
-    .image;
-    // The bar's blur: columns 48 +- (3 + |C|), away from the top and bottom borders.
-    let (x0, x1) = ((48.0 + c - 3.0) as usize, (48.0 - c + 3.0) as usize);
-    let crop = |img: &ColorImage| img.crop(x0, 8, x1 - x0, 48);
-    let frame = Frame {
-        color: &color,
-        depth: &depth,
-        lens: &lens,
-    };
+    let bar = BarScene::new();
+    let frame = bar.frame();
     for id in METHODS {
         let settings = MethodSettings::default_for(id).unwrap();
         let one = registry::run_frame(&settings, &frame).unwrap().image;
         let two = fill::run_frame(&settings, &frame, &FillSettings::default())
             .unwrap()
             .image;
-        let p1 = metrics::compare(&crop(&one), &crop(&truth))
-            .unwrap()
-            .psnr_db;
-        let p2 = metrics::compare(&crop(&two), &crop(&truth))
-            .unwrap()
-            .psnr_db;
+        let (p1, p2) = (bar.psnr_over_blur(&one), bar.psnr_over_blur(&two));
         eprintln!("{id}: none {p1:.2} dB, fill {p2:.2} dB");
         assert!(p2 >= p1 + MARGIN_DB, "{id}: fill {p2} against none {p1}");
     }
@@ -254,30 +286,9 @@ fn the_layered_methods_on_a_frame_keep_a_constant_image_and_an_in_focus_board() 
 #[test]
 fn the_layered_methods_on_a_filled_frame_reveal_the_board_behind_the_bar() {
     const MARGIN_DB: f64 = 3.0;
-    let camera = camera();
-    let scene = board(&camera, true);
-    let (color, depth) = frame_of(&scene, &camera);
-    let lens = camera.thin_lens().unwrap();
-    let c = lens.coc_px(1.0);
-    let truth = reference::render(
-        &scene,
-        &camera,
-        &ReferenceSettings {
-            samples: 256,
-            ..Default::default()
-        },
-        &mut |_, _| {},
-    )
-    .unwrap()
-    .image;
-    let (x0, x1) = ((48.0 + c - 3.0) as usize, (48.0 - c + 3.0) as usize);
-    let crop = |img: &ColorImage| img.crop(x0, 8, x1 - x0, 48);
-    let psnr = |img: &ColorImage| metrics::compare(&crop(img), &crop(&truth)).unwrap().psnr_db;
-    let frame = Frame {
-        color: &color,
-        depth: &depth,
-        lens: &lens,
-    };
+    let bar = BarScene::new();
+    let frame = bar.frame();
+    let psnr = |img: &ColorImage| bar.psnr_over_blur(img);
     for id in LAYERED {
         let settings = MethodSettings::default_for(id).unwrap();
         let one = fill::run_layered(&settings, &frame, fill::Occlusion::None).unwrap();
@@ -290,9 +301,14 @@ fn the_layered_methods_on_a_filled_frame_reveal_the_board_behind_the_bar() {
             _ => settings.clone(),
         };
         let options = registry::SceneOptions::default();
-        let from_scene =
-            registry::run_scene(&scene_settings, &scene, &camera, &options, &mut |_, _| {})
-                .unwrap();
+        let from_scene = registry::run_scene(
+            &scene_settings,
+            &bar.scene,
+            &bar.camera,
+            &options,
+            &mut |_, _| {},
+        )
+        .unwrap();
         let (p1, p2, p3) = (psnr(&one.image), psnr(&two.image), psnr(&from_scene.image));
         eprintln!("{id}: frame {p1:.2} dB, filled frame {p2:.2} dB, scene {p3:.2} dB");
         assert!(p2 >= p1 + MARGIN_DB, "{id}: fill {p2} against none {p1}");

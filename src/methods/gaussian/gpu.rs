@@ -139,11 +139,10 @@ pub fn render(
             ],
         ),
     ];
-    let mut timer = PassTimer::new(ctx, PASSES.len() as u32);
-    for ((pass, pipeline), group) in PASSES.iter().zip(&pipelines).zip(&groups_of) {
-        timer.dispatch(pass, pipeline, group, groups)?;
-    }
-    timings.extend(&timer.finish()?);
+    let passes: Vec<_> = (0..PASSES.len())
+        .map(|i| (PASSES[i], &pipelines[i], &groups_of[i], groups))
+        .collect();
+    timings.extend(&PassTimer::run(ctx, &passes)?);
 
     let start = std::time::Instant::now();
     let image = ctx.read_frame(&status_buf, &out_buf, w, h)?;

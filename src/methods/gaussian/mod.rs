@@ -163,7 +163,7 @@ pub fn render(
 
 /// Pass `horizontal`: the row-blurred colour (see the module documentation).
 pub fn horizontal(color: &ColorImage, coc_px: &GrayImage, table: &GaussTable) -> ColorImage {
-    horizontal_with(color, coc_px, table, horizontal_row)
+    rows_with(color, color, coc_px, table, horizontal_row)
 }
 
 /// [`horizontal`] built for the portable baseline only (no run-time dispatch): the twin the
@@ -173,11 +173,15 @@ pub fn horizontal_baseline(
     coc_px: &GrayImage,
     table: &GaussTable,
 ) -> ColorImage {
-    horizontal_with(color, coc_px, table, horizontal_row_inner)
+    rows_with(color, color, coc_px, table, horizontal_row_inner)
 }
 
-fn horizontal_with(
+/// `color` with each row `y` written by `row_fn(y, row, source, coc_px, table)`, rows in
+/// parallel: the shape of both passes (`source` is `color` for [`horizontal`], the rows it
+/// wrote for [`vertical`]).
+fn rows_with(
     color: &ColorImage,
+    source: &ColorImage,
     coc_px: &GrayImage,
     table: &GaussTable,
     row_fn: impl Fn(usize, &mut [Rgba], &ColorImage, &GrayImage, &GaussTable) + Sync,
@@ -190,7 +194,7 @@ fn horizontal_with(
     out.pixels_mut()
         .par_chunks_mut(w)
         .enumerate()
-        .for_each(|(y, row)| row_fn(y, row, color, coc_px, table));
+        .for_each(|(y, row)| row_fn(y, row, source, coc_px, table));
     out
 }
 
@@ -265,7 +269,7 @@ pub fn vertical(
     coc_px: &GrayImage,
     table: &GaussTable,
 ) -> ColorImage {
-    vertical_with(color, rows, coc_px, table, vertical_row)
+    rows_with(color, rows, coc_px, table, vertical_row)
 }
 
 /// [`vertical`] built for the portable baseline only: the twin the dispatched versions are
@@ -276,26 +280,7 @@ pub fn vertical_baseline(
     coc_px: &GrayImage,
     table: &GaussTable,
 ) -> ColorImage {
-    vertical_with(color, rows, coc_px, table, vertical_row_inner)
-}
-
-fn vertical_with(
-    color: &ColorImage,
-    rows: &ColorImage,
-    coc_px: &GrayImage,
-    table: &GaussTable,
-    row_fn: impl Fn(usize, &mut [Rgba], &ColorImage, &GrayImage, &GaussTable) + Sync,
-) -> ColorImage {
-    let w = color.width();
-    let mut out = color.clone();
-    if w == 0 || color.height() == 0 {
-        return out;
-    }
-    out.pixels_mut()
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(y, row)| row_fn(y, row, rows, coc_px, table));
-    out
+    rows_with(color, rows, coc_px, table, vertical_row_inner)
 }
 
 /// One row of [`vertical`], multiversioned as [`horizontal_row`].

@@ -253,11 +253,10 @@ pub fn render(
         quarter_groups,
         full_groups,
     ];
-    let mut timer = PassTimer::new(ctx, PIPELINES.len() as u32);
-    for (i, pipeline) in pipelines.iter().enumerate() {
-        timer.dispatch(PASSES[i], pipeline, &groups[i], workgroups[i])?;
-    }
-    timings.extend(&timer.finish()?);
+    let passes: Vec<_> = (0..PIPELINES.len())
+        .map(|i| (PASSES[i], &pipelines[i], &groups[i], workgroups[i]))
+        .collect();
+    timings.extend(&PassTimer::run(ctx, &passes)?);
 
     let start = std::time::Instant::now();
     let image = ctx.read_frame(&status_buf, &out_buf, w, h)?;

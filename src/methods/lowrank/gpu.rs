@@ -238,9 +238,10 @@ fn run(
                     (4, &color_buf),
                 ],
             );
-            let mut timer = PassTimer::new(ctx, 1);
-            timer.dispatch(PASSES[0], coc_pipe, &group, groups)?;
-            timings.extend(&timer.finish()?);
+            timings.extend(&PassTimer::run(
+                ctx,
+                &[(PASSES[0], coc_pipe, &group, groups)],
+            )?);
             let start = std::time::Instant::now();
             let status = ctx.read(&[(&status_buf, 12)])?;
             ctx.recycle([params_buf, depth_buf, status_buf]);

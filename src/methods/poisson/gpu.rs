@@ -147,11 +147,10 @@ pub fn render(
             ],
         ),
     ];
-    let mut timer = PassTimer::new(ctx, PASSES.len() as u32);
-    for ((pass, pipeline), group) in PASSES.iter().zip(&pipelines).zip(&bind_groups) {
-        timer.dispatch(pass, pipeline, group, groups)?;
-    }
-    timings.extend(&timer.finish()?);
+    let passes: Vec<_> = (0..PASSES.len())
+        .map(|i| (PASSES[i], &pipelines[i], &bind_groups[i], groups))
+        .collect();
+    timings.extend(&PassTimer::run(ctx, &passes)?);
 
     let start = std::time::Instant::now();
     let image = ctx.read_frame(&status_buf, &out_buf, w, h)?;
