@@ -514,6 +514,34 @@ impl GpuContext {
     }
 }
 
+/// Where a pass writes its timestamps: the [`PassTimer`]'s query set, at the beginning and the
+/// end of the pass's slot.
+#[derive(Clone, Copy, Debug)]
+pub struct PassStamps<'q> {
+    query_set: &'q wgpu::QuerySet,
+    index: u32,
+}
+
+impl<'q> PassStamps<'q> {
+    /// The timestamp writes of a compute pass.
+    pub fn compute(self) -> wgpu::ComputePassTimestampWrites<'q> {
+        wgpu::ComputePassTimestampWrites {
+            query_set: self.query_set,
+            beginning_of_pass_write_index: Some(2 * self.index),
+            end_of_pass_write_index: Some(2 * self.index + 1),
+        }
+    }
+
+    /// The timestamp writes of a render pass.
+    pub fn render(self) -> wgpu::RenderPassTimestampWrites<'q> {
+        wgpu::RenderPassTimestampWrites {
+            query_set: self.query_set,
+            beginning_of_pass_write_index: Some(2 * self.index),
+            end_of_pass_write_index: Some(2 * self.index + 1),
+        }
+    }
+}
+
 /// The passes of one run, timed: with timestamp queries they are recorded into one command
 /// buffer, each between two timestamps, and submitted once by [`PassTimer::finish`]; without,
 /// each pass is submitted and waited for on its own, and timed by the wall clock around that.
@@ -555,6 +583,25 @@ impl<'a> PassTimer<'a> {
         bind_group: &wgpu::BindGroup,
         workgroups: [u32; 3],
     ) -> Result<()> {
+        self.record(name, |encoder, stamps| {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(name),
+                timestamp_writes: stamps.map(|s| s.compute()),
+            });
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, bind_group, &[]);
+            pass.dispatch_workgroups(workgroups[0], workgroups[1], workgroups[2]);
+        })
+    }
+
+    /// Records the pass `name` with `record`, which begins one compute or render pass on the
+    /// encoder with the timestamp writes it is given (`None` without timestamp queries), and
+    /// may record copies before it.
+    pub fn record(
+        &mut self,
+        name: &'static str,
+        record: impl FnOnce(&mut wgpu::CommandEncoder, Option<PassStamps<'_>>),
+    ) -> Result<()> {
         let index = self.names.len() as u32;
         if index >= self.capacity {
             return Err(Error::Gpu(format!(
@@ -568,23 +615,11 @@ impl<'a> PassTimer<'a> {
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) })
         });
-        {
-            let timestamp_writes =
-                self.queries
-                    .as_ref()
-                    .map(|query_set| wgpu::ComputePassTimestampWrites {
-                        query_set,
-                        beginning_of_pass_write_index: Some(2 * index),
-                        end_of_pass_write_index: Some(2 * index + 1),
-                    });
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(name),
-                timestamp_writes,
-            });
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, bind_group, &[]);
-            pass.dispatch_workgroups(workgroups[0], workgroups[1], workgroups[2]);
-        }
+        let stamps = self
+            .queries
+            .as_ref()
+            .map(|query_set| PassStamps { query_set, index });
+        record(&mut encoder, stamps);
         self.names.push(name);
         if self.queries.is_some() {
             self.encoder = Some(encoder);

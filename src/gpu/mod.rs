@@ -29,7 +29,7 @@ pub use adapter::{
     adapters, choose, hardware_may_exist, is_software_name, AdapterDescription, AdapterLimits,
     AdapterType, Device,
 };
-pub use context::{GpuContext, PassTimer};
+pub use context::{GpuContext, PassStamps, PassTimer};
 
 /// The value of a status word no pass has written: no failing pixel
 /// ([`GpuContext::read_frame`]).

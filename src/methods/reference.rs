@@ -17,9 +17,12 @@
 //! tile order, so the result is bit-identical whatever the number of threads. With one sample the
 //! view is the plain pinhole image at pixel centres, returned exactly.
 
+use crate::gpu::GpuContext;
 use crate::image::GrayImage;
 use crate::lens::{Aperture, Camera, LensEffects, SampleSet, SamplerKind};
-use crate::raster::{accumulate_views_clipped, render_view, PreparedScene, View, ViewPassLabels};
+use crate::raster::{
+    accumulate_views_clipped, gpu, render_view, PreparedScene, View, ViewPassLabels,
+};
 use crate::scene::Scene;
 use crate::timing::Timings;
 use crate::Result;
@@ -102,8 +105,20 @@ pub fn render(
     settings: &ReferenceSettings,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<MethodOutput> {
+    render_on(scene, camera, settings, None, progress)
+}
+
+/// [`render`] on the GPU of `gpu` (`None`: the CPU): the same views, drawn by the GPU's own
+/// rasteriser ([`crate::raster::gpu`]) and added up there.
+pub fn render_on(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &ReferenceSettings,
+    gpu: Option<&GpuContext>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<MethodOutput> {
     if settings.use_lens && settings.effects.is_chromatic() {
-        return render_chromatic(scene, camera, settings, progress);
+        return render_chromatic(scene, camera, settings, gpu, progress);
     }
     let (prepare, labels, depth_label) = if settings.use_lens {
         (
@@ -154,7 +169,37 @@ pub fn render(
     let single = set.samples.len() == 1
         && set.samples[0].lens == glam::Vec2::ZERO
         && set.samples[0].pixel_offset == glam::Vec2::ZERO;
-    let (image, depth) = if single {
+    let (image, depth) = if let Some(ctx) = gpu {
+        let clip = settings.use_lens.then_some(&settings.effects);
+        if single {
+            let (color, depth) =
+                gpu::render_view(ctx, &prepared, &View::pinhole(lens), &labels, &mut timings)?;
+            progress(1, 1);
+            (color, settings.with_depth.then_some(depth))
+        } else {
+            let image = gpu::accumulate_views(
+                ctx,
+                &prepared,
+                lens,
+                &set.samples,
+                clip,
+                &labels,
+                &mut timings,
+                progress,
+            )?;
+            let depth = match settings.with_depth {
+                true => {
+                    let depth_labels = depth_labels(depth_label);
+                    let view = View::pinhole(lens);
+                    let (_, depth) =
+                        gpu::render_view(ctx, &prepared, &view, &depth_labels, &mut timings)?;
+                    Some(depth)
+                }
+                false => None,
+            };
+            (image, depth)
+        }
+    } else if single {
         let g = render_view(&prepared, &View::pinhole(lens), &labels, &mut timings);
         progress(1, 1);
         (g.color, settings.with_depth.then_some(g.depth))
@@ -189,6 +234,7 @@ fn render_chromatic(
     scene: &Scene,
     camera: &Camera,
     settings: &ReferenceSettings,
+    gpu: Option<&GpuContext>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<MethodOutput> {
     settings.effects.validate()?;
@@ -202,7 +248,7 @@ fn render_chromatic(
             fstop: camera.fstop / scale,
             ..camera.clone()
         };
-        render(scene, &channel_camera, &mono, &mut |done, total| {
+        render_on(scene, &channel_camera, &mono, gpu, &mut |done, total| {
             progress(c * total + done, 3 * total)
         })
     })
@@ -215,11 +261,21 @@ fn pinhole_depth(
     label: &'static str,
     timings: &mut Timings,
 ) -> GrayImage {
-    let labels = ViewPassLabels {
+    render_view(
+        prepared,
+        &View::pinhole(lens),
+        &depth_labels(label),
+        timings,
+    )
+    .depth
+}
+
+/// Every pass of the pinhole depth view timed under `label`.
+fn depth_labels(label: &'static str) -> ViewPassLabels {
+    ViewPassLabels {
         setup: label,
         bin: label,
         raster: label,
         resolve: label,
-    };
-    render_view(prepared, &View::pinhole(lens), &labels, timings).depth
+    }
 }

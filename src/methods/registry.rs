@@ -84,7 +84,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "",
         input: InputKind::SceneViews,
         effects: &[],
-        gpu: false,
+        gpu: true,
     },
     MethodInfo {
         id: "reference",
@@ -92,7 +92,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Haeberli & Akeley 1990, The accumulation buffer",
         input: InputKind::SceneViews,
         effects: &crate::lens::EFFECT_NAMES,
-        gpu: false,
+        gpu: true,
     },
     MethodInfo {
         id: "hammon",
@@ -193,6 +193,7 @@ pub fn gpu_ids() -> Vec<&'static str> {
 
 /// Every WGSL shader of the GPU methods: its name and source (for validation by naga).
 pub const GPU_SHADERS: &[(&str, &str)] = &[
+    (crate::raster::gpu::SHADER_NAME, crate::raster::gpu::SHADER),
     (hammon::gpu::SHADER_NAME, hammon::gpu::SHADER),
     (gaussian::gpu::SHADER_NAME, gaussian::gpu::SHADER),
     (poisson::gpu::SHADER_NAME, poisson::gpu::SHADER),
@@ -202,6 +203,7 @@ pub const GPU_SHADERS: &[(&str, &str)] = &[
 /// Builds every pipeline of every GPU method on `ctx` (compiled once, then cached there): a
 /// shader that does not build is an error naming it.
 pub fn prepare_gpu(ctx: &GpuContext) -> Result<()> {
+    crate::raster::gpu::prepare(ctx)?;
     hammon::gpu::prepare(ctx)?;
     gaussian::gpu::prepare(ctx)?;
     poisson::gpu::prepare(ctx)?;
@@ -563,7 +565,7 @@ pub fn run_scene(
 
 /// [`run_scene`] on the GPU of `gpu` (`None`: the CPU). A method without GPU passes is
 /// refused on a GPU ([`check_gpu`]); the pinhole frame that a post-process method blurs is
-/// rendered on the CPU.
+/// rendered on the same GPU.
 pub fn run_scene_on(
     settings: &MethodSettings,
     scene: &Scene,
@@ -583,7 +585,7 @@ pub fn run_scene_on(
                 with_depth: options.with_depth,
                 ..s.clone()
             };
-            reference::render(scene, camera, &s, progress)
+            reference::render_on(scene, camera, &s, gpu, progress)
         }
         MethodSettings::Pinhole(p) => {
             let s = ReferenceSettings {
@@ -594,7 +596,7 @@ pub fn run_scene_on(
                 with_depth: options.with_depth,
                 ..ReferenceSettings::default()
             };
-            reference::render(scene, camera, &s, progress)
+            reference::render_on(scene, camera, &s, gpu, progress)
         }
         MethodSettings::Splat(s) if s.layers > 1 => {
             let (out, _) = splat::render_scene(scene, camera, s)?;
@@ -619,7 +621,7 @@ pub fn run_scene_on(
                 with_depth: true,
                 ..ReferenceSettings::default()
             };
-            let pin = reference::render(scene, camera, &frame_settings, progress)?;
+            let pin = reference::render_on(scene, camera, &frame_settings, gpu, progress)?;
             let depth = pin.depth.ok_or_else(|| {
                 Error::invalid("pinhole frame", "the pinhole pass returned no depth")
             })?;

@@ -28,6 +28,7 @@
 
 mod fragments;
 mod gbuffer;
+pub mod gpu;
 mod layers;
 mod setup;
 mod shade;

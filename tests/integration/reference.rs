@@ -8,12 +8,12 @@ use defocus::scene::{Material, Scene};
 
 use crate::{add_screen_rect, test_camera};
 
-const SIZE: usize = 96;
+pub(crate) const SIZE: usize = 96;
 /// Lens samples for bokeh-shape tests.
 const SAMPLES: usize = 4096;
 
 /// A long lens so that bokeh are tens of pixels wide on a small image.
-fn tele_camera(focus_m: f32, fstop: f32) -> Camera {
+pub(crate) fn tele_camera(focus_m: f32, fstop: f32) -> Camera {
     Camera {
         focal_length_mm: 150.0,
         ..test_camera(SIZE, SIZE, focus_m, fstop)
@@ -37,7 +37,7 @@ fn run(scene: &Scene, camera: &Camera, s: &ReferenceSettings) -> MethodOutput {
 /// samples the lens points are ~|C| sqrt(pi/N) px apart on screen), and a larger one rounds
 /// the polygon's corners. The half-maximum contour of a shape convolved with a small square
 /// stays near distance |C| from the centre.
-fn point_light_scene(camera: &Camera, z: f32) -> Scene {
+pub(crate) fn point_light_scene(camera: &Camera, z: f32) -> Scene {
     let mut scene = Scene::default();
     let m = scene.add_material(Material::emissive("light", [1.0; 3], 1000.0));
     let c = SIZE as f32 / 2.0;
@@ -53,7 +53,7 @@ fn point_light_scene(camera: &Camera, z: f32) -> Scene {
 
 /// Bokeh extent in pixels from the light's centre (the pixel corner at (SIZE/2, SIZE/2)) to
 /// the half-plateau crossing along +x, -x, +y, -y, interpolated linearly between pixel centres.
-fn extents(img: &ColorImage) -> [f32; 4] {
+pub(crate) fn extents(img: &ColorImage) -> [f32; 4] {
     let lum: Vec<f32> = img.pixels().iter().map(|p| p[0]).collect();
     let w = img.width();
     let peak = {
