@@ -434,6 +434,18 @@ def test_blur_and_render_on_the_gpu_match_the_cpu(method):
     assert defocus.compare(scene_cpu, scene_gpu)["psnr"] >= 45
 
 
+@pytest.mark.parametrize("method", ["pinhole", "reference"])
+def test_scene_methods_render_on_the_gpu_as_on_the_cpu(method):
+    cpu, cpu_depth = defocus.render(scene="glass", method=method, width=64, height=36,
+                                    samples=8, return_depth=True, device="cpu")
+    gpu, gpu_depth = gpu_or_skip(
+        lambda: defocus.render(scene="glass", method=method, width=64, height=36,
+                               samples=8, return_depth=True, device="gpu")
+    )
+    assert defocus.compare(cpu, gpu)["psnr"] >= 45
+    assert np.allclose(cpu_depth, gpu_depth, rtol=1e-4)
+
+
 def test_device_values_are_checked_before_any_work():
     image, depth = checkerboard(), two_planes()
     with pytest.raises(ValueError, match="invalid device 'tpu'"):

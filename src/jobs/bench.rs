@@ -4,6 +4,8 @@
 //!
 //! For each scene and size the pinhole frame (colour and depth) is rendered once on the CPU;
 //! then each method runs `warmup` untimed frames and `frames` timed ones on one GPU context
+//! (`pinhole` and `reference` render the scene itself each frame, `reference` with
+//! `--samples` views)
 //! (pipelines compiled and per-frame constants cached by the first frames, as in a sequence),
 //! and the median and least time of each pass and of the method's passes together are
 //! reported. Upload and download are reported apart (`gpu/upload`, `gpu/download`): an engine
@@ -27,8 +29,8 @@ pub const MAX_FRAMES: usize = 10_000;
 /// Flags of `bench`.
 #[derive(Clone, Debug, Args)]
 pub struct BenchArgs {
-    /// Methods to time, comma-separated: methods that blur a pinhole frame [default: every
-    /// method that runs on the GPU]
+    /// Methods to time, comma-separated: `pinhole`, `reference` and the methods that blur a
+    /// pinhole frame [default: every method that runs on the GPU]
     #[arg(long, value_delimiter = ',', value_name = "LIST")]
     pub methods: Vec<String>,
     /// Built-in scenes, comma-separated.
@@ -57,6 +59,9 @@ pub struct BenchArgs {
     /// hardware GPU, else the CPU) or `cpu` (the CPU twins, for comparison).
     #[arg(long, value_enum, default_value = "gpu")]
     pub device: DeviceArg,
+    /// Lens views of `reference` a frame.
+    #[arg(long, value_name = "N", default_value_t = 64)]
+    pub samples: usize,
     /// Also write the JSON to FILE.
     #[arg(long, value_name = "FILE")]
     pub out: Option<std::path::PathBuf>,
@@ -103,21 +108,20 @@ fn is_method_pass(name: &str) -> bool {
     !name.starts_with("gpu/")
 }
 
-/// One method on one frame, `warmup` + `frames` times: its record.
+/// One method's frame, `warmup` + `frames` times by `run`: its record.
 fn time_method(
     settings: &MethodSettings,
-    frame: &Frame,
-    gpu: Option<&GpuContext>,
+    run: &mut dyn FnMut() -> crate::Result<crate::methods::MethodOutput>,
     args: &BenchArgs,
 ) -> Result<Value> {
     for _ in 0..args.warmup {
-        registry::run_frame_on(settings, frame, gpu)?;
+        run()?;
     }
     let mut runs: Vec<Timings> = Vec::with_capacity(args.frames);
     let mut wall = Vec::with_capacity(args.frames);
     for _ in 0..args.frames {
         let start = Instant::now();
-        let out = registry::run_frame_on(settings, frame, gpu)?;
+        let out = run()?;
         wall.push(start.elapsed().as_secs_f64() * 1e3);
         runs.push(out.timings);
     }
@@ -212,12 +216,20 @@ pub fn run(args: &BenchArgs, progress: &mut dyn FnMut(BenchProgress)) -> Result<
     } else {
         args.methods.clone()
     };
+    if !(1..=registry::MAX_SAMPLES).contains(&args.samples) {
+        bail!(
+            "invalid --samples {}: expected 1 to {}",
+            args.samples,
+            registry::MAX_SAMPLES
+        );
+    }
     let device: Device = args.device.into();
     for id in &methods {
         let info = registry::find(id)?;
-        if info.input != InputKind::PinholeFrame {
+        if !matches!(info.input, InputKind::PinholeFrame | InputKind::SceneViews) {
             bail!(
-                "bench times the methods that blur a pinhole frame; {id} needs {}",
+                "bench times pinhole, reference and the methods that blur a pinhole frame; \
+                 {id} needs {}",
                 info.input.describe()
             );
         }
@@ -253,12 +265,30 @@ pub fn run(args: &BenchArgs, progress: &mut dyn FnMut(BenchProgress)) -> Result<
                     total,
                     running: &running,
                 });
-                let settings = MethodSettings::default_for(id)?;
+                let mut settings = MethodSettings::default_for(id)?;
+                if let MethodSettings::Reference(r) = &mut settings {
+                    r.samples = args.samples;
+                }
                 // `auto` runs a method without GPU passes on the CPU.
                 let on = gpu
                     .as_ref()
                     .filter(|_| registry::find(id).is_ok_and(|m| m.gpu));
-                let mut record = time_method(&settings, &frame, on, args)
+                let options = registry::SceneOptions::default();
+                let mut run = || {
+                    if settings.info().input == InputKind::SceneViews {
+                        registry::run_scene_on(
+                            &settings,
+                            &scene,
+                            &camera,
+                            &options,
+                            on,
+                            &mut |_, _| {},
+                        )
+                    } else {
+                        registry::run_frame_on(&settings, &frame, on)
+                    }
+                };
+                let mut record = time_method(&settings, &mut run, args)
                     .with_context(|| format!("bench {running}"))?;
                 record["scene"] = json!(scene_name);
                 record["width"] = json!(w);

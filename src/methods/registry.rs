@@ -465,7 +465,7 @@ pub fn run_frame(settings: &MethodSettings, frame: &Frame) -> Result<MethodOutpu
 }
 
 /// [`run_frame`] on the GPU of `gpu` (`None`: the CPU). A method without GPU passes is
-/// refused on a GPU ([`check_gpu`]).
+/// refused on a GPU ([`check_gpu`]); one that reads a scene is refused as on the CPU.
 pub fn run_frame_on(
     settings: &MethodSettings,
     frame: &Frame,
@@ -473,7 +473,8 @@ pub fn run_frame_on(
 ) -> Result<MethodOutput> {
     let (c, d, l) = (frame.color, frame.depth, frame.lens);
     check_budget(settings, c.width(), c.height())?;
-    if let Some(ctx) = gpu {
+    // A method that reads a scene falls through to the CPU's refusal below, on any device.
+    if let Some(ctx) = gpu.filter(|_| settings.info().input == InputKind::PinholeFrame) {
         check_gpu(settings.id())?;
         let out = match settings {
             MethodSettings::Hammon(s) => hammon::gpu::render(ctx, c, d, l, s),

@@ -232,12 +232,29 @@ impl SceneData {
                 .get(m as usize)
                 .is_some_and(|m| m.alpha_mode == AlphaMode::Blend)
         };
+        // Opaque and alpha-mask triangles nearest first (by their nearest vertex), so that the
+        // depth test rejects the hidden fragments of the ones behind before they are shaded
+        // (a meadow of cut-out tufts was 17 times slower drawn in scene order on lavapipe);
+        // blended ones after, in scene order (the composite sorts them per pixel).
+        let nearest = |t: &super::PreparedTriangle| {
+            t.v.iter()
+                .map(|&v| -prepared.positions[v as usize].z)
+                .fold(f32::INFINITY, f32::min)
+        };
+        let mut order: Vec<(bool, f32, usize)> = prepared
+            .triangles
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                let b = blended(t.material);
+                (b, if b { 0.0 } else { nearest(t) }, i)
+            })
+            .collect();
+        order.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)).then(a.2.cmp(&b.2)));
         let mut vertices = Vec::with_capacity(3 * prepared.triangles.len());
-        for pass_blended in [false, true] {
-            for (i, t) in prepared.triangles.iter().enumerate() {
-                if blended(t.material) != pass_blended {
-                    continue;
-                }
+        {
+            for &(_, _, i) in &order {
+                let t = &prepared.triangles[i];
                 for &v in &t.v {
                     let p = prepared.positions[v as usize];
                     let uv = prepared.uvs[v as usize];

@@ -170,7 +170,14 @@ fn every_gpu_pipeline_builds_on_the_adapter() {
 fn the_registry_marks_the_gpu_methods_and_refuses_the_others_by_name() {
     assert_eq!(
         registry::gpu_ids(),
-        ["hammon", "lowrank", "gaussian", "poisson"]
+        [
+            "pinhole",
+            "reference",
+            "hammon",
+            "lowrank",
+            "gaussian",
+            "poisson"
+        ]
     );
     registry::check_gpu("gaussian").unwrap();
     let e = registry::check_gpu("splat").unwrap_err().to_string();
@@ -361,6 +368,9 @@ fn a_bad_depth_gives_the_cpu_error_on_the_gpu() {
     let lens = crate::test_camera(w, h, 2.0, 1.4).thin_lens().unwrap();
     for id in registry::gpu_ids() {
         let settings = MethodSettings::default_for(id).unwrap();
+        if settings.info().input != registry::InputKind::PinholeFrame {
+            continue;
+        }
         for bad in [0.0, -1.0, -0.0, f32::NAN] {
             let mut depth = good.clone();
             *depth.get_mut(5, 6) = bad;
@@ -610,7 +620,7 @@ fn a_method_without_gpu_passes_is_refused_on_the_gpu_naming_those_with() {
     let render = defocus(&[
         "render",
         "--method",
-        "reference",
+        "multiview",
         "--device",
         "gpu",
         "--width",
@@ -623,7 +633,7 @@ fn a_method_without_gpu_passes_is_refused_on_the_gpu_naming_those_with() {
     assert!(!render.status.success());
     let err = stderr(&render);
     assert!(
-        err.contains("reference") && err.contains("gaussian"),
+        err.contains("multiview") && err.contains("gaussian"),
         "{err}"
     );
     // `auto` runs such a method on the CPU.

@@ -148,7 +148,7 @@ fn gpu_reference_matches_the_cpu_on_every_builtin_scene_at_320x180() {
     if context().is_none() {
         return;
     }
-    views_match_the_cpu(320, 180, 32);
+    views_match_the_cpu(320, 180, 16);
 }
 
 #[test]
