@@ -52,7 +52,7 @@ fn bench(c: &mut Criterion) {
                     b.iter(|| collect(&prepared, lens, 0, &sampled))
                 });
             }
-            let lists = collect(&prepared, lens, 0, &base);
+            let lists = collect(&prepared, lens, 0, &base).expect("within the budget");
             for (mip, stack) in [(1usize, 3usize), (2, 2), (4, 0)] {
                 for truncation in [true, false] {
                     let s = MultilayerSettings {

@@ -68,7 +68,7 @@ pub fn focus_at_pixel(
     let settings = MethodSettings::Pinhole(PinholeSettings::default());
     crate::methods::registry::check_scene_budget(&settings, scene, camera)?;
     let prepared = PreparedScene::new(scene, &camera.camera_from_world)?;
-    let depth = render_gbuffer(&prepared, &View::pinhole(lens)).depth;
+    let depth = render_gbuffer(&prepared, &View::pinhole(lens))?.depth;
     Ok(focus_in_depth(&depth, x_px, y_px))
 }
 

@@ -200,7 +200,7 @@ pub fn render_on(
             (image, depth)
         }
     } else if single {
-        let g = render_view(&prepared, &View::pinhole(lens), &labels, &mut timings);
+        let g = render_view(&prepared, &View::pinhole(lens), &labels, &mut timings)?;
         progress(1, 1);
         (g.color, settings.with_depth.then_some(g.depth))
     } else {
@@ -216,7 +216,8 @@ pub fn render_on(
         )?;
         let depth = settings
             .with_depth
-            .then(|| pinhole_depth(&prepared, lens, depth_label, &mut timings));
+            .then(|| pinhole_depth(&prepared, lens, depth_label, &mut timings))
+            .transpose()?;
         (image, depth)
     };
     Ok(MethodOutput {
@@ -260,14 +261,14 @@ fn pinhole_depth(
     lens: crate::lens::ThinLens,
     label: &'static str,
     timings: &mut Timings,
-) -> GrayImage {
-    render_view(
+) -> Result<GrayImage> {
+    Ok(render_view(
         prepared,
         &View::pinhole(lens),
         &depth_labels(label),
         timings,
-    )
-    .depth
+    )?
+    .depth)
 }
 
 /// Every pass of the pinhole depth view timed under `label`.

@@ -519,13 +519,14 @@ impl LayeredInput {
         }
     }
 
-    /// The binned pinhole view of `lens`, with coverage masks when on.
-    pub fn bin(&self, prepared: &PreparedScene, view: &View) -> BinnedView {
-        match (self.coverage, self.sample_shading) {
-            (true, true) => BinnedView::with_coverage(prepared, view),
-            (true, false) => BinnedView::with_coverage(prepared, view).with_quadrant_shading(),
-            (false, _) => BinnedView::new(prepared, view),
-        }
+    /// The binned pinhole view of `lens`, with coverage masks when on; refused when its tile
+    /// lists would pass the memory budget ([`BinnedView::new`]).
+    pub fn bin(&self, prepared: &PreparedScene, view: &View) -> Result<BinnedView> {
+        Ok(match (self.coverage, self.sample_shading) {
+            (true, true) => BinnedView::with_coverage(prepared, view)?,
+            (true, false) => BinnedView::with_coverage(prepared, view)?.with_quadrant_shading(),
+            (false, _) => BinnedView::new(prepared, view)?,
+        })
     }
 }
 
@@ -561,10 +562,33 @@ pub struct BinnedView {
     sample_shading: Option<(f32, f32)>,
 }
 
+/// Bytes a pixel of a run that rasterizes views holds besides the views themselves, counted
+/// with the scene when a view's tile lists are checked against the memory budget: the sum of
+/// the views and the image (16 bytes each).
+const HELD_BYTES_PER_PIXEL: u64 = 32;
+
+/// What a run holds while it bins a view of `prepared` at `lens`'s size: the program (64
+/// MiB, as the methods' estimates count it), the scene, its camera-space copy and the frame
+/// ([`HELD_BYTES_PER_PIXEL`]).
+fn held_bytes(prepared: &PreparedScene, lens: &ThinLens) -> u64 {
+    (64 << 20)
+        + prepared.scene.bytes()
+        + PreparedScene::bytes_for(prepared.scene)
+        + (lens.width_px * lens.height_px) as u64 * HELD_BYTES_PER_PIXEL
+}
+
 impl BinnedView {
     /// Sets up and bins every triangle of `prepared` for `view` (passes `setup` and `bin`).
-    pub fn new(prepared: &PreparedScene, view: &View) -> Self {
-        Self::bin(Self::setup(prepared, view, false), view, false)
+    /// Refused, before the tile lists are allocated, when they and what the run holds (the
+    /// scene, its copy, the frame) would pass the memory budget: a triangle is entered in
+    /// every tile its bounding box touches, so large triangles take many entries each.
+    pub fn new(prepared: &PreparedScene, view: &View) -> Result<Self> {
+        Self::bin(
+            Self::setup(prepared, view, false),
+            view,
+            false,
+            held_bytes(prepared, &view.lens),
+        )
     }
 
     /// [`BinnedView::new`] for rasterizing with coverage masks: every pixel a triangle touches
@@ -572,19 +596,37 @@ impl BinnedView {
     /// [`COVERAGE_SAMPLES`] samples it covers (shaded once, at the covered samples' centroid),
     /// as an A-buffer does (Carpenter 1984). For sinks that keep several fragments per pixel:
     /// a surface's edge then covers its share of a pixel instead of all or nothing.
-    pub fn with_coverage(prepared: &PreparedScene, view: &View) -> Self {
-        Self::bin(Self::setup(prepared, view, true), view, true)
+    pub fn with_coverage(prepared: &PreparedScene, view: &View) -> Result<Self> {
+        Self::bin(
+            Self::setup(prepared, view, true),
+            view,
+            true,
+            held_bytes(prepared, &view.lens),
+        )
     }
 
-    /// [`BinnedView::new`], timing `setup` and `bin` under the labels given.
+    /// [`BinnedView::new`], timing `setup` and `bin` under the labels given, with `views`
+    /// bytes of other binned views held beside it.
     pub fn new_timed(
         prepared: &PreparedScene,
         view: &View,
         labels: &views::ViewPassLabels,
         timings: &mut crate::timing::Timings,
-    ) -> Self {
+        views: u64,
+    ) -> Result<Self> {
         let triangles = timings.time(labels.setup, || Self::setup(prepared, view, false));
-        timings.time(labels.bin, || Self::bin(triangles, view, false))
+        let held = held_bytes(prepared, &view.lens) + views;
+        timings.time(labels.bin, || Self::bin(triangles, view, false, held))
+    }
+
+    /// Bytes the view holds: its set-up triangles and its tiles' lists.
+    pub fn bytes(&self) -> u64 {
+        (self.triangles.capacity() * std::mem::size_of::<SetupTriangle>()
+            + self
+                .bins
+                .iter()
+                .map(|b| b.capacity() * 4 + 24)
+                .sum::<usize>()) as u64
     }
 
     /// Pass `setup`: project, clip and cull every triangle for `view` (keeping those that touch
@@ -627,12 +669,38 @@ impl BinnedView {
     /// pre-pass cannot know without their texture. The nearest surface of each pixel is the
     /// same in any order; only which of two surfaces at exactly the same depth wins can differ
     /// from scene order.
-    fn bin(triangles: Vec<SetupTriangle>, view: &View, coverage: bool) -> Self {
+    fn bin(triangles: Vec<SetupTriangle>, view: &View, coverage: bool, held: u64) -> Result<Self> {
         let width = view.lens.width_px;
         let height = view.lens.height_px;
         let tiles_x = width.div_ceil(TILE);
         let tiles_y = height.div_ceil(TILE);
-        let mut bins: Vec<Vec<u32>> = vec![Vec::new(); tiles_x * tiles_y];
+        // Each tile's list exactly as long as it will be, counted before anything is allocated.
+        let mut counts = vec![0u32; tiles_x * tiles_y];
+        for t in &triangles {
+            let (x0, y0, x1, y1) = t.bbox;
+            for ty in y0 as usize / TILE..=y1 as usize / TILE {
+                for c in &mut counts[ty * tiles_x..][x0 as usize / TILE..=x1 as usize / TILE] {
+                    *c += 1;
+                }
+            }
+        }
+        let entries: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+        let bytes = (triangles.capacity() * std::mem::size_of::<SetupTriangle>()) as u64
+            + entries * 4
+            + counts.len() as u64 * 24;
+        crate::budget::check(
+            held + bytes,
+            &format!(
+                "a view of {} triangles at {width}x{height} ({entries} tile-list entries: a \
+                 triangle enters every {TILE}x{TILE} tile it touches)",
+                triangles.len()
+            ),
+            "the scene's size or the resolution",
+        )?;
+        let mut bins: Vec<Vec<u32>> = counts
+            .iter()
+            .map(|&c| Vec::with_capacity(c as usize))
+            .collect();
         // Blended triangles only collect fragments (the sink composites them once the tile is
         // done), so their place in the order does not matter.
         let mut opaque = false;
@@ -678,7 +746,7 @@ impl BinnedView {
                     }
                 });
         }
-        Self {
+        Ok(Self {
             triangles,
             bins,
             width,
@@ -686,7 +754,7 @@ impl BinnedView {
             lod_bias: view.lod_bias,
             coverage,
             sample_shading: coverage.then(|| sample_shading_depths(&view.lens)),
-        }
+        })
     }
 
     /// With coverage masks, textures looked up once a quadrant of the pixel only, even where
@@ -766,7 +834,7 @@ pub fn render_fragment_lists(
     cap: usize,
     input: LayeredInput,
     reach: Option<Reach>,
-) -> FragmentLists {
+) -> Result<FragmentLists> {
     render_fragment_lists_with(prepared, view, cap, input, reach, None)
 }
 
@@ -780,8 +848,8 @@ pub fn render_fragment_lists_with(
     input: LayeredInput,
     reach: Option<Reach>,
     highlights: Option<f32>,
-) -> FragmentLists {
-    let binned = input.bin(prepared, view);
+) -> Result<FragmentLists> {
+    let binned = input.bin(prepared, view)?;
     let mut lists = FragmentLists::new(view.lens.width_px, view.lens.height_px, cap);
     if input.coverage {
         lists = lists.with_coincident_surfaces(view.lens).merging_overflow();
@@ -794,15 +862,15 @@ pub fn render_fragment_lists_with(
     }
     binned.rasterize(prepared, &mut lists);
     lists.compact();
-    lists
+    Ok(lists)
 }
 
 /// Renders one view of `prepared` into a fresh [`GBuffer`].
-pub fn render_gbuffer(prepared: &PreparedScene, view: &View) -> GBuffer {
-    let binned = BinnedView::new(prepared, view);
+pub fn render_gbuffer(prepared: &PreparedScene, view: &View) -> Result<GBuffer> {
+    let binned = BinnedView::new(prepared, view)?;
     let mut g = GBuffer::new(view.lens.width_px, view.lens.height_px);
     binned.rasterize(prepared, &mut g);
-    g
+    Ok(g)
 }
 
 #[cfg(test)]

@@ -45,11 +45,11 @@ pub fn render_view(
     view: &View,
     labels: &ViewPassLabels,
     timings: &mut Timings,
-) -> GBuffer {
-    let binned = BinnedView::new_timed(prepared, view, labels, timings);
+) -> Result<GBuffer> {
+    let binned = BinnedView::new_timed(prepared, view, labels, timings, 0)?;
     let mut g = GBuffer::new(view.lens.width_px, view.lens.height_px);
     timings.time(labels.raster, || binned.rasterize(prepared, &mut g));
-    g
+    Ok(g)
 }
 
 /// Views set up and binned at a time by [`accumulate_views`]: each tile then rasterizes them
@@ -110,19 +110,32 @@ pub fn accumulate_views_clipped(
     let clip = clip.filter(|e| e.has_cats_eye());
     let (w, h) = (lens.width_px, lens.height_px);
     let total = samples.len();
-    let chunk = views_per_chunk(prepared.triangle_count(), crate::budget::budget_bytes()?);
+    let budget = crate::budget::budget_bytes()?;
+    let chunk = views_per_chunk(prepared.triangle_count(), budget);
+    // A chunk also ends where its binned views hold `room` bytes (their triangles may take
+    // more tile-list entries than the estimate allows for: large triangles enter many tiles).
+    let room = (CHUNK_BYTES as u64).min(budget / 8);
     // Per tile: its rectangle and the sum of its pixels, row-major within the tile; with a
     // clip, also each pixel's count of views that reach it.
     let mut sums: Vec<(TileRect, Vec<Rgba>)> = Vec::new();
     let mut counts: Vec<Vec<u32>> = Vec::new();
     let mut done = 0;
-    for views in samples.chunks(chunk) {
-        let binned: Vec<BinnedView> = views
-            .iter()
-            .map(|s| BinnedView::new_timed(prepared, &sample_view(lens, s, total), labels, timings))
-            .collect();
+    while done < total {
+        let mut binned: Vec<BinnedView> = Vec::new();
+        let mut held = 0u64;
+        while done + binned.len() < total
+            && binned.len() < chunk
+            && (binned.is_empty() || held < room)
+        {
+            let s = &samples[done + binned.len()];
+            let view = sample_view(lens, s, total);
+            let b = BinnedView::new_timed(prepared, &view, labels, timings, held)?;
+            held += b.bytes();
+            binned.push(b);
+        }
+        let views = &samples[done..done + binned.len()];
         let Some(first) = binned.first() else {
-            continue;
+            break;
         };
         if sums.is_empty() {
             sums = first

@@ -738,3 +738,101 @@ fn occlusion_fill_counts_its_layers_against_the_budget() {
         &[&out],
     );
 }
+
+/// A scene of many triangles that each cover the whole frame (a 200 mm lens on the scene's
+/// "frame all" camera): its estimate (the scene, its copy, one view's set-up triangles at one
+/// tile-list entry each) is within the budget, but every triangle enters all 240 tiles of a
+/// 1280x720 frame, 500,000 triangles 120 million entries (0.45 GiB). Before, the run went past
+/// 0.6 GiB under a budget of 0.3; now the view is refused before its lists are allocated,
+/// naming the entries. At 64x36 (one tile) the same scene runs, within the budget.
+#[test]
+fn tile_lists_of_large_triangles_are_counted_against_the_budget() {
+    let dir = temp_dir("budget-big-triangles");
+    let out = dir.join("o.exr");
+    let obj = dir.join("big.obj");
+    let mut text = String::from("v -3 -3 -5\nv 3 -3 -5\nv 0 3 -5\n");
+    text.push_str(&"f 1 2 3\n".repeat(500_000));
+    std::fs::write(&obj, text).unwrap();
+    let render = |w: &str, h: &str| {
+        peak_of(
+            &dir,
+            &[
+                "--memory-budget",
+                "0.3",
+                "render",
+                "--scene",
+                s(&obj),
+                "--method",
+                "pinhole",
+                "--focal-length",
+                "200",
+                "--width",
+                w,
+                "--height",
+                h,
+                "--out",
+                s(&out),
+            ],
+        )
+    };
+    let (o, peak) = render("1280", "720");
+    assert_refused(
+        "500,000 frame-sized triangles",
+        &o,
+        0.3,
+        &["tile-list entries", "500000 triangles"],
+        &[&out],
+    );
+    assert_within("refused frame-sized triangles", peak, 0.3);
+    let (o, peak) = render("64", "36");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_within("frame-sized triangles at 64x36", peak, 0.3);
+}
+
+/// `multilayer` counts the scene it holds beside its lists: a scene with a 2048x2048 texture
+/// (0.08 GiB decoded with its mip levels) and the lists and levels of a 1280x720 frame (0.18
+/// GiB at four fragments a pixel) are each within a budget of 0.25 GiB, and were each checked
+/// alone, so the run went ahead; together they are not, and the run is refused before it
+/// collects, naming multilayer. `multiview` counts the scene beside its layers the same way.
+#[test]
+fn layered_methods_count_the_scene_beside_their_lists() {
+    let dir = temp_dir("budget-layered-scene");
+    let out = dir.join("o.exr");
+    std::fs::write(dir.join("small.bin"), triangles_buffer(1, true)).unwrap();
+    flat_png(&dir.join("wall.png"), 2048, 2048);
+    let scene = dir.join("textured.gltf");
+    std::fs::write(&scene, instanced_gltf("small.bin", 1, 1, Some("wall.png"))).unwrap();
+    let render = |method: &str, budget: &str, w: &str, h: &str| {
+        peak_of(
+            &dir,
+            &[
+                "--memory-budget",
+                budget,
+                "render",
+                "--scene",
+                s(&scene),
+                "--method",
+                method,
+                "--width",
+                w,
+                "--height",
+                h,
+                "--out",
+                s(&out),
+            ],
+        )
+    };
+    let (o, peak) = render("multilayer", "0.25", "1280", "720");
+    eprintln!("{}", stderr(&o));
+    assert_refused(
+        "multilayer beside its scene",
+        &o,
+        0.25,
+        &["multilayer at"],
+        &[&out],
+    );
+    assert_within("refused multilayer beside its scene", peak, 0.25);
+    let (o, peak) = render("multilayer", "0.25", "320", "180");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_within("multilayer at 320x180 beside its scene", peak, 0.25);
+}

@@ -26,7 +26,7 @@ fn pinhole_lists(
     use defocus::raster::{render_fragment_lists, PreparedScene, View};
     let prepared = PreparedScene::new(scene, &camera.camera_from_world).unwrap();
     let view = View::pinhole(camera.thin_lens().unwrap());
-    render_fragment_lists(&prepared, &view, cap, input, None)
+    render_fragment_lists(&prepared, &view, cap, input, None).unwrap()
 }
 
 /// The three layered methods at the settings the issue measures (multiview with 64 rays).

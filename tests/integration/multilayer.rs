@@ -24,6 +24,7 @@ fn lists_of(scene: &Scene, camera: &Camera, cap: usize) -> defocus::raster::Frag
         LayeredInput::PAPER,
         None,
     )
+    .unwrap()
 }
 
 fn settings(steps: FilterSteps, truncation: bool) -> MultilayerSettings {

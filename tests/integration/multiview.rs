@@ -85,7 +85,9 @@ fn every_fragment_lands_in_its_layer_and_overlap_copies_only() {
         multiview::coc_range(&prepared, &lens),
     );
     let mut layers = DepthLayers::new(spacing, 64, 32);
-    BinnedView::new(&prepared, &View::pinhole(lens)).rasterize(&prepared, &mut layers);
+    BinnedView::new(&prepared, &View::pinhole(lens))
+        .unwrap()
+        .rasterize(&prepared, &mut layers);
     for y in 0..32 {
         for x in 0..64 {
             let band = ((x as f32 + 0.5) * depths.len() as f32 / 64.0) as usize;

@@ -48,7 +48,7 @@ impl Sink for CountSink {
 fn count(scene: &Scene, camera: &Camera) -> Vec<u32> {
     let lens = camera.thin_lens().unwrap();
     let prepared = PreparedScene::new(scene, &camera.camera_from_world).unwrap();
-    let binned = BinnedView::new(&prepared, &View::pinhole(lens));
+    let binned = BinnedView::new(&prepared, &View::pinhole(lens)).unwrap();
     let mut sink = CountSink {
         width: lens.width_px,
         counts: vec![0; lens.width_px * lens.height_px],
@@ -145,7 +145,7 @@ fn a_vertex_lands_on_the_pixel_the_camera_predicts_and_depth_is_view_axis() {
     mesh.push_quad(p - right + up, right * 2.0, -up * 2.0);
     scene.meshes.push(mesh);
     let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-    let g = render_gbuffer(&prepared, &View::pinhole(lens));
+    let g = render_gbuffer(&prepared, &View::pinhole(lens)).unwrap();
     let (ix, iy) = (px.floor() as usize, py.floor() as usize);
     // The pixel containing the projected point is covered only if its centre is within
     // 0.6 px; pick the pixel whose centre is nearest.
@@ -183,7 +183,7 @@ fn depth_on_a_tilted_plane_is_perspective_correct() {
     mesh.indices = vec![[0, 1, 2], [0, 2, 3]];
     scene.meshes.push(mesh);
     let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-    let g = render_gbuffer(&prepared, &View::pinhole(lens));
+    let g = render_gbuffer(&prepared, &View::pinhole(lens)).unwrap();
     let (cx, _) = lens.centre_px();
     for px in [3usize, 17, 25, 40, 48] {
         // Ray through pixel centre: X = t * z, with t = (px + 0.5 - cx) / f. z = 2 + 0.5 t z.
@@ -220,7 +220,7 @@ fn transparent_surfaces_composite_in_depth_order_whatever_the_submission_order()
             add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), z, m);
         }
         let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-        render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()))
+        render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap())).unwrap()
     };
     let a = build(false);
     let b = build(true);
@@ -280,7 +280,7 @@ fn alpha_mask_cutouts_are_holes() {
     add_screen_rect(&mut scene, &camera, (0.0, 0.0, 32.0, 32.0), 4.0, back);
     add_screen_rect(&mut scene, &camera, (0.0, 0.0, 32.0, 32.0), 1.0, cut);
     let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-    let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
+    let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap())).unwrap();
     assert_eq!(
         g.color.get(4, 16),
         [1.0, 0.0, 0.0, 1.0],
@@ -365,7 +365,7 @@ fn mipmapped_texture_of_a_fine_checker_averages_to_grey_far_away() {
     });
     add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 2.0, m);
     let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-    let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
+    let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap())).unwrap();
     for y in 1..15 {
         for x in 1..15 {
             let v = g.color.get(x, y)[0];
@@ -457,7 +457,7 @@ fn a_pixel_takes_the_depth_of_the_surface_that_contributes_most() {
         // The pane covers the left half only; over nothing at all on the far right.
         add_screen_rect(&mut scene, &camera, (0.0, 0.0, 8.0, 16.0), 1.5, glass);
         let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-        let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
+        let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap())).unwrap();
         assert_eq!(g.depth.get(3, 8), expected_depth, "alpha {alpha}");
         assert_eq!(g.depth.get(12, 8), 4.0, "beside the pane");
     }
@@ -472,7 +472,7 @@ fn a_pixel_takes_the_depth_of_the_surface_that_contributes_most() {
         });
         add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 1.5, glass);
         let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-        let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()));
+        let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap())).unwrap();
         assert_eq!(g.depth.get(8, 8), 1.5, "alpha {alpha}");
     }
 }

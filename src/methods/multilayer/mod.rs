@@ -389,9 +389,12 @@ pub fn peak_bytes(lens: &ThinLens, settings: &MultilayerSettings) -> u64 {
     2 * lists + 2 * level0 + px * 16
 }
 
-fn check_memory(lens: &ThinLens, settings: &MultilayerSettings) -> Result<()> {
+/// Refuses a run whose lists and levels ([`peak_bytes`]) and what it holds beside them,
+/// `held` (the scene and its camera-space copy, or the frame the lists were made from), pass
+/// the memory budget.
+fn check_memory(lens: &ThinLens, settings: &MultilayerSettings, held: u64) -> Result<()> {
     crate::budget::check(
-        peak_bytes(lens, settings),
+        peak_bytes(lens, settings) + held,
         &format!(
             "multilayer at {}x{} with {} fragments per pixel",
             lens.width_px, lens.height_px, settings.fragments
@@ -419,7 +422,7 @@ pub fn collect(
     lens: ThinLens,
     guard: usize,
     settings: &MultilayerSettings,
-) -> FragmentLists {
+) -> Result<FragmentLists> {
     let k = settings.supersample;
     let mut big = lens;
     big.width_px *= k;
@@ -625,7 +628,9 @@ fn render_with(
 ) -> Result<MethodOutput> {
     settings.validate()?;
     let frame = camera.thin_lens()?;
-    check_memory(&frame, settings)?;
+    // The scene, its camera-space copy and the binned view are held while the lists fill.
+    let held = super::registry::scene_peak_bytes(scene)?;
+    check_memory(&frame, settings, held)?;
     let mut timings = Timings::default();
     let prepared = timings.time(pass::PREPARE, || {
         PreparedScene::new(scene, &camera.camera_from_world)
@@ -634,8 +639,8 @@ fn render_with(
     // lies just outside; the image is cut back to the frame at the end.
     let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
-    check_memory(&lens, settings)?;
-    let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
+    check_memory(&lens, settings, held)?;
+    let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings))?;
     let fitted = Fitted { lens, guard, frame };
     from_lists(lists, &fitted, settings, timings, (accumulate_fn, step_fn))
 }
@@ -677,7 +682,9 @@ pub fn render_lists(
             lens.height_px
         )));
     }
-    check_memory(lens, settings)?;
+    // The lists are held, and counted at full occupancy by the estimate; the frame they were
+    // made from (colour and depth) is held beside them.
+    check_memory(lens, settings, (lens.width_px * lens.height_px) as u64 * 20)?;
     let fitted = Fitted {
         lens: *lens,
         guard: 0,
@@ -792,14 +799,15 @@ mod tests {
                 };
                 accumulate_for(&levels, &borders, &settings, region)
             };
-            let trimmed = collect(&prepared, lens, guard, &settings);
+            let trimmed = collect(&prepared, lens, guard, &settings).unwrap();
             let full = crate::raster::render_fragment_lists(
                 &prepared,
                 &View::pinhole(lens),
                 settings.fragments,
                 settings.input,
                 None,
-            );
+            )
+            .unwrap();
             assert!(
                 trimmed.depths().len() < full.depths().len(),
                 "{name}: {} of {} fragments kept",

@@ -371,8 +371,9 @@ fn decompose_with_band(
     band: Option<(usize, f32)>,
 ) -> Result<DepthLayers> {
     let spacing = spacing_for(lens, settings, coc_range(prepared, &lens));
+    // The scene, its camera-space copy and the binned view are held while the layers fill.
     crate::budget::check(
-        peak_bytes(&lens, spacing.layers),
+        peak_bytes(&lens, spacing.layers) + super::registry::scene_peak_bytes(prepared.scene())?,
         &format!(
             "multiview at {}x{} with {} layers",
             lens.width_px, lens.height_px, spacing.layers
@@ -380,7 +381,7 @@ fn decompose_with_band(
         "--layers, raise --layer-spacing, or lower the resolution",
     )?;
     let view = View::pinhole(lens);
-    let binned = settings.input.bin(prepared, &view);
+    let binned = settings.input.bin(prepared, &view)?;
     let mut layers = DepthLayers::for_raster(spacing, lens.width_px, lens.height_px)
         .seeing_behind(settings.see_behind);
     if let Some((guard, radii)) = band.filter(|b| b.0 > 0) {

@@ -414,7 +414,7 @@ pub fn render_scene(
     let guard = (settings.input.guard_band_px(&prepared, &frame) as f32 * stretch).ceil() as usize;
     let lens = frame.with_guard_band(guard);
     check(&lens)?;
-    let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings));
+    let lists = timings.time(pass::COLLECT, || collect(&prepared, lens, guard, settings))?;
     from_lists(lists, lens, guard, settings, timings)
 }
 
@@ -538,7 +538,7 @@ fn collect(
     lens: ThinLens,
     guard: usize,
     settings: &SplatSettings,
-) -> FragmentLists {
+) -> Result<FragmentLists> {
     let stretch = blend::Shape::new(&settings.aperture)
         .with_effects(&settings.effects)
         .stretch();
@@ -622,14 +622,15 @@ mod tests {
                     .unwrap()
                     .0
             };
-            let trimmed = collect(&prepared, lens, guard, &settings);
+            let trimmed = collect(&prepared, lens, guard, &settings).unwrap();
             let full = crate::raster::render_fragment_lists(
                 &prepared,
                 &View::pinhole(lens),
                 settings.layers,
                 settings.input,
                 None,
-            );
+            )
+            .unwrap();
             assert!(
                 trimmed.depths().len() < full.depths().len(),
                 "{name}: {} of {} fragments kept",
