@@ -214,6 +214,8 @@ fn build_pipelines(ctx: &GpuContext) -> Result<Pipelines> {
 
 /// A prepared scene's triangles, materials and textures as the shader reads them.
 struct SceneData {
+    /// Bytes the run holds on the CPU beside these copies: the scene and its camera-space copy.
+    held: u64,
     vertices: Vec<Vertex>,
     /// Vertices of the opaque and alpha-mask triangles (the first ones); the rest are blended.
     opaque_vertices: u32,
@@ -224,6 +226,29 @@ struct SceneData {
 }
 
 impl SceneData {
+    /// Bytes of the vertices and texels [`SceneData::new`] makes of `prepared`, and whether
+    /// it has blended triangles, before they are made.
+    fn sizes(prepared: &PreparedScene) -> (u64, u64, bool) {
+        let scene = prepared.scene();
+        let texels: u64 = scene
+            .textures
+            .iter()
+            .flat_map(|t| t.levels())
+            .map(|l| (l.width() * l.height()) as u64)
+            .sum();
+        let blended = prepared.triangles.iter().any(|t| {
+            scene
+                .materials
+                .get(t.material as usize)
+                .is_some_and(|m| m.alpha_mode == AlphaMode::Blend)
+        });
+        (
+            3 * prepared.triangles.len() as u64 * std::mem::size_of::<Vertex>() as u64,
+            texels.max(1) * 16,
+            blended,
+        )
+    }
+
     fn new(prepared: &PreparedScene) -> Result<Self> {
         let scene = prepared.scene();
         let blended = |m: u32| {
@@ -300,6 +325,7 @@ impl SceneData {
             materials.push(GpuMaterial::zeroed());
         }
         Ok(Self {
+            held: held(prepared),
             vertices,
             opaque_vertices,
             materials,
@@ -312,6 +338,11 @@ impl SceneData {
     fn has_blended(&self) -> bool {
         (self.opaque_vertices as usize) < self.vertices.len()
     }
+}
+
+/// What a run holds on the CPU while it draws `prepared`: the scene and its camera-space copy.
+fn held(prepared: &PreparedScene) -> u64 {
+    prepared.scene().bytes() + PreparedScene::bytes_for(prepared.scene())
 }
 
 fn material(scene: &Scene, m: &crate::scene::Material) -> GpuMaterial {
@@ -476,6 +507,17 @@ fn draw(
     };
     let lens = first.lens;
     let start = std::time::Instant::now();
+    // Checked before the scene's copies are made, with the lists' first capacity.
+    let (vertex_bytes, texel_bytes, blended) = SceneData::sizes(prepared);
+    plan(
+        ctx,
+        &lens,
+        blended,
+        FIRST_LIST,
+        vertex_bytes,
+        texel_bytes,
+        held(prepared),
+    )?;
     let data = SceneData::new(prepared)?;
     timings.add("gpu/upload", start.elapsed().as_secs_f64() * 1e3);
     let mut capacity = if data.has_blended() { FIRST_LIST } else { 1 };
@@ -515,21 +557,16 @@ fn draw_with(
     let (w, h) = (lens.width_px, lens.height_px);
     let pixels = (w * h) as u64;
     let what = format!("the GPU rasteriser at {w}x{h}");
-    let list_entries = if data.has_blended() {
-        pixels * u64::from(capacity)
-    } else {
-        1
-    };
     let texel_bytes = std::mem::size_of_val(data.texels.as_slice()) as u64;
     let vertex_bytes = std::mem::size_of_val(data.vertices.as_slice()) as u64;
-    // Targets (colour, view depth, hardware depth), counts, lists, sum, reached, outputs and
-    // their read-back copies; the scene's vertices, their planes (48 bytes a triangle) and
-    // texels.
-    let per_pixel = 16 + 4 + 4 + 4 + 16 + 4 + 2 * (16 + 4);
-    ctx.plan(
-        &what,
-        texel_bytes.max(list_entries * 16).max(pixels * 16),
-        pixels * per_pixel + list_entries * 24 + texel_bytes + vertex_bytes * 3,
+    let list_entries = plan(
+        ctx,
+        lens,
+        data.has_blended(),
+        capacity,
+        vertex_bytes,
+        texel_bytes,
+        data.held,
     )?;
     let limits = &ctx.description().limits;
     if w as u64 > u64::from(limits.max_texture_dimension_2d)
@@ -783,6 +820,39 @@ fn draw_with(
         sum, reached, out_color, out_depth, status, planes,
     ]);
     Ok((color, depth, handed))
+}
+
+/// Checks a frame's memory before anything is allocated for it, and returns the entries of
+/// its lists: on the GPU the targets (colour, view depth, hardware depth), the lists' counts
+/// and entries (`capacity` a pixel where the scene has blended surfaces), the sum, the counts
+/// of views that reach a pixel, the outputs and their read-back copies, the scene's vertices
+/// (and their planes, 48 bytes a triangle) and texels; on the CPU beside them `held` (the
+/// scene, its camera-space copy) and the staging copies of the vertices and texels.
+fn plan(
+    ctx: &GpuContext,
+    lens: &ThinLens,
+    blended: bool,
+    capacity: u32,
+    vertex_bytes: u64,
+    texel_bytes: u64,
+    held: u64,
+) -> Result<u64> {
+    let (w, h) = (lens.width_px, lens.height_px);
+    let pixels = (w * h) as u64;
+    let list_entries = if blended {
+        pixels * u64::from(capacity)
+    } else {
+        1
+    };
+    let per_pixel = 16 + 4 + 4 + 4 + 16 + 4 + 2 * (16 + 4);
+    let gpu = pixels * per_pixel + list_entries * 24 + texel_bytes + vertex_bytes * 3;
+    let cpu = held + vertex_bytes + texel_bytes;
+    ctx.plan(
+        &format!("the GPU rasteriser at {w}x{h}"),
+        texel_bytes.max(list_entries * 16).max(pixels * 16),
+        gpu + cpu,
+    )?;
+    Ok(list_entries)
 }
 
 /// The workgroups of the setup pass over `triangles` triangles: rows of at most 32768

@@ -391,3 +391,43 @@ fn render_on_the_gpu_from_the_command_line_matches_the_cpu_on_the_cycles_scenes(
         }
     }
 }
+
+#[test]
+fn the_gpu_rasteriser_counts_its_targets_and_lists_against_the_budget() {
+    if context().is_none() {
+        return;
+    }
+    let dir = temp_dir("gpu-raster-budget");
+    let out = dir.join("o.exr");
+    // `glass` has blended panes: lists of 4 fragments a pixel (96 bytes) beside the targets,
+    // sum and outputs (88 bytes), 0.18 GiB at 1024x1024, where the CPU's estimate is 0.12 GiB.
+    let run = |device: &str| {
+        defocus(&[
+            "--memory-budget",
+            "0.15",
+            "render",
+            "--scene",
+            "glass",
+            "--method",
+            "pinhole",
+            "--width",
+            "1024",
+            "--height",
+            "1024",
+            "--device",
+            device,
+            "--out",
+            s(&out),
+        ])
+    };
+    let done = run("gpu");
+    let err = stderr(&done);
+    assert_eq!(done.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("GPU rasteriser at 1024x1024") && err.contains("budget"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let done = run("cpu");
+    assert!(done.status.success(), "{}", stderr(&done));
+}
