@@ -169,15 +169,15 @@ pub fn render_on(
     let single = set.samples.len() == 1
         && set.samples[0].lens == glam::Vec2::ZERO
         && set.samples[0].pixel_offset == glam::Vec2::ZERO;
-    let (image, depth) = if let Some(ctx) = gpu {
+    let (image, depth) = if single {
+        let (color, depth) =
+            render_one(gpu, &prepared, &View::pinhole(lens), &labels, &mut timings)?;
+        progress(1, 1);
+        (color, settings.with_depth.then_some(depth))
+    } else {
         let clip = settings.use_lens.then_some(&settings.effects);
-        if single {
-            let (color, depth) =
-                gpu::render_view(ctx, &prepared, &View::pinhole(lens), &labels, &mut timings)?;
-            progress(1, 1);
-            (color, settings.with_depth.then_some(depth))
-        } else {
-            let image = gpu::accumulate_views(
+        let image = match gpu {
+            Some(ctx) => gpu::accumulate_views(
                 ctx,
                 &prepared,
                 lens,
@@ -186,38 +186,26 @@ pub fn render_on(
                 &labels,
                 &mut timings,
                 progress,
-            )?;
-            let depth = match settings.with_depth {
-                true => {
-                    let depth_labels = depth_labels(depth_label);
-                    let view = View::pinhole(lens);
-                    let (_, depth) =
-                        gpu::render_view(ctx, &prepared, &view, &depth_labels, &mut timings)?;
-                    Some(depth)
-                }
-                false => None,
-            };
-            (image, depth)
-        }
-    } else if single {
-        let g = render_view(&prepared, &View::pinhole(lens), &labels, &mut timings)?;
-        progress(1, 1);
-        (g.color, settings.with_depth.then_some(g.depth))
-    } else {
-        let clip = settings.use_lens.then_some(&settings.effects);
-        let image = accumulate_views_clipped(
-            &prepared,
-            lens,
-            &set.samples,
-            clip,
-            &labels,
-            &mut timings,
-            progress,
-        )?;
-        let depth = settings
-            .with_depth
-            .then(|| pinhole_depth(&prepared, lens, depth_label, &mut timings))
-            .transpose()?;
+            ),
+            None => accumulate_views_clipped(
+                &prepared,
+                lens,
+                &set.samples,
+                clip,
+                &labels,
+                &mut timings,
+                progress,
+            ),
+        }?;
+        // The pinhole depth at pixel centres, as a renderer's Z pass.
+        let depth = match settings.with_depth {
+            true => {
+                let view = View::pinhole(lens);
+                let labels = depth_labels(depth_label);
+                Some(render_one(gpu, &prepared, &view, &labels, &mut timings)?.1)
+            }
+            false => None,
+        };
         (image, depth)
     };
     Ok(MethodOutput {
@@ -255,20 +243,18 @@ fn render_chromatic(
     })
 }
 
-/// View-axis depth in metres at pixel centres of the pinhole view (a renderer's Z pass).
-fn pinhole_depth(
+/// One view's G-buffer, colour and depth, on the GPU of `gpu` or on the CPU.
+fn render_one(
+    gpu: Option<&GpuContext>,
     prepared: &PreparedScene,
-    lens: crate::lens::ThinLens,
-    label: &'static str,
+    view: &View,
+    labels: &ViewPassLabels,
     timings: &mut Timings,
-) -> Result<GrayImage> {
-    Ok(render_view(
-        prepared,
-        &View::pinhole(lens),
-        &depth_labels(label),
-        timings,
-    )?
-    .depth)
+) -> Result<(crate::image::ColorImage, GrayImage)> {
+    match gpu {
+        Some(ctx) => gpu::render_view(ctx, prepared, view, labels, timings),
+        None => render_view(prepared, view, labels, timings).map(|g| (g.color, g.depth)),
+    }
 }
 
 /// Every pass of the pinhole depth view timed under `label`.
