@@ -16,6 +16,10 @@ const POOL_BUFFERS: usize = 32;
 /// another size does not keep the last one's buffers alive).
 const POOL_BYTES: u64 = 512 << 20;
 
+/// Textures the pool keeps for reuse at most ([`GpuContext::texture`]); the oldest is dropped
+/// beyond, or beyond [`POOL_BYTES`] of them.
+const POOL_TEXTURES: usize = 16;
+
 /// Values the cache keeps at most ([`GpuContext::cached`]); the oldest is dropped beyond.
 const CACHE_ENTRIES: usize = 8;
 
@@ -51,6 +55,9 @@ pub struct GpuContext {
     pipelines: Mutex<HashMap<&'static str, wgpu::ComputePipeline>>,
     /// Buffers given back after a run, for the next one of the same size and use.
     pool: Mutex<Vec<wgpu::Buffer>>,
+    /// Textures given back after a run (render targets), for the next one of the same size,
+    /// format and use.
+    texture_pool: Mutex<Vec<wgpu::Texture>>,
     /// Per-frame constants uploaded once and reused by the frames that have the same (a
     /// method's tap tables), newest last.
     cache: Mutex<Vec<CacheEntry>>,
@@ -147,6 +154,7 @@ impl GpuContext {
             modules: Mutex::new(HashMap::new()),
             pipelines: Mutex::new(HashMap::new()),
             pool: Mutex::new(Vec::new()),
+            texture_pool: Mutex::new(Vec::new()),
             cache: Mutex::new(Vec::new()),
             errors,
             lost,
@@ -313,6 +321,56 @@ impl GpuContext {
         let mut bytes: u64 = pool.iter().map(|b| b.size()).sum();
         while bytes > POOL_BYTES && !pool.is_empty() {
             bytes -= pool.remove(0).size();
+        }
+    }
+
+    /// A 2D texture of `width` x `height` texels of `format` and `usage`, from the pool when
+    /// one was given back, else new. Its contents are undefined.
+    pub fn texture(
+        &self,
+        label: &'static str,
+        (width, height): (u32, u32),
+        format: wgpu::TextureFormat,
+        usage: wgpu::TextureUsages,
+    ) -> wgpu::Texture {
+        {
+            let mut pool = lock(&self.texture_pool);
+            if let Some(i) = pool.iter().position(|t| {
+                (t.width(), t.height(), t.format(), t.usage()) == (width, height, format, usage)
+            }) {
+                return pool.swap_remove(i);
+            }
+        }
+        self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    }
+
+    /// Gives textures back to the pool for the next run (the oldest are dropped beyond 16
+    /// textures or 512 MiB).
+    pub fn recycle_textures(&self, textures: impl IntoIterator<Item = wgpu::Texture>) {
+        let bytes_of = |t: &wgpu::Texture| {
+            let texel = t.format().block_copy_size(None).unwrap_or(16);
+            u64::from(t.width()) * u64::from(t.height()) * u64::from(texel)
+        };
+        let mut pool = lock(&self.texture_pool);
+        pool.extend(textures);
+        let excess = pool.len().saturating_sub(POOL_TEXTURES);
+        pool.drain(..excess);
+        let mut bytes: u64 = pool.iter().map(bytes_of).sum();
+        while bytes > POOL_BYTES && !pool.is_empty() {
+            bytes -= bytes_of(&pool.remove(0));
         }
     }
 

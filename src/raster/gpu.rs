@@ -627,28 +627,22 @@ fn draw_with(
     let out_depth = ctx.storage("raster depth", pixels * 4)?;
     let status = ctx.storage("raster status", 4)?;
     let planes = ctx.storage("triangle planes", u64::from(triangles.max(1)) * 48)?;
-    let target = |label: &str, format: wgpu::TextureFormat| {
-        device
-            .create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: w as u32,
-                    height: h as u32,
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                    | wgpu::TextureUsages::TEXTURE_BINDING,
-                view_formats: &[],
-            })
-            .create_view(&Default::default())
+    let target = |label: &'static str, format: wgpu::TextureFormat| {
+        ctx.texture(
+            label,
+            (w as u32, h as u32),
+            format,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+        )
     };
-    let color_target = target("raster colour target", COLOR_FORMAT);
-    let depth_target = target("raster depth target", DEPTH_M_FORMAT);
-    let z_target = target("raster z", Z_FORMAT);
+    let targets = [
+        target("raster colour target", COLOR_FORMAT),
+        target("raster depth target", DEPTH_M_FORMAT),
+        target("raster z", Z_FORMAT),
+    ];
+    let [color_target, depth_target, z_target] = targets
+        .each_ref()
+        .map(|t| t.create_view(&Default::default()));
     let mut encoder = device.create_command_encoder(&Default::default());
     for b in [&counts, &sum, &reached, &status] {
         encoder.clear_buffer(b, 0, None);
@@ -819,6 +813,7 @@ fn draw_with(
         vertices, materials, textures, levels, texels, table_buf, view_buf, counts, keys, colors,
         sum, reached, out_color, out_depth, status, planes,
     ]);
+    ctx.recycle_textures(targets);
     Ok((color, depth, handed))
 }
 

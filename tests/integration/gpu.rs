@@ -783,3 +783,20 @@ fn hammon_on_the_gpu_keeps_a_constant_image_and_an_in_focus_plane() {
         .image;
     assert_eq!(out.pixels(), color.pixels());
 }
+
+#[test]
+fn render_targets_are_reused_by_size_format_and_use() {
+    let Some(ctx) = context() else { return };
+    let usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+    let format = wgpu::TextureFormat::R32Float;
+    // A size no other test asks for, so that the shared context's pool is this test's.
+    let a = ctx.texture("t", (7, 5), format, usage);
+    let kept = a.clone();
+    ctx.recycle_textures([a]);
+    let turned = ctx.texture("t", (5, 7), format, usage);
+    assert!(turned != kept);
+    let other = ctx.texture("t", (7, 5), wgpu::TextureFormat::Rgba32Float, usage);
+    assert!(other != kept);
+    let again = ctx.texture("t", (7, 5), format, usage);
+    assert!(again == kept);
+}
