@@ -156,7 +156,7 @@ fn gpu_reference_matches_the_cpu_on_every_builtin_scene_at_640x360() {
     if context().is_none() {
         return;
     }
-    views_match_the_cpu(640, 360, 8);
+    views_match_the_cpu(640, 360, 4);
 }
 
 #[test]
