@@ -66,6 +66,8 @@ pub struct GpuContext {
     errors: Arc<Mutex<Vec<String>>>,
     /// Why the device was lost, once it was: every later run is refused with it.
     lost: Arc<Mutex<Option<String>>>,
+    /// Opened for `--device auto` (see [`GpuContext::chosen_by_auto`]).
+    auto: bool,
     // Kept so that the adapter outlives the device on every backend.
     _adapter: wgpu::Adapter,
     _instance: wgpu::Instance,
@@ -103,7 +105,9 @@ impl GpuContext {
             None => Ok(None),
             Some(i) => {
                 let adapter = adapters.swap_remove(i);
-                Self::on_adapter(instance, adapter).map(Some)
+                let mut ctx = Self::on_adapter(instance, adapter)?;
+                ctx.auto = device == Device::Auto;
+                Ok(Some(ctx))
             }
         }
     }
@@ -158,9 +162,17 @@ impl GpuContext {
             cache: Mutex::new(Vec::new()),
             errors,
             lost,
+            auto: false,
             _adapter: adapter,
             _instance: instance,
         })
+    }
+
+    /// True when the context was opened for `--device auto`: a run whose settings the GPU
+    /// passes do not cover then goes to the CPU instead of being refused
+    /// ([`crate::methods::registry::runs_on_gpu`]).
+    pub fn chosen_by_auto(&self) -> bool {
+        self.auto
     }
 
     /// The adapter the context runs on.

@@ -320,6 +320,8 @@ impl RenderJob {
             inputs.push(PathBuf::from(p));
         }
         inputs.extend(a.post.lens_file());
+        // `auto` runs on the CPU what the GPU passes do not cover (and `--timings` says so).
+        let gpu = gpu.filter(|g| !g.chosen_by_auto() || registry::runs_on_gpu(&settings));
         Ok(Self {
             scene,
             camera,

@@ -140,7 +140,7 @@ pub const METHODS: &[MethodInfo] = &[
         paper: "Selgrad et al. 2015, Real-time depth of field using multi-layer filtering",
         input: InputKind::FragmentLists,
         effects: &[],
-        gpu: false,
+        gpu: true,
     },
     MethodInfo {
         id: "multiview",
@@ -198,6 +198,7 @@ pub const GPU_SHADERS: &[(&str, &str)] = &[
     (gaussian::gpu::SHADER_NAME, gaussian::gpu::SHADER),
     (poisson::gpu::SHADER_NAME, poisson::gpu::SHADER),
     (lowrank::gpu::SHADER_NAME, lowrank::gpu::SHADER),
+    (multilayer::gpu::SHADER_NAME, multilayer::gpu::SHADER),
 ];
 
 /// Builds every pipeline of every GPU method on `ctx` (compiled once, then cached there): a
@@ -207,7 +208,19 @@ pub fn prepare_gpu(ctx: &GpuContext) -> Result<()> {
     hammon::gpu::prepare(ctx)?;
     gaussian::gpu::prepare(ctx)?;
     poisson::gpu::prepare(ctx)?;
+    multilayer::gpu::prepare(ctx)?;
     lowrank::gpu::prepare(ctx)
+}
+
+/// Whether a run with `settings` runs on the GPU: its method has GPU passes, and they cover
+/// what `settings` ask (`multilayer` runs the paper's configuration there,
+/// [`multilayer::gpu::check`]). `--device auto` runs the others on the CPU.
+pub fn runs_on_gpu(settings: &MethodSettings) -> bool {
+    settings.info().gpu
+        && match settings {
+            MethodSettings::Multilayer(s) => multilayer::gpu::check(s).is_ok(),
+            _ => true,
+        }
 }
 
 /// Refuses `--device gpu` for method `id` when it has no GPU passes, naming those that have.
@@ -576,6 +589,8 @@ pub fn run_scene_on(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<MethodOutput> {
     check_scene_budget(settings, scene, camera)?;
+    // `auto` runs on the CPU what the GPU passes do not cover.
+    let gpu = gpu.filter(|ctx| !ctx.chosen_by_auto() || runs_on_gpu(settings));
     if gpu.is_some() {
         check_gpu(settings.id())?;
     }
@@ -610,7 +625,10 @@ pub fn run_scene_on(
             Ok(out)
         }
         MethodSettings::Multilayer(s) => {
-            let out = multilayer::render(scene, camera, s)?;
+            let out = match gpu {
+                Some(ctx) => multilayer::gpu::render(ctx, scene, camera, s)?,
+                None => multilayer::render(scene, camera, s)?,
+            };
             progress(1, 1);
             Ok(out)
         }

@@ -64,6 +64,8 @@ struct ViewParams {
     lens: [f32; 4],
     info: [u32; 4],
     extra: [u32; 4],
+    coc: [f32; 4],
+    frame: [u32; 4],
 }
 
 /// Bytes of a [`ViewParams`], the stride of the views' table (a multiple of 16, so that each
@@ -109,6 +111,8 @@ struct Pipelines {
     blended: wgpu::RenderPipeline,
     composite: wgpu::ComputePipeline,
     resolve: wgpu::ComputePipeline,
+    collect: wgpu::RenderPipeline,
+    keep: wgpu::ComputePipeline,
 }
 
 /// Formats of the targets: colour, view depth, hardware depth.
@@ -184,6 +188,7 @@ fn build_pipelines(ctx: &GpuContext) -> Result<Pipelines> {
         true,
     );
     let blended = render("blended", &[], false);
+    let collect = render("collect", &[], false);
     let compute = |entry: &str| {
         device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(entry),
@@ -197,6 +202,7 @@ fn build_pipelines(ctx: &GpuContext) -> Result<Pipelines> {
     let setup = compute("setup");
     let composite = compute("composite");
     let resolve = compute("resolve");
+    let keep = compute("keep");
     if let Some(e) = pollster::block_on(scope.pop()) {
         return Err(Error::Gpu(format!(
             "the pipelines of {SHADER_NAME} did not build on {}: {e}",
@@ -209,6 +215,8 @@ fn build_pipelines(ctx: &GpuContext) -> Result<Pipelines> {
         blended,
         composite,
         resolve,
+        collect,
+        keep,
     })
 }
 
@@ -335,6 +343,27 @@ impl SceneData {
         })
     }
 
+    /// The vertices, materials, textures, texture levels and texels in GPU buffers.
+    fn upload(&self, ctx: &GpuContext) -> Result<[wgpu::Buffer; 5]> {
+        let vertex_bytes = std::mem::size_of_val(self.vertices.as_slice()) as u64;
+        let vertices = ctx.buffer(
+            "raster vertices",
+            vertex_bytes,
+            wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        );
+        if vertex_bytes > 0 {
+            ctx.queue()
+                .write_buffer(&vertices, 0, bytemuck::cast_slice(&self.vertices));
+        }
+        Ok([
+            vertices,
+            ctx.upload("materials", bytemuck::cast_slice(&self.materials))?,
+            ctx.upload("textures", bytemuck::cast_slice(&self.textures))?,
+            ctx.upload("texture levels", bytemuck::cast_slice(&self.levels))?,
+            ctx.upload("texels", bytemuck::cast_slice(&self.texels))?,
+        ])
+    }
+
     fn has_blended(&self) -> bool {
         (self.opaque_vertices as usize) < self.vertices.len()
     }
@@ -438,6 +467,8 @@ fn view_params(
             flags | clip_flag,
         ],
         extra: [triangles, row, 0, 0],
+        coc: [0.0; 4],
+        frame: [0; 4],
     }
 }
 
@@ -591,19 +622,7 @@ fn draw_with(
 
     let start = std::time::Instant::now();
     let device = ctx.device();
-    let vertices = ctx.buffer(
-        "raster vertices",
-        vertex_bytes,
-        wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-    );
-    if vertex_bytes > 0 {
-        ctx.queue()
-            .write_buffer(&vertices, 0, bytemuck::cast_slice(&data.vertices));
-    }
-    let materials = ctx.upload("materials", bytemuck::cast_slice(&data.materials))?;
-    let textures = ctx.upload("textures", bytemuck::cast_slice(&data.textures))?;
-    let levels = ctx.upload("texture levels", bytemuck::cast_slice(&data.levels))?;
-    let texels = ctx.upload("texels", bytemuck::cast_slice(&data.texels))?;
+    let [vertices, materials, textures, levels, texels] = data.upload(ctx)?;
     let flags = if store { STORE } else { 0 };
     let triangles = (data.vertices.len() / 3) as u32;
     let setup_groups = setup_groups(ctx, &what, triangles)?;
@@ -883,4 +902,317 @@ fn clear_attachment(view: &wgpu::TextureView) -> wgpu::RenderPassColorAttachment
             store: wgpu::StoreOp::Store,
         },
     }
+}
+
+/// The N nearest fragments of every pixel of a pinhole view, left on the GPU: the GPU twin of
+/// [`super::render_fragment_lists_with`] sampled at pixel centres (no coverage masks), for the
+/// layered methods' `--device gpu`. Pixel `i` holds `count[i]` fragments in slots
+/// `i * cap ..`, nearest first: depth (f32) and premultiplied colour (four halves).
+pub struct GpuLists {
+    /// Pixels per row.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Slots a pixel (N).
+    pub cap: usize,
+    /// Fragments held per pixel (u32).
+    pub count: wgpu::Buffer,
+    /// Depths, `cap` slots a pixel (f32).
+    pub depth: wgpu::Buffer,
+    /// Colours, `cap` slots a pixel (two words of halves).
+    pub color: wgpu::Buffer,
+    /// The largest CoC diameter of the fragments held, in pixels.
+    pub widest_px: f32,
+}
+
+impl GpuLists {
+    /// The lists copied back to the CPU, as the CPU's [`super::FragmentLists`] holds them.
+    pub fn download(&self, ctx: &GpuContext) -> Result<super::FragmentLists> {
+        let pixels = (self.width * self.height) as u64;
+        let slots = pixels * self.cap as u64;
+        let read = ctx.read(&[
+            (&self.count, pixels * 4),
+            (&self.depth, slots * 4),
+            (&self.color, slots * 8),
+        ])?;
+        let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&read[0]);
+        let depths: Vec<f32> = bytemuck::pod_collect_to_vec(&read[1]);
+        let colors: Vec<[u16; 4]> = bytemuck::pod_collect_to_vec(&read[2]);
+        let mut offsets = Vec::with_capacity(counts.len() + 1);
+        offsets.push(0u32);
+        let (mut depth, mut color) = (Vec::new(), Vec::new());
+        for (i, &n) in counts.iter().enumerate() {
+            let n = (n as usize).min(self.cap);
+            for k in i * self.cap..i * self.cap + n {
+                depth.push(depths[k]);
+                color.push(colors[k].map(half::f16::from_bits));
+            }
+            offsets.push(depth.len() as u32);
+        }
+        Ok(super::FragmentLists::from_parts(
+            self.width,
+            self.height,
+            offsets,
+            depth,
+            color,
+        ))
+    }
+
+    /// Gives the buffers back to `ctx`'s pool.
+    pub fn recycle(self, ctx: &GpuContext) {
+        ctx.recycle([self.count, self.depth, self.color]);
+    }
+}
+
+/// Key under which a context remembers the fragment pool the last lists needed, so that the
+/// next frame of a sequence or batch is drawn once.
+const POOL_HINT: &str = "raster fragment pool";
+
+/// The fragment lists of the pinhole view of `lens` on the GPU of `ctx` ([`GpuLists`]): every
+/// fragment linked into its pixel's list in one rasterisation pass (per-pixel linked lists
+/// with an atomic counter, Yang et al. 2010, as Selgrad et al. section 4), then the `cap`
+/// nearest of each pixel kept, in depth order (equal depths in the order the triangles are
+/// drawn). With `reach`, the guard band's fragments that cannot reach the frame are dropped
+/// as on the CPU. Timed as `pass`. The pool of list nodes starts at what the last frame
+/// needed (4 a pixel at first); a frame that needs more is drawn again with as many.
+pub fn fragment_lists(
+    ctx: &GpuContext,
+    prepared: &PreparedScene,
+    lens: ThinLens,
+    cap: usize,
+    reach: Option<&super::Reach>,
+    pass: &'static str,
+    timings: &mut Timings,
+) -> Result<GpuLists> {
+    let cap = cap.clamp(1, MAX_LIST as usize);
+    let (w, h) = (lens.width_px, lens.height_px);
+    let pixels = (w * h) as u64;
+    let what = format!("the GPU fragment lists at {w}x{h}");
+    let start = std::time::Instant::now();
+    let (vertex_bytes, texel_bytes, _) = SceneData::sizes(prepared);
+    let hint = ctx.cached(POOL_HINT, || Ok(std::sync::atomic::AtomicU64::new(0)))?;
+    let mut pool = hint
+        .load(std::sync::atomic::Ordering::Relaxed)
+        .max(pixels * 4)
+        .max(1);
+    plan_lists(
+        ctx,
+        &what,
+        (pixels, cap as u64, pool),
+        vertex_bytes,
+        texel_bytes,
+        held(prepared),
+    )?;
+    let data = SceneData::new(prepared)?;
+    timings.add("gpu/upload", start.elapsed().as_secs_f64() * 1e3);
+    loop {
+        let (lists, wanted) = lists_with(ctx, &data, &lens, cap, reach, pool, pass, timings)?;
+        if wanted <= pool {
+            hint.store(pool, std::sync::atomic::Ordering::Relaxed);
+            return Ok(lists);
+        }
+        lists.recycle(ctx);
+        if wanted > u64::from(u32::MAX) {
+            return Err(Error::Gpu(format!(
+                "{what}: the scene gives {wanted} fragments; the lists address at most 2^32"
+            )));
+        }
+        pool = wanted;
+        plan_lists(
+            ctx,
+            &what,
+            (pixels, cap as u64, pool),
+            vertex_bytes,
+            texel_bytes,
+            data.held,
+        )?;
+    }
+}
+
+/// Checks the memory of fragment lists of `pixels` pixels keeping `cap` of a pool of `pool`
+/// nodes before anything is allocated: on the GPU the heads, nodes and links, the kept slots,
+/// the scene's vertices (and planes) and texels; on the CPU the scene, its camera-space copy and
+/// the staging copies.
+fn plan_lists(
+    ctx: &GpuContext,
+    what: &str,
+    (pixels, cap, pool): (u64, u64, u64),
+    vertex_bytes: u64,
+    texel_bytes: u64,
+    held: u64,
+) -> Result<()> {
+    let gpu = pixels * (4 + 4 + 12 * cap) + pool * 20 + texel_bytes + vertex_bytes * 3;
+    ctx.plan(
+        what,
+        (pool * 16).max(pixels * cap * 8).max(texel_bytes),
+        gpu + held + vertex_bytes + texel_bytes,
+    )
+}
+
+/// One try of [`fragment_lists`] with a pool of `pool` nodes: the lists, and the nodes the
+/// frame asked for.
+#[allow(clippy::too_many_arguments)]
+fn lists_with(
+    ctx: &GpuContext,
+    data: &SceneData,
+    lens: &ThinLens,
+    cap: usize,
+    reach: Option<&super::Reach>,
+    pool: u64,
+    pass: &'static str,
+    timings: &mut Timings,
+) -> Result<(GpuLists, u64)> {
+    let (w, h) = (lens.width_px, lens.height_px);
+    let pixels = (w * h) as u64;
+    let what = format!("the GPU fragment lists at {w}x{h}");
+    let limits = &ctx.description().limits;
+    if w as u64 > u64::from(limits.max_texture_dimension_2d)
+        || h as u64 > u64::from(limits.max_texture_dimension_2d)
+    {
+        return Err(Error::Gpu(format!(
+            "{what} needs a {w}x{h} target; {} allows {} a side (max texture dimension 2d)",
+            ctx.description().label(),
+            limits.max_texture_dimension_2d
+        )));
+    }
+    let groups = ctx.row_groups(&what, w, h, WORKGROUP_X)?;
+    let p = pipelines(ctx)?;
+    let start = std::time::Instant::now();
+    let [vertices, materials, textures, levels, texels] = data.upload(ctx)?;
+    let triangles = (data.vertices.len() / 3) as u32;
+    let setup_groups = setup_groups(ctx, &what, triangles)?;
+    let row = setup_groups[0] * WORKGROUP_X;
+    let view = View::pinhole(*lens);
+    let mut params = view_params(&view, 1, (0, pool as u32), (triangles, row), None);
+    params.extra[2] = cap as u32;
+    params.coc = [lens.f_px * lens.lens_radius_m, lens.focus_m, 0.0, 0.0];
+    if let Some(r) = reach {
+        let (x0, y0, fw, fh) = r.frame;
+        params.coc[2] = r.factor;
+        params.coc[3] = r.slack_px;
+        params.frame = [x0 as u32, y0 as u32, (x0 + fw) as u32, (y0 + fh) as u32];
+    }
+    let view_buf = ctx.uniform("view", bytemuck::bytes_of(&params));
+    let planes = ctx.storage("triangle planes", u64::from(triangles.max(1)) * 48)?;
+    let heads = ctx.storage("list heads", pixels * 4)?;
+    let nodes = ctx.storage("list nodes", pool * 16)?;
+    let next = ctx.storage("list links", pool * 4)?;
+    let status = ctx.storage("raster status", 16)?;
+    let count = ctx.storage("kept counts", pixels * 4)?;
+    let depth = ctx.storage("kept depths", pixels * cap as u64 * 4)?;
+    let color = ctx.storage("kept colours", pixels * cap as u64 * 8)?;
+    let z_target = ctx.texture(
+        "raster z",
+        (w as u32, h as u32),
+        Z_FORMAT,
+        wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+    );
+    let z_view = z_target.create_view(&Default::default());
+    let mut encoder = ctx.device().create_command_encoder(&Default::default());
+    for b in [&heads, &status] {
+        encoder.clear_buffer(b, 0, None);
+    }
+    ctx.queue().submit([encoder.finish()]);
+    ctx.flush()?;
+    timings.add("gpu/upload", start.elapsed().as_secs_f64() * 1e3);
+
+    let bind = |layout: wgpu::BindGroupLayout, entries: &[(u32, &wgpu::Buffer)]| {
+        let entries: Vec<wgpu::BindGroupEntry> = entries
+            .iter()
+            .map(|(binding, b)| wgpu::BindGroupEntry {
+                binding: *binding,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &layout,
+            entries: &entries,
+        })
+    };
+    let setup_group = bind(
+        p.setup.get_bind_group_layout(0),
+        &[(0, &view_buf), (15, &vertices), (16, &planes)],
+    );
+    let collect_group = bind(
+        p.collect.get_bind_group_layout(0),
+        &[
+            (0, &view_buf),
+            (1, &materials),
+            (2, &textures),
+            (3, &levels),
+            (4, &texels),
+            (14, &status),
+            (16, &planes),
+            (17, &heads),
+            (18, &nodes),
+            (19, &next),
+        ],
+    );
+    let keep_group = bind(
+        p.keep.get_bind_group_layout(0),
+        &[
+            (0, &view_buf),
+            (14, &status),
+            (17, &heads),
+            (18, &nodes),
+            (19, &next),
+            (20, &count),
+            (21, &depth),
+            (22, &color),
+        ],
+    );
+    let mut timer = PassTimer::new(ctx, 3);
+    timer.dispatch(
+        pass,
+        &p.setup,
+        &setup_group,
+        [setup_groups[0], setup_groups[1], 1],
+    )?;
+    timer.record(pass, |encoder, stamps| {
+        let mut rp = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("raster/collect"),
+            color_attachments: &[],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &z_view,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(0.0),
+                    store: wgpu::StoreOp::Discard,
+                }),
+                stencil_ops: None,
+            }),
+            timestamp_writes: stamps.map(|s| s.render()),
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        rp.set_pipeline(&p.collect);
+        rp.set_bind_group(0, &collect_group, &[]);
+        rp.set_vertex_buffer(0, vertices.slice(..));
+        if triangles > 0 {
+            rp.draw(0..3 * triangles, 0..1);
+        }
+    })?;
+    timer.dispatch(pass, &p.keep, &keep_group, groups)?;
+    timings.extend(&timer.finish()?);
+    let read = ctx.read(&[(&status, 16)])?;
+    let word =
+        |k: usize| u32::from_le_bytes(read[0][4 * k..4 * k + 4].try_into().unwrap_or([0; 4]));
+    let wanted = u64::from(word(1));
+    let widest_px = f32::from_bits(word(2));
+    ctx.recycle([
+        vertices, materials, textures, levels, texels, view_buf, planes, heads, nodes, next, status,
+    ]);
+    ctx.recycle_textures([z_target]);
+    Ok((
+        GpuLists {
+            width: w,
+            height: h,
+            cap,
+            count,
+            depth,
+            color,
+            widest_px,
+        },
+        wanted,
+    ))
 }

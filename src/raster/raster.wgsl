@@ -41,8 +41,15 @@ struct View {
     // x: width, y: height, z: list capacity, w: flags (1 store the G-buffer, 2 clip by the
     // barrel, 4 front faces are clockwise on screen).
     info: vec4<u32>,
-    // x: triangles; y: invocations a row of the setup pass.
+    // x: triangles; y: invocations a row of the setup pass; z: fragments a pixel keeps
+    // (`collect`, `keep`).
     extra: vec4<u32>,
+    // The fragment lists' CoC and reach (`keep`): x: f E (the CoC's scale, pixels times
+    // metres), y: the focus distance (metres), z: reach in CoC radii (0: no guard band),
+    // w: reach in pixels besides.
+    coc: vec4<f32>,
+    // The frame within the lists' pixels (`keep`): left, top, right, bottom.
+    frame: vec4<u32>,
 }
 
 struct Slot {
@@ -89,7 +96,8 @@ struct Material {
 @group(0) @binding(11) var<storage, read_write> reached: array<u32>;
 @group(0) @binding(12) var<storage, read_write> out_color: array<vec4<f32>>;
 @group(0) @binding(13) var<storage, read_write> out_depth: array<f32>;
-// x: the most fragments a pixel's list was handed in any view.
+// x: the most fragments a pixel's list was handed in any view; y: the nodes `collect` asked
+// for (the pool holds `view.info.z`); z: the largest CoC diameter `keep` kept, as f32 bits.
 @group(0) @binding(14) var<storage, read_write> status: array<atomic<u32>>;
 // The vertex buffer as words: per vertex position (3), texture coordinates (2) as f32 bits,
 // material and triangle index.
@@ -97,6 +105,20 @@ struct Material {
 // Per triangle (in draw order), three rows: (1/z plane, origin x), (u/z plane, origin y),
 // (v/z plane, 1 where the planes hold).
 @group(0) @binding(16) var<storage, read_write> planes: array<vec4<f32>>;
+
+// The fragment lists of the layered methods (`collect`, `keep`), as the CPU's `FragmentLists`
+// sampled at pixel centres (raster/fragments.rs): per pixel a linked list of every fragment
+// (Yang et al. 2010, as Selgrad et al. section 4), 1 + the index of its first node (0: none).
+@group(0) @binding(17) var<storage, read_write> heads: array<atomic<u32>>;
+// Per node: depth bits, premultiplied colour as four halves (two words), place in the draw.
+@group(0) @binding(18) var<storage, read_write> nodes: array<vec4<u32>>;
+// Per node: 1 + the index of the next node of its pixel (0: the last).
+@group(0) @binding(19) var<storage, read_write> next_node: array<u32>;
+// The N nearest fragments of each pixel, nearest first: their number, then N slots of depth
+// and colour a pixel.
+@group(0) @binding(20) var<storage, read_write> kept_count: array<u32>;
+@group(0) @binding(21) var<storage, read_write> kept_depth: array<f32>;
+@group(0) @binding(22) var<storage, read_write> kept_color: array<vec2<u32>>;
 
 const STORE: u32 = 1u;
 const CLIP: u32 = 2u;
@@ -570,4 +592,156 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
         scale = select(0.0, 1.0 / f32(k), k > 0u);
     }
     out_color[pixel] = sum[pixel] * scale;
+}
+
+// The half-precision bits of `v` (IEEE binary16, rounded to nearest, ties to even, as the
+// CPU's `half` crate), clamped to the largest finite half as the CPU's `to_half`. Written out
+// rather than `pack2x16float`, which naga allows only on devices with 16-bit float support.
+fn half_bits(v: f32) -> u32 {
+    let b = bitcast<u32>(v);
+    let sign = (b >> 16u) & 0x8000u;
+    let a = b & 0x7fffffffu;
+    if a > 0x7f800000u {
+        return sign | 0x7e00u;
+    }
+    if a >= 0x477fe000u {
+        return sign | 0x7bffu;
+    }
+    if a < 0x38800000u {
+        // Below the smallest normal half: a multiple of 2^-24, rounded (ties to even).
+        return sign | u32(round(bitcast<f32>(a) * 16777216.0));
+    }
+    // Rebias the exponent (127 to 15) and round the mantissa to 10 bits, ties to even.
+    return sign | ((a + 0xc8000fffu + ((a >> 13u) & 1u)) >> 13u);
+}
+
+// The f32 value of half-precision bits `h` (exact).
+fn half_value(h: u32) -> f32 {
+    let sign = (h & 0x8000u) << 16u;
+    let e = (h >> 10u) & 0x1fu;
+    let m = h & 0x3ffu;
+    if e == 0u {
+        return bitcast<f32>(sign) + select(1.0, -1.0, sign != 0u) * f32(m) * 5.9604645e-8;
+    }
+    if e == 31u {
+        return bitcast<f32>(sign | 0x7f800000u | (m << 13u));
+    }
+    return bitcast<f32>(sign | ((e + 112u) << 23u) | (m << 13u));
+}
+
+// Premultiplied colour `c` in half precision, two words (low half first, as `pack2x16float`).
+fn pack_half(c: vec4<f32>) -> vec2<u32> {
+    return vec2<u32>(
+        half_bits(c.x) | (half_bits(c.y) << 16u),
+        half_bits(c.z) | (half_bits(c.w) << 16u),
+    );
+}
+
+// Every fragment of every triangle, with no depth test, linked into its pixel's list: the
+// fragments the CPU's `FragmentLists` sink is handed (alpha-mask cut-outs discarded, blended
+// ones kept whatever their opacity, premultiplied). A pool of `view.info.z` nodes; the count
+// goes on past it, so that the CPU sees how many the frame needed.
+@fragment
+fn collect(v: Varyings, @builtin(front_facing) front_facing: bool) {
+    let pl = planes_at(v);
+    let s = shade(v, pl, front_facing);
+    let a = s.color.w;
+    if !s.keep || !(a > 0.0) {
+        return;
+    }
+    let p = vec2<u32>(floor(v.position.xy));
+    let pixel = p.y * view.info.x + p.x;
+    let node = atomicAdd(&status[1], 1u);
+    if node >= view.info.z {
+        return;
+    }
+    let c = pack_half(vec4<f32>(s.color.xyz * a, a));
+    nodes[node] = vec4<u32>(bitcast<u32>(depth_of(pl)), c.x, c.y, v.ids.z);
+    next_node[node] = atomicExchange(&heads[pixel], node + 1u);
+}
+
+// True when key `a` (depth bits, place in the draw) is kept before `b`: nearer first, equal
+// depths in draw order (the CPU keeps the fragment that came first).
+fn nearer(a: vec2<u32>, b: vec2<u32>) -> bool {
+    let da = bitcast<f32>(a.x);
+    let db = bitcast<f32>(b.x);
+    return da < db || (da == db && a.x == b.x && a.y < b.y);
+}
+
+// The signed CoC radius in pixels of view depth `z` (lens/mod.rs, `coc_px`).
+fn coc_of(z: f32) -> f32 {
+    let zf = view.coc.y;
+    return view.coc.x * (z - zf) / (zf * z);
+}
+
+// The depth from which a fragment of pixel `p` cannot reach the frame once blurred
+// (raster/fragments.rs, `Reach::depth_limit`): +inf inside the frame.
+fn reach_limit(p: vec2<u32>) -> f32 {
+    let inf = bitcast<f32>(0x7f800000u);
+    if view.coc.z <= 0.0 {
+        return inf;
+    }
+    let px = vec2<f32>(p) + 0.5;
+    let lo = vec2<f32>(view.frame.xy);
+    let hi = vec2<f32>(view.frame.zw);
+    let d2 = max(max(lo - px, px - hi), vec2<f32>(0.0));
+    let d = sqrt(d2.x * d2.x + d2.y * d2.y);
+    let r = (d - view.coc.w) / view.coc.z;
+    let scale = view.coc.x;
+    if r <= 0.0 || abs(scale / view.coc.y) >= r {
+        return inf;
+    }
+    let inv_z = 1.0 / view.coc.y + r / scale;
+    return select(inf, 1.0 / inv_z, inv_z > 0.0);
+}
+
+// Per pixel, the N nearest fragments of its list (`view.extra.z`), nearest first, into the
+// kept slots; the largest CoC diameter among them into `status[2]`. The lists' heads are
+// cleared for the next frame.
+@compute @workgroup_size(64)
+fn keep(@builtin(global_invocation_id) id: vec3<u32>) {
+    let width = view.info.x;
+    if id.x >= width || id.y >= view.info.y {
+        return;
+    }
+    let pixel = id.y * width + id.x;
+    let cap = min(view.extra.z, MAX_LIST);
+    let limit = reach_limit(id.xy);
+    var key: array<vec2<u32>, MAX_LIST>;
+    var col: array<vec2<u32>, MAX_LIST>;
+    var n = 0u;
+    var at = atomicExchange(&heads[pixel], 0u);
+    while at != 0u {
+        let node = nodes[at - 1u];
+        at = next_node[at - 1u];
+        let k = vec2<u32>(node.x, node.w);
+        if !(bitcast<f32>(k.x) < limit) {
+            continue;
+        }
+        if n == cap && !nearer(k, key[cap - 1u]) {
+            continue;
+        }
+        var j = n;
+        if n == cap {
+            j = cap - 1u;
+        } else {
+            n += 1u;
+        }
+        while j > 0u && nearer(k, key[j - 1u]) {
+            key[j] = key[j - 1u];
+            col[j] = col[j - 1u];
+            j -= 1u;
+        }
+        key[j] = k;
+        col[j] = node.yz;
+    }
+    kept_count[pixel] = n;
+    var widest = 0.0;
+    for (var i = 0u; i < n; i++) {
+        let z = bitcast<f32>(key[i].x);
+        kept_depth[pixel * cap + i] = z;
+        kept_color[pixel * cap + i] = col[i];
+        widest = max(widest, 2.0 * abs(coc_of(z)));
+    }
+    atomicMax(&status[2], bitcast<u32>(widest));
 }

@@ -176,7 +176,8 @@ fn the_registry_marks_the_gpu_methods_and_refuses_the_others_by_name() {
             "hammon",
             "lowrank",
             "gaussian",
-            "poisson"
+            "poisson",
+            "multilayer"
         ]
     );
     registry::check_gpu("gaussian").unwrap();

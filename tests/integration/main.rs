@@ -8,6 +8,7 @@ mod fill;
 mod fuzz;
 mod gpu;
 mod gpu_gather;
+mod gpu_layered;
 mod gpu_raster;
 mod hammon;
 mod highlights;

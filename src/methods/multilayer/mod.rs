@@ -62,6 +62,7 @@
 
 pub mod accumulate;
 pub mod filter;
+pub mod gpu;
 pub mod shape;
 
 use rayon::prelude::*;
