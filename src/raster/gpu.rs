@@ -964,8 +964,8 @@ impl GpuLists {
     }
 }
 
-/// Key under which a context remembers the fragment pool the last lists needed, so that the
-/// next frame of a sequence or batch is drawn once.
+/// Key under which a context remembers the list nodes a pixel the last lists needed, so that
+/// the next frame of a sequence or batch is drawn once.
 const POOL_HINT: &str = "raster fragment pool";
 
 /// The fragment lists of the pinhole view of `lens` on the GPU of `ctx` ([`GpuLists`]): every
@@ -973,8 +973,8 @@ const POOL_HINT: &str = "raster fragment pool";
 /// with an atomic counter, Yang et al. 2010, as Selgrad et al. section 4), then the `cap`
 /// nearest of each pixel kept, in depth order (equal depths in the order the triangles are
 /// drawn). With `reach`, the guard band's fragments that cannot reach the frame are dropped
-/// as on the CPU. Timed as `pass`. The pool of list nodes starts at what the last frame
-/// needed (4 a pixel at first); a frame that needs more is drawn again with as many.
+/// as on the CPU. Timed as `pass`. The pool of list nodes holds as many a pixel as the last
+/// frame needed (4 at first); a frame that needs more is drawn again with as many.
 pub fn fragment_lists(
     ctx: &GpuContext,
     prepared: &PreparedScene,
@@ -990,11 +990,18 @@ pub fn fragment_lists(
     let what = format!("the GPU fragment lists at {w}x{h}");
     let start = std::time::Instant::now();
     let (vertex_bytes, texel_bytes, _) = SceneData::sizes(prepared);
-    let hint = ctx.cached(POOL_HINT, || Ok(std::sync::atomic::AtomicU64::new(0)))?;
-    let mut pool = hint
-        .load(std::sync::atomic::Ordering::Relaxed)
-        .max(pixels * 4)
+    // Nodes a pixel the last lists needed (at least 4).
+    let hint = ctx.cached(POOL_HINT, || Ok(std::sync::atomic::AtomicU64::new(4)))?;
+    // Within what one binding may hold (16 bytes a node); a frame that needs more is refused
+    // by the plan below, naming the limit.
+    let limits = &ctx.description().limits;
+    let most = (limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size)
+        / 16)
         .max(1);
+    let per_pixel = hint.load(std::sync::atomic::Ordering::Relaxed).max(4);
+    let mut pool = (pixels * per_pixel).min(most).max(1);
     plan_lists(
         ctx,
         &what,
@@ -1008,7 +1015,8 @@ pub fn fragment_lists(
     loop {
         let (lists, wanted) = lists_with(ctx, &data, &lens, cap, reach, pool, pass, timings)?;
         if wanted <= pool {
-            hint.store(pool, std::sync::atomic::Ordering::Relaxed);
+            let per_pixel = pool.div_ceil(pixels.max(1));
+            hint.store(per_pixel, std::sync::atomic::Ordering::Relaxed);
             return Ok(lists);
         }
         lists.recycle(ctx);
@@ -1017,7 +1025,8 @@ pub fn fragment_lists(
                 "{what}: the scene gives {wanted} fragments; the lists address at most 2^32"
             )));
         }
-        pool = wanted;
+        // An eighth more, so that the next frames of a sequence fit.
+        pool = (wanted + wanted / 8).min(u64::from(u32::MAX));
         plan_lists(
             ctx,
             &what,

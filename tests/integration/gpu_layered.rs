@@ -75,6 +75,28 @@ fn gpu_multilayer_matches_the_cpu_on_every_builtin_scene() {
     }
 }
 
+/// `--ml-supersample 2` and `4` (the lists at K x K times the resolution, merged down before
+/// the Y-map) on the GPU against the CPU.
+#[test]
+fn gpu_multilayer_supersampled_matches_the_cpu() {
+    let Some(ctx) = context() else { return };
+    for (name, k) in [("glass", 2), ("grass", 2), ("railing", 4)] {
+        let (scene, camera) = builtin(name, 320, 180);
+        let settings = MultilayerSettings {
+            supersample: k,
+            ..paper(&scene)
+        };
+        let cpu = multilayer::render(&scene, &camera, &settings).unwrap();
+        let gpu = multilayer::gpu::render(ctx, &scene, &camera, &settings).unwrap();
+        let (psnr, diff) = psnr_and_max_diff(&cpu.image, &gpu.image);
+        eprintln!(
+            "multilayer {name} 320x180, supersampled {k}x{k}: GPU against CPU {psnr:.1} dB, \
+             largest difference {diff:e}"
+        );
+        assert!(psnr >= MIN_PSNR_DB, "{name} {k}: {psnr} dB");
+    }
+}
+
 /// Pixels with more surfaces than the lists hold keep the N nearest on the GPU, as on the
 /// CPU: `traps` (double-sided bars, a pane, the chart and the wall behind) with N = 2 and 4
 /// against the CPU's lists of the same view, fragment for fragment.

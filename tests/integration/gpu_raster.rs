@@ -291,16 +291,9 @@ fn a_point_light_becomes_the_aperture_on_the_gpu() {
     for d in gpu_point_light(&camera, 50.0, "disc") {
         assert!((d - coc).abs() < 1.0, "disc: {d}, |C| = {coc}");
     }
-    let [right, left, down, up] = gpu_point_light(&camera, 50.0, "poly:6");
-    let flat = coc * 30f32.to_radians().cos();
-    assert!(
-        (up - coc).abs() < 1.0 && (down - coc).abs() < 1.0,
-        "hexagon: {up} {down}"
-    );
-    assert!(
-        (left - flat).abs() < 1.0 && (right - flat).abs() < 1.0,
-        "hexagon: {left} {right}"
-    );
+    // A polygon's vertex and side distances, and its turn through focus, with five blades (the
+    // CPU's test also runs a hexagon; each view here is the CPU's, drawn by the GPU, and lavapipe
+    // takes about 20 s a run of 4096 views).
     // Five blades: a vertex to the left behind focus, turned half a turn in front of it.
     let camera = tele_camera(2.0, 1.0);
     let lens = camera.thin_lens().unwrap();

@@ -194,7 +194,9 @@ def blur(
         GPU adapter, a software one (lavapipe) included, and an error naming what was found
         when there is none or the method has no GPU passes; ``"auto"``, a hardware GPU when
         there is one and the method runs there (``hammon``, ``lowrank``, ``gaussian``,
-        ``poisson``), else the CPU. The GPU's images equal the CPU's within 45 dB PSNR. A
+        ``poisson``; in ``render`` also ``pinhole``, ``reference``, and ``multilayer`` with
+        the paper's options ``no_coverage=True, ml_bokeh="box", highlight_rays="off"``), else
+        the CPU. The GPU's images equal the CPU's within 45 dB PSNR. A
         GPU is opened once and shared by the calls that follow, and by a batch's images.
     **method_options
         The method's options, named as the command line's flags with underscores and

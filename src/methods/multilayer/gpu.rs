@@ -11,7 +11,8 @@
 //!
 //! What runs on the GPU is the paper's configuration: fragments sampled at pixel centres
 //! (`--no-coverage`), the box bokeh (`--ml-bokeh box`), bright fragments filtered as every
-//! other (`--highlight-rays off`), no supersampling. The CPU's defaults beyond the paper
+//! other (`--highlight-rays off`), with `--ml-supersample` as on the CPU (the lists collected
+//! at K x K times the resolution and merged down first). The CPU's defaults beyond the paper
 //! (coverage masks, the aperture's shape, highlights ray by ray) are refused by name on the
 //! GPU. The filtered levels hold at most [`LEVEL_CAP`] fragments a cell (the CPU 64) and a
 //! pixel's accumulation at most [`MAX_ENTRIES`] weighted fragments, the farthest dropped.
@@ -69,25 +70,22 @@ pub fn check(settings: &MultilayerSettings) -> Result<()> {
         Err(Error::invalid(
             "device",
             format!(
-                "multilayer on the GPU runs the paper's configuration so far; {what} runs on \
-                 the CPU only: add {flag}, or use --device cpu"
+                "multilayer on the GPU runs the paper's configuration so far, without {what}: \
+                 add {flag}, or use --device cpu"
             ),
         ))
     };
     if settings.input.coverage {
-        return refuse("the coverage masks", "--no-coverage");
+        return refuse("coverage masks", "--no-coverage");
     }
     if settings.bokeh != Bokeh::Box {
         return refuse(
-            &format!("--ml-bokeh {}", settings.bokeh.name()),
+            &format!("the bokeh of --ml-bokeh {}", settings.bokeh.name()),
             "--ml-bokeh box",
         );
     }
     if settings.highlights.is_some() {
-        return refuse("scattering highlights ray by ray", "--highlight-rays off");
-    }
-    if settings.supersample != 1 {
-        return refuse("--ml-supersample", "--ml-supersample 1");
+        return refuse("highlights ray by ray", "--highlight-rays off");
     }
     Ok(())
 }
@@ -112,17 +110,31 @@ pub fn render(
     let guard = settings.input.guard_band_px(&prepared, &frame);
     let lens = frame.with_guard_band(guard);
     super::check_memory(&lens, settings, held)?;
+    // With supersampling the lists are collected at K x K times the resolution (the guard band
+    // and the reach with them), as on the CPU.
+    let k = settings.supersample;
+    let fine = crate::lens::ThinLens {
+        width_px: lens.width_px * k,
+        height_px: lens.height_px * k,
+        f_px: lens.f_px * k as f32,
+        ..lens
+    };
     let reach = (guard > 0).then_some(Reach {
-        frame: (guard, guard, frame.width_px, frame.height_px),
-        lens,
+        frame: (
+            guard * k,
+            guard * k,
+            frame.width_px * k,
+            frame.height_px * k,
+        ),
+        lens: fine,
         factor: REACH_RADII,
-        slack_px: REACH_SLACK_PX,
+        slack_px: REACH_SLACK_PX * k as f32,
         square: false,
     });
     let lists = fragment_lists(
         ctx,
         &prepared,
-        lens,
+        fine,
         settings.fragments,
         reach.as_ref(),
         super::pass::COLLECT,
@@ -143,9 +155,11 @@ pub fn render(
 fn layout(
     lists: &crate::raster::gpu::GpuLists,
     borders: &Borders,
+    pre: usize,
     steps: &[Step],
 ) -> (Vec<LevelInfo>, u64) {
-    let n = steps.len() + 1;
+    // Gates of the levels accumulated, by their index from the base.
+    let n = steps.len() + 1 - pre;
     let gate = |s: usize| -> [f32; 4] {
         let (i0, i1) = if s + 1 < n {
             (
@@ -179,6 +193,15 @@ fn layout(
     };
     push(w, h, lists.cap, stride, origin, 0);
     for (i, st) in steps.iter().enumerate() {
+        if i + 1 == pre {
+            // The supersampled lists merged down to the output resolution: from here on cells
+            // are output pixels (as the CPU's `filter_with`).
+            (stride, origin) = (1.0, 0.5);
+            let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+            push(nw, nh, LEVEL_CAP, stride, origin, 0);
+            (w, h) = (nw, nh);
+            continue;
+        }
         match *st {
             Step::Mip => {
                 w = w.div_ceil(2);
@@ -192,12 +215,13 @@ fn layout(
                 }
             }
         }
-        push(w, h, LEVEL_CAP, stride, origin, i + 1);
+        push(w, h, LEVEL_CAP, stride, origin, (i + 1).saturating_sub(pre));
     }
     (table, cells)
 }
 
-/// Key under which a context remembers the slots the last frame's filtered levels took.
+/// Key under which a context remembers the slots a filtered cell the last frame's levels took
+/// (in sixteenths), so that the next frame of a sequence or batch filters once.
 const POOL_HINT: &str = "multilayer level pool";
 
 /// Passes `filter` and `accumulate` of `lists` (over the frame of `lens`, the frame `frame`
@@ -213,21 +237,34 @@ fn filter_and_accumulate(
     timings: &mut Timings,
 ) -> Result<Filtered> {
     let borders = Borders::new(*lens);
-    let (mip, stack) = super::steps_for(settings, lists.widest_px);
-    let steps = y_map(mip, stack);
-    let (table, cells) = layout(lists, &borders, &steps);
+    // Supersampled lists are first merged down to the output resolution by `pre` mip steps
+    // that keep every fragment; their CoCs are K times the output's.
+    let k = settings.supersample;
+    let pre = k.trailing_zeros() as usize;
+    let (mip, stack) = super::steps_for(settings, lists.widest_px / k as f32);
+    let mut steps = vec![Step::Mip; pre];
+    steps.extend(y_map(mip, stack));
+    let (table, cells) = layout(lists, &borders, pre, &steps);
     let base_slots = (lists.width * lists.height * lists.cap) as u64;
     let filtered_cells = cells - (lists.width * lists.height) as u64;
-    let hint = ctx.cached(POOL_HINT, || Ok(std::sync::atomic::AtomicU64::new(0)))?;
-    let mut pool = hint
-        .load(std::sync::atomic::Ordering::Relaxed)
-        .max(2 * filtered_cells)
-        .max(1);
+    // Slots a filtered cell the last frame's levels took, in sixteenths (at least two slots).
+    let hint = ctx.cached(POOL_HINT, || Ok(std::sync::atomic::AtomicU64::new(32)))?;
+    let per_cell = hint.load(std::sync::atomic::Ordering::Relaxed).max(32);
+    // Within what one binding may hold (8 bytes a slot's colour); a frame that needs more is
+    // refused by the plan, naming the limit.
+    let limits = &ctx.description().limits;
+    let most = (limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size)
+        / 8)
+    .saturating_sub(base_slots)
+    .max(1);
+    let mut pool = (filtered_cells * per_cell).div_ceil(16).min(most).max(1);
     loop {
         let (out, taken) = levels_with(
             ctx,
             lists,
-            (&table, cells, &steps),
+            (&table, cells, &steps, pre),
             (base_slots, pool),
             (guard, frame),
             settings,
@@ -235,10 +272,13 @@ fn filter_and_accumulate(
             timings,
         )?;
         if let Some(out) = out {
-            hint.store(pool, std::sync::atomic::Ordering::Relaxed);
+            let per_cell = (16 * pool).div_ceil(filtered_cells.max(1));
+            hint.store(per_cell, std::sync::atomic::Ordering::Relaxed);
             return Ok(out);
         }
-        pool = taken.saturating_sub(base_slots);
+        // An eighth more, so that the next frames of a sequence fit.
+        let wanted = taken.saturating_sub(base_slots);
+        pool = wanted + wanted / 8;
     }
 }
 
@@ -249,7 +289,7 @@ fn filter_and_accumulate(
 fn levels_with(
     ctx: &GpuContext,
     lists: &crate::raster::gpu::GpuLists,
-    (table, cells, steps): (&[LevelInfo], u64, &[Step]),
+    (table, cells, steps, pre): (&[LevelInfo], u64, &[Step], usize),
     (base_slots, pool): (u64, u64),
     (guard, frame): (usize, &crate::lens::ThinLens),
     settings: &MultilayerSettings,
@@ -285,11 +325,11 @@ fn levels_with(
     encoder.copy_buffer_to_buffer(&lists.depth, 0, &depth, 0, base_slots * 4);
     encoder.copy_buffer_to_buffer(&lists.color, 0, &color, 0, base_slots * 8);
     ctx.queue().submit([encoder.finish()]);
-    let lens_consts = |levels: [u32; 4], s: f32| Params {
+    let lens_consts = |levels: [u32; 4], s: f32, truncate: bool| Params {
         levels,
         consts: [
             settings.epsilon,
-            f32::from(u8::from(settings.truncation)),
+            f32::from(u8::from(truncate)),
             s,
             lens.f_px * lens.lens_radius_m,
         ],
@@ -316,7 +356,12 @@ fn levels_with(
             Step::Mip => (0, 1),
             Step::Stack { offset } => (1, offset as u32),
         };
-        let params = lens_consts([i as u32, i as u32 + 1, kind, d], (i + 1) as f32);
+        // The merges down from the supersampled lists keep every fragment.
+        let params = lens_consts(
+            [i as u32, i as u32 + 1, kind, d],
+            (i + 1).saturating_sub(pre) as f32,
+            settings.truncation && i >= pre,
+        );
         let u = ctx.uniform("multilayer step", bytemuck::bytes_of(&params));
         let dims = table[i + 1].dims;
         let g = ctx.row_groups(&what, dims[0] as usize, dims[1] as usize, WORKGROUP_X)?;
@@ -337,7 +382,7 @@ fn levels_with(
         ));
         uniforms.push(u);
     }
-    let params = lens_consts([0; 4], 0.0);
+    let params = lens_consts([pre as u32, 0, 0, 0], 0.0, false);
     let u = ctx.uniform("multilayer accumulate", bytemuck::bytes_of(&params));
     let accumulate_group = ctx.bind(
         &accumulate_pipeline,

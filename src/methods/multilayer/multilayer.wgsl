@@ -32,12 +32,12 @@ struct LevelInfo {
 }
 
 struct Params {
-    // x: source level, y: output level, z: 0 mip step, 1 stack step, w: the stack step's
-    // distance in cells.
+    // x: source level (`accumulate`: the first level accumulated), y: output level, z: 0 mip
+    // step, 1 stack step, w: the stack step's distance in cells.
     levels: vec4<u32>,
     // x: epsilon; y: 1 with truncation; z: the output level's index; w: f E (the CoC's scale).
     consts: vec4<f32>,
-    // x: the focus distance; y: the number of levels.
+    // x: the focus distance; y: the number of levels in the table.
     lens: vec4<f32>,
     // The pixels output (`accumulate`): left, top, width, height in the levels' frame.
     region: vec4<u32>,
@@ -283,7 +283,9 @@ fn accumulate(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let x = id.x + region.x;
     let y = id.y + region.y;
-    let n_levels = u32(params.lens.y);
+    // The levels accumulated: from `params.levels.x` (after the supersampled lists' merges).
+    let first_level = params.levels.x;
+    let n_levels = u32(params.lens.y) - first_level;
     let eps = params.consts.x;
     var ed: array<f32, MAX_ENTRIES>;
     var el: array<u32, MAX_ENTRIES>;
@@ -291,7 +293,7 @@ fn accumulate(@builtin(global_invocation_id) id: vec3<u32>) {
     var ec: array<vec2<u32>, MAX_ENTRIES>;
     var n = 0u;
     for (var s = 0u; s < n_levels; s++) {
-        let level = table[s];
+        let level = table[first_level + s];
         let cx = cell_of(x, level.dims.x, level);
         let cy = cell_of(y, level.dims.y, level);
         let span = cell_span[level.dims.w + cy * level.dims.x + cx];
@@ -357,7 +359,7 @@ fn accumulate(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let pixel = id.y * region.z + id.x;
     out_color[pixel] = out;
-    let level0 = table[0];
+    let level0 = table[first_level];
     let span0 = cell_span[level0.dims.w + y * level0.dims.x + x];
     var depth = inf();
     if span0.y > 0u {
