@@ -992,14 +992,14 @@ pub fn fragment_lists(
     let (vertex_bytes, texel_bytes, _) = SceneData::sizes(prepared);
     // Nodes a pixel the last lists needed (at least 4).
     let hint = ctx.cached(POOL_HINT, || Ok(std::sync::atomic::AtomicU64::new(4)))?;
-    // Within what one binding may hold (16 bytes a node); a frame that needs more is refused
+    // Within what one binding may hold (8 bytes a node); a frame that needs more is refused
     // by the plan below, naming the limit.
     let limits = &ctx.description().limits;
     let most = (limits
         .max_storage_buffer_binding_size
         .min(limits.max_buffer_size)
-        / 16)
-        .max(1);
+        / 8)
+    .max(1);
     let per_pixel = hint.load(std::sync::atomic::Ordering::Relaxed).max(4);
     let mut pool = (pixels * per_pixel).min(most).max(1);
     plan_lists(
@@ -1053,7 +1053,7 @@ fn plan_lists(
     let gpu = pixels * (4 + 4 + 12 * cap) + pool * 20 + texel_bytes + vertex_bytes * 3;
     ctx.plan(
         what,
-        (pool * 16).max(pixels * cap * 8).max(texel_bytes),
+        (pool * 8).max(pixels * cap * 8).max(texel_bytes),
         gpu + held + vertex_bytes + texel_bytes,
     )
 }
@@ -1104,7 +1104,8 @@ fn lists_with(
     let view_buf = ctx.uniform("view", bytemuck::bytes_of(&params));
     let planes = ctx.storage("triangle planes", u64::from(triangles.max(1)) * 48)?;
     let heads = ctx.storage("list heads", pixels * 4)?;
-    let nodes = ctx.storage("list nodes", pool * 16)?;
+    let nodes = ctx.storage("list nodes", pool * 8)?;
+    let node_color = ctx.storage("list node colours", pool * 8)?;
     let next = ctx.storage("list links", pool * 4)?;
     let status = ctx.storage("raster status", 16)?;
     let count = ctx.storage("kept counts", pixels * 4)?;
@@ -1156,6 +1157,7 @@ fn lists_with(
             (17, &heads),
             (18, &nodes),
             (19, &next),
+            (23, &node_color),
         ],
     );
     let keep_group = bind(
@@ -1166,6 +1168,7 @@ fn lists_with(
             (17, &heads),
             (18, &nodes),
             (19, &next),
+            (23, &node_color),
             (20, &count),
             (21, &depth),
             (22, &color),
@@ -1209,7 +1212,8 @@ fn lists_with(
     let wanted = u64::from(word(1));
     let widest_px = f32::from_bits(word(2));
     ctx.recycle([
-        vertices, materials, textures, levels, texels, view_buf, planes, heads, nodes, next, status,
+        vertices, materials, textures, levels, texels, view_buf, planes, heads, nodes, node_color,
+        next, status,
     ]);
     ctx.recycle_textures([z_target]);
     Ok((

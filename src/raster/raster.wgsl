@@ -110,8 +110,10 @@ struct Material {
 // sampled at pixel centres (raster/fragments.rs): per pixel a linked list of every fragment
 // (Yang et al. 2010, as Selgrad et al. section 4), 1 + the index of its first node (0: none).
 @group(0) @binding(17) var<storage, read_write> heads: array<atomic<u32>>;
-// Per node: depth bits, premultiplied colour as four halves (two words), place in the draw.
-@group(0) @binding(18) var<storage, read_write> nodes: array<vec4<u32>>;
+// Per node: depth bits, place in the draw; and (apart, so that each binding holds twice the
+// nodes) its premultiplied colour as four halves.
+@group(0) @binding(18) var<storage, read_write> nodes: array<vec2<u32>>;
+@group(0) @binding(23) var<storage, read_write> node_color: array<vec2<u32>>;
 // Per node: 1 + the index of the next node of its pixel (0: the last).
 @group(0) @binding(19) var<storage, read_write> next_node: array<u32>;
 // The N nearest fragments of each pixel, nearest first: their number, then N slots of depth
@@ -655,8 +657,8 @@ fn collect(v: Varyings, @builtin(front_facing) front_facing: bool) {
     if node >= view.info.z {
         return;
     }
-    let c = pack_half(vec4<f32>(s.color.xyz * a, a));
-    nodes[node] = vec4<u32>(bitcast<u32>(depth_of(pl)), c.x, c.y, v.ids.z);
+    nodes[node] = vec2<u32>(bitcast<u32>(depth_of(pl)), v.ids.z);
+    node_color[node] = pack_half(vec4<f32>(s.color.xyz * a, a));
     next_node[node] = atomicExchange(&heads[pixel], node + 1u);
 }
 
@@ -712,9 +714,9 @@ fn keep(@builtin(global_invocation_id) id: vec3<u32>) {
     var n = 0u;
     var at = atomicExchange(&heads[pixel], 0u);
     while at != 0u {
-        let node = nodes[at - 1u];
-        at = next_node[at - 1u];
-        let k = vec2<u32>(node.x, node.w);
+        let node = at - 1u;
+        at = next_node[node];
+        let k = nodes[node];
         if !(bitcast<f32>(k.x) < limit) {
             continue;
         }
@@ -733,7 +735,7 @@ fn keep(@builtin(global_invocation_id) id: vec3<u32>) {
             j -= 1u;
         }
         key[j] = k;
-        col[j] = node.yz;
+        col[j] = node_color[node];
     }
     kept_count[pixel] = n;
     var widest = 0.0;
