@@ -33,7 +33,10 @@ use crate::timing::Timings;
 use crate::{Error, Result};
 
 /// The WGSL source of the passes.
-pub const SHADER: &str = include_str!("raster.wgsl");
+pub const SHADER: &str = concat!(
+    include_str!("raster.wgsl"),
+    include_str!("../gpu/half.wgsl")
+);
 
 /// The name the shader is compiled under.
 pub const SHADER_NAME: &str = "raster.wgsl";

@@ -127,27 +127,12 @@ pub fn accumulate_baseline(
     )
 }
 
-/// What every row of [`accumulate`] reads.
-struct RowInputs<'a> {
-    levels: &'a [Level],
-    borders: &'a Borders,
-    /// Per level, the depths it can serve (see [`accumulate_with`]).
-    gates: &'a [(f32, f32, f32, f32)],
-    epsilon: f32,
-}
-
-fn accumulate_with(
-    levels: &[Level],
-    borders: &Borders,
-    epsilon: f32,
-    region: Region,
-    row_fn: impl Fn(&RowInputs, usize, usize, &mut [Rgba]) + Sync,
-) -> ColorImage {
-    let n = levels.len();
-    // Per level, the depths it can serve (weight above 0 needs lambda in (s - 1, s + 1)):
-    // inside (near(s + 1), far(s + 1)) and outside [near(s - 1), far(s - 1)], widened a little
-    // so that only fragments of weight 0 are skipped; the weight itself decides the rest.
-    let gates: Vec<(f32, f32, f32, f32)> = (0..n)
+/// Per level of `n`, the depths it can serve: a weight above 0 needs `lambda` in `(s - 1, s +
+/// 1)`, inside `(near(s + 1), far(s + 1))` and outside `[near(s - 1), far(s - 1)]`, widened a
+/// little so that only fragments of weight 0 are skipped (the weight itself decides the rest).
+/// A depth `z` is skipped where `z <= i0 || z >= i1 || (z > o0 && z < o1)`.
+pub fn gates(borders: &Borders, n: usize) -> Vec<(f32, f32, f32, f32)> {
+    (0..n)
         .map(|s| {
             let (i0, i1) = if s + 1 < n {
                 (
@@ -167,7 +152,26 @@ fn accumulate_with(
             };
             (i0, i1, o0, o1)
         })
-        .collect();
+        .collect()
+}
+
+/// What every row of [`accumulate`] reads.
+struct RowInputs<'a> {
+    levels: &'a [Level],
+    borders: &'a Borders,
+    /// Per level, the depths it can serve ([`gates`]).
+    gates: &'a [(f32, f32, f32, f32)],
+    epsilon: f32,
+}
+
+fn accumulate_with(
+    levels: &[Level],
+    borders: &Borders,
+    epsilon: f32,
+    region: Region,
+    row_fn: impl Fn(&RowInputs, usize, usize, &mut [Rgba]) + Sync,
+) -> ColorImage {
+    let gates = gates(borders, levels.len());
     let Region {
         x0,
         y0,

@@ -31,7 +31,10 @@ use crate::timing::Timings;
 use crate::{Error, Result};
 
 /// The WGSL source of the passes.
-pub const SHADER: &str = include_str!("multilayer.wgsl");
+pub const SHADER: &str = concat!(
+    include_str!("multilayer.wgsl"),
+    include_str!("../../gpu/half.wgsl")
+);
 
 /// The name the shader is compiled under.
 pub const SHADER_NAME: &str = "multilayer.wgsl";
@@ -159,30 +162,15 @@ fn layout(
     steps: &[Step],
 ) -> (Vec<LevelInfo>, u64) {
     // Gates of the levels accumulated, by their index from the base.
-    let n = steps.len() + 1 - pre;
+    let gates = super::accumulate::gates(borders, steps.len() + 1 - pre);
     let gate = |s: usize| -> [f32; 4] {
-        let (i0, i1) = if s + 1 < n {
-            (
-                borders.near_at(s as f32 + 1.0) * (1.0 - 1e-4),
-                borders.far_at(s as f32 + 1.0) * (1.0 + 1e-4),
-            )
-        } else {
-            (f32::NEG_INFINITY, f32::INFINITY)
-        };
-        let (o0, o1) = if s > 0 {
-            (
-                borders.near_at(s as f32 - 1.0) * (1.0 + 1e-4),
-                borders.far_at(s as f32 - 1.0) * (1.0 - 1e-4),
-            )
-        } else {
-            (f32::INFINITY, f32::NEG_INFINITY)
-        };
+        let (i0, i1, o0, o1) = gates[s];
         [i0, i1, o0, o1]
     };
     let (mut w, mut h) = (lists.width, lists.height);
     let (mut stride, mut origin) = (1.0f32, 0.5f32);
     let mut cells = 0u64;
-    let mut table = Vec::with_capacity(n);
+    let mut table = Vec::with_capacity(steps.len() + 1);
     let mut push = |w: usize, h: usize, cap: usize, stride: f32, origin: f32, s: usize| {
         table.push(LevelInfo {
             dims: [w as u32, h as u32, cap as u32, cells as u32],
