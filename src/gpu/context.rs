@@ -9,8 +9,9 @@ use super::adapter::{choose, AdapterDescription, Device};
 use crate::timing::{Clock, Timings};
 use crate::{Error, Result};
 
-/// Buffers the pool keeps for reuse at most; the oldest is dropped beyond.
-const POOL_BUFFERS: usize = 32;
+/// Buffers the pool keeps for reuse at most (a frame of `multilayer` holds about 40); the
+/// oldest is dropped beyond.
+const POOL_BUFFERS: usize = 64;
 
 /// Bytes the pool keeps for reuse at most; the oldest buffers are dropped beyond (a frame of
 /// another size does not keep the last one's buffers alive).
@@ -68,6 +69,9 @@ pub struct GpuContext {
     lost: Arc<Mutex<Option<String>>>,
     /// Opened for `--device auto` (see [`GpuContext::chosen_by_auto`]).
     auto: bool,
+    /// Buffers and textures made on the device (the pools' misses), for
+    /// [`GpuContext::allocations`].
+    made: std::sync::atomic::AtomicU64,
     // Kept so that the adapter outlives the device on every backend.
     _adapter: wgpu::Adapter,
     _instance: wgpu::Instance,
@@ -163,6 +167,7 @@ impl GpuContext {
             errors,
             lost,
             auto: false,
+            made: std::sync::atomic::AtomicU64::new(0),
             _adapter: adapter,
             _instance: instance,
         })
@@ -315,6 +320,7 @@ impl GpuContext {
                 return pool.swap_remove(i);
             }
         }
+        self.made.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size,
@@ -323,7 +329,13 @@ impl GpuContext {
         })
     }
 
-    /// Gives buffers back to the pool for the next run (the oldest are dropped beyond 32
+    /// How many buffers and textures the context has made on the device so far: those its
+    /// pools could not give back. The frames of a sequence after its first ones make none.
+    pub fn allocations(&self) -> u64 {
+        self.made.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Gives buffers back to the pool for the next run (the oldest are dropped beyond 64
     /// buffers or 512 MiB).
     pub fn recycle(&self, buffers: impl IntoIterator<Item = wgpu::Buffer>) {
         let mut pool = lock(&self.pool);
@@ -353,6 +365,7 @@ impl GpuContext {
                 return pool.swap_remove(i);
             }
         }
+        self.made.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         self.device.create_texture(&wgpu::TextureDescriptor {
             label: Some(label),
             size: wgpu::Extent3d {

@@ -343,6 +343,11 @@ impl RenderJob {
         &self.inputs
     }
 
+    /// The device the job runs on, as `--timings` names it: `cpu`, or the GPU adapter's label.
+    pub fn device(&self) -> String {
+        device_name(self.gpu.as_deref())
+    }
+
     /// The camera, after every override.
     pub fn camera(&self) -> &Camera {
         &self.camera

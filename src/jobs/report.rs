@@ -857,6 +857,8 @@ pub fn write(
         // The images kept for the error maps (the truth's and every run's so far) are held
         // while this run runs: counted with its estimate against the budget.
         let kept = (outputs.len() as u64 + 1) * truth.pixels().len() as u64 * 16;
+        // The device the run took: `--device auto` runs on the CPU what the GPU does not cover.
+        let mut ran_on: Option<String> = None;
         let outcome: Result<MethodOutput> = (|| {
             crate::budget::check(
                 kept + registry::peak_bytes(
@@ -882,7 +884,9 @@ pub fn write(
                     render_args(a, a.scene.as_deref().unwrap_or(""), run.info.id, &out_path);
                 apply_setting(&mut args.post, &mut args.samples, &run.setting)?;
                 let on = gpu.clone().filter(|_| run.on_gpu);
-                RenderJob::new_on(args, on, notes)?.compute(&mut |_, _| {})
+                let job = RenderJob::new_on(args, on, notes)?;
+                ran_on = Some(job.device());
+                job.compute(&mut |_, _| {})
             } else {
                 if !run.info.input.takes_frame() {
                     bail!("not applicable: needs {}", run.info.input.describe());
@@ -901,7 +905,7 @@ pub fn write(
             method: run.info.id.to_string(),
             setting: run.setting_text(),
             label: label.clone(),
-            device: device_name(gpu.as_deref().filter(|_| run.on_gpu)),
+            device: ran_on.unwrap_or_else(|| device_name(gpu.as_deref().filter(|_| run.on_gpu))),
             status: "ok".to_string(),
             error: None,
             psnr_db: None,

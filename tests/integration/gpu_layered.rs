@@ -264,3 +264,30 @@ fn render_multilayer_on_the_gpu_from_the_command_line() {
     );
     assert!(!refused.exists());
 }
+
+/// A sequence on one context allocates on its first frames only: the pools give every buffer
+/// and texture back, and the lists' and levels' sizes are remembered from the frame before, so
+/// the third frame of `grass` (more fragments a pixel than the first guess) makes nothing new.
+#[test]
+fn gpu_multilayer_frames_after_the_first_allocate_nothing() {
+    if context().is_none() {
+        return;
+    }
+    // A context of its own: the shared one serves the tests running beside this one.
+    let ctx = defocus::gpu::GpuContext::open(defocus::gpu::Device::Gpu)
+        .unwrap()
+        .unwrap();
+    let (scene, camera) = builtin("grass", 160, 90);
+    let settings = paper(&scene);
+    let mut made = Vec::new();
+    let mut images = Vec::new();
+    for _ in 0..3 {
+        let out = multilayer::gpu::render(&ctx, &scene, &camera, &settings).unwrap();
+        made.push(ctx.allocations());
+        images.push(out.image);
+    }
+    eprintln!("grass 160x90, multilayer on the GPU: allocations after each frame {made:?}");
+    assert!(made[0] > 0);
+    assert_eq!(made[2], made[1], "{made:?}");
+    assert!(images[1] == images[0] && images[2] == images[0]);
+}
