@@ -602,16 +602,8 @@ fn draw_with(
         texel_bytes,
         data.held,
     )?;
+    check_target(ctx, &what, w, h)?;
     let limits = &ctx.description().limits;
-    if w as u64 > u64::from(limits.max_texture_dimension_2d)
-        || h as u64 > u64::from(limits.max_texture_dimension_2d)
-    {
-        return Err(Error::Gpu(format!(
-            "{what} needs a {w}x{h} target; {} allows {} a side (max texture dimension 2d)",
-            ctx.description().label(),
-            limits.max_texture_dimension_2d
-        )));
-    }
     if vertex_bytes > limits.max_buffer_size {
         return Err(Error::Gpu(format!(
             "{what} needs a vertex buffer of {vertex_bytes} bytes; {} allows {} (max buffer \
@@ -894,6 +886,19 @@ fn setup_groups(ctx: &GpuContext, what: &str, triangles: u32) -> Result<[u32; 2]
     Ok(out)
 }
 
+/// Refuses a `w` x `h` render target, naming `what` needs it, where the adapter allows fewer
+/// pixels a side.
+fn check_target(ctx: &GpuContext, what: &str, w: usize, h: usize) -> Result<()> {
+    let most = ctx.description().limits.max_texture_dimension_2d;
+    if w as u64 > u64::from(most) || h as u64 > u64::from(most) {
+        return Err(Error::Gpu(format!(
+            "{what} needs a {w}x{h} target; {} allows {most} a side (max texture dimension 2d)",
+            ctx.description().label()
+        )));
+    }
+    Ok(())
+}
+
 /// A colour attachment cleared to zero and stored.
 fn clear_attachment(view: &wgpu::TextureView) -> wgpu::RenderPassColorAttachment<'_> {
     wgpu::RenderPassColorAttachment {
@@ -1077,16 +1082,7 @@ fn lists_with(
     let (w, h) = (lens.width_px, lens.height_px);
     let pixels = (w * h) as u64;
     let what = format!("the GPU fragment lists at {w}x{h}");
-    let limits = &ctx.description().limits;
-    if w as u64 > u64::from(limits.max_texture_dimension_2d)
-        || h as u64 > u64::from(limits.max_texture_dimension_2d)
-    {
-        return Err(Error::Gpu(format!(
-            "{what} needs a {w}x{h} target; {} allows {} a side (max texture dimension 2d)",
-            ctx.description().label(),
-            limits.max_texture_dimension_2d
-        )));
-    }
+    check_target(ctx, &what, w, h)?;
     let groups = ctx.row_groups(&what, w, h, WORKGROUP_X)?;
     let p = pipelines(ctx)?;
     let start = std::time::Instant::now();

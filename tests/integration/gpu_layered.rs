@@ -211,7 +211,7 @@ fn render_multilayer_on_the_gpu_from_the_command_line() {
         "--highlight-rays",
         "off",
     ];
-    let mut args = vec![
+    let base = [
         "render",
         "--scene",
         "railing",
@@ -223,10 +223,9 @@ fn render_multilayer_on_the_gpu_from_the_command_line() {
         "multilayer",
         "--device",
         "gpu",
-        "--timings",
-        "--out",
     ];
-    args.push(s(&out));
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--timings", "--out", s(&out)]);
     args.extend_from_slice(&paper);
     let done = defocus(&args);
     assert!(done.status.success(), "{}", stderr(&done));
@@ -241,21 +240,9 @@ fn render_multilayer_on_the_gpu_from_the_command_line() {
     assert!(defocus::image::io::read_color(&out).is_ok());
     // The CPU's defaults beyond the paper are refused on the GPU by name, and no file is left.
     let refused = dir.join("refused.exr");
-    let done = defocus(&[
-        "render",
-        "--scene",
-        "railing",
-        "--width",
-        "160",
-        "--height",
-        "90",
-        "--method",
-        "multilayer",
-        "--device",
-        "gpu",
-        "--out",
-        s(&refused),
-    ]);
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--out", s(&refused)]);
+    let done = defocus(&args);
     assert!(!done.status.success());
     let err = stderr(&done);
     assert!(
