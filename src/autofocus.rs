@@ -4,8 +4,8 @@
 //! the view-axis depth is read in a small window around the pixel. The median of the window's
 //! finite depths is robust to holes (alpha cut-outs, the background) and to the edge of an
 //! object falling on the pixel. When the window sees only background it doubles until it finds
-//! a surface or covers the whole image. A blended surface counts where it contributes most to
-//! the pixel (see [`crate::raster::GBuffer::depth`]).
+//! a surface or covers the whole image. A blended surface counts as a renderer's Z pass takes it (see
+//! [`crate::raster::GBuffer::depth`]).
 
 use crate::image::GrayImage;
 use crate::lens::Camera;

@@ -109,14 +109,21 @@ pub fn take(
     // Those a full pixel kept apart (`FragmentLists::keeping_bright_overflow`): their colour
     // is in no fragment of the lists, so they are scattered whatever their CoC.
     let (width, max) = (lists.width(), max_coc_px * scale);
+    let (offsets, depths, colors) = (lists.offsets(), lists.depths(), lists.colors());
+    let own_alpha = lists.own_alphas();
     found.extend(
         lists
             .overflow_highlights()
             .iter()
-            .map(|&(pixel, depth, c)| Highlight {
-                centre: Vec2::new((pixel % width) as f32 + 0.5, (pixel / width) as f32 + 0.5),
-                coc_px: lens.coc_px(depth).clamp(-max, max),
-                color: [c[0], c[1], c[2]],
+            .map(|&(pixel, depth, c)| {
+                let coc = lens.coc_px(depth);
+                let range = offsets[pixel] as usize..offsets[pixel + 1] as usize;
+                let seen = seen_in_pixel(lens, (depths, colors, own_alpha), &range, depth);
+                Highlight {
+                    centre: Vec2::new((pixel % width) as f32 + 0.5, (pixel / width) as f32 + 0.5),
+                    coc_px: coc.clamp(-max, max),
+                    color: [c[0], c[1], c[2]].map(|v| v * seen),
+                }
             }),
     );
     found
@@ -134,11 +141,13 @@ pub fn take_indexed(
     let max = max_coc_px * scale;
     let found: Vec<(usize, Highlight)> = {
         let (offsets, depths, colors) = (lists.offsets(), lists.depths(), lists.colors());
+        let own_alpha = lists.own_alphas();
         offsets
             .par_windows(2)
             .enumerate()
             .flat_map_iter(|(pixel, range)| {
-                (range[0] as usize..range[1] as usize).filter_map(move |f| {
+                let range = range[0] as usize..range[1] as usize;
+                range.clone().filter_map(move |f| {
                     let c = from_half(&colors[f]);
                     let rgb = [c[0], c[1], c[2]];
                     if c[3] <= 0.0 || luminance(rgb) <= threshold * c[3] {
@@ -148,11 +157,12 @@ pub fn take_indexed(
                     if coc.is_nan() || coc.abs() < MIN_COC_PX * scale {
                         return None;
                     }
+                    let seen = seen_in_pixel(lens, (depths, colors, own_alpha), &range, depths[f]);
                     let (x, y) = (pixel % width, pixel / width);
                     let h = Highlight {
                         centre: Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
                         coc_px: coc.clamp(-max, max),
-                        color: rgb,
+                        color: rgb.map(|v| v * seen),
                     };
                     Some((f, h))
                 })
@@ -165,6 +175,31 @@ pub fn take_indexed(
         colors[f] = to_half([0.0, 0.0, 0.0, alpha]);
     }
     found
+}
+
+/// The share of a highlight at depth `depth` that its own pixel shows: the product of
+/// `1 - alpha` of the pixel's fragments (`range` of the lists' `depths`, `colors` and
+/// `own_alpha`) in front of it that lie within [`OWN_SURFACE_PX`] of its CoC. The method
+/// composites a pixel's fragments near to far with the over operator, so that is what taking
+/// the highlight out of the method removes; its rays skip those surfaces (they are the light's
+/// own: the front of a small double-sided sphere before its back, whose coverage masks the
+/// lists resolve only as far as the over operator goes), so without it the back of a light was
+/// scattered as well as its front (up to half again a small light's energy). By depth, not by
+/// place in the list: `multiview`'s layers read as lists are in the order of their layers.
+fn seen_in_pixel(
+    lens: &ThinLens,
+    (depths, colors, own_alpha): (&[f32], &[crate::raster::HalfRgba], Option<&[half::f16]>),
+    range: &std::ops::Range<usize>,
+    depth: f32,
+) -> f32 {
+    let own = lens.coc_px(depth) - OWN_SURFACE_PX;
+    range
+        .clone()
+        .filter(|&g| depths[g] < depth && lens.coc_px(depths[g]) > own)
+        .fold(1.0, |seen, g| {
+            let alpha = own_alpha.map_or(colors[g][3], |o| o[g]).to_f32();
+            seen * (1.0 - alpha.clamp(0.0, 1.0))
+        })
 }
 
 /// The lists' fragments' CoCs (in the lists' pixels), the nearest of them, and which of 64

@@ -1,13 +1,17 @@
 //! The `GBuffer` sink: nearest opaque surface per pixel, with alpha-blended surfaces in front
-//! of it composited back to front. The depth is that of the surface that contributes most to the
-//! pixel (see [`GBuffer::depth`]), so a post-process method blurs a mostly opaque blended surface
-//! by its own depth, sees through a faint one to what is behind it, and keeps the depth of a
-//! glass standing in front of nothing at all.
+//! of it composited back to front. The depth is a renderer's Z pass with an alpha threshold (see
+//! [`GBuffer::depth`]): a post-process method blurs a mostly opaque blended surface by its own
+//! depth, sees through faint ones, however many are stacked, to what is behind them, and keeps
+//! the depth of a glass standing in front of nothing at all.
 
 use rayon::prelude::*;
 
 use super::{Fragment, Sink, TileRect, TileSink};
 use crate::image::{ColorImage, GrayImage, Rgba};
+
+/// The opacity from which a blended surface gives the depth pass its depth ([`GBuffer::depth`]):
+/// Blender Cycles' default alpha threshold of its Z pass.
+pub const Z_ALPHA_THRESHOLD: f32 = 0.5;
 
 /// Colour (linear, premultiplied alpha; transparent black where nothing was drawn) and view
 /// depth in metres of the surface that contributes most to the pixel (`f32::INFINITY` where
@@ -17,12 +21,14 @@ pub struct GBuffer {
     /// Linear premultiplied RGBA: opaque surface with transparent surfaces in front composited
     /// over it.
     pub color: ColorImage,
-    /// View-axis depth in metres of the surface with the largest weight in the composite: its
-    /// alpha times the transmittance `prod (1 - alpha)` of the blended surfaces in front of it
-    /// (an opaque surface has alpha 1; the empty background weighs nothing); ties go to the
-    /// nearer surface. So a blended surface in front that is at least half opaque always gives
-    /// the depth, as a renderer's Z pass with Blender Cycles' default alpha threshold 0.5 does,
-    /// and a faint one gives way to the surface behind it, unless there is none.
+    /// View-axis depth in metres of the nearest surface at least [`Z_ALPHA_THRESHOLD`]
+    /// opaque by itself (an opaque surface always is), as a renderer's Z pass with Blender
+    /// Cycles' default alpha threshold: three stacked panes of alpha 0.3-0.46 before a chart
+    /// give the chart's depth, which a compositor's `blur` of that renderer's frame and Z uses.
+    /// Where no surface is that opaque (faint ones before nothing), the surface with the
+    /// largest weight in the composite: its alpha times the transmittance `prod (1 - alpha)`
+    /// of the blended surfaces in front of it, ties to the nearer (the empty background weighs
+    /// nothing), so that a glass standing in front of nothing keeps its depth.
     pub depth: GrayImage,
 }
 
@@ -121,17 +127,16 @@ impl TileSink for GBufferTile {
         self.blended
             .sort_by(|a, b| a.0.cmp(&b.0).then(b.1.total_cmp(&a.1)));
         // Weight, relative to the blended surfaces not yet composited in front, of the surface
-        // whose depth the pixel currently has (1 for an opaque surface, 0 for the background).
+        // whose depth the pixel currently has (1 for an opaque surface, 0 for the background),
+        // and whether that surface passes the alpha threshold.
         let mut pixel = u32::MAX;
         let mut best_weight = 0.0f32;
+        let mut passed = false;
         for &(i, z, src) in &self.blended {
             if i != pixel {
                 pixel = i;
-                best_weight = if self.depth[i as usize].is_finite() {
-                    1.0
-                } else {
-                    0.0
-                };
+                passed = self.depth[i as usize].is_finite();
+                best_weight = if passed { 1.0 } else { 0.0 };
             }
             // `over` with premultiplied colour: the fragment's colour is straight.
             let dst = &mut self.color[i as usize];
@@ -142,7 +147,8 @@ impl TileSink for GBufferTile {
             dst[3] = a + dst[3] * (1.0 - a);
             // Far to near: everything behind is now seen through this surface.
             best_weight *= 1.0 - a;
-            if a > 0.0 && a >= best_weight {
+            if a >= Z_ALPHA_THRESHOLD || (!passed && a > 0.0 && a >= best_weight) {
+                passed |= a >= Z_ALPHA_THRESHOLD;
                 best_weight = a;
                 self.depth[i as usize] = z;
             }

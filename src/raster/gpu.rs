@@ -500,8 +500,8 @@ pub fn accumulate_views(
     Ok(color)
 }
 
-/// One view drawn on the GPU of `ctx` into a G-buffer (colour and the depth of the surface
-/// that contributes most): the GPU twin of [`super::render_view`].
+/// One view drawn on the GPU of `ctx` into a G-buffer (colour and the depth pass of
+/// [`super::GBuffer::depth`]): the GPU twin of [`super::render_view`].
 pub fn render_view(
     ctx: &GpuContext,
     prepared: &PreparedScene,

@@ -375,6 +375,48 @@ impl LayersTile {
     }
 }
 
+impl LayersTile {
+    /// Resolves the coverage masks of slot `s`'s `surfaces` (`fragments::hide_coincident`)
+    /// together with the surfaces of the same pixel in the layer in front, which a ray meets
+    /// just before them: a layer boundary may fall between the front and the back of a thin
+    /// closed mesh (a small double-sided light 0.3% of its depth deep), and the back, hidden at
+    /// every sample, was a second surface a ray met behind the first (the light's rim twice as
+    /// bright). Surfaces hidden entirely are taken out, so that a slot's height field is a
+    /// surface that shows.
+    fn hide_coincident_across(
+        &self,
+        s: usize,
+        area: usize,
+        surfaces: &mut [HeldFragment; SURFACES],
+    ) {
+        let front_layer = s.checked_sub(area).filter(|&p| self.is_used(p));
+        let Some(p) = front_layer else {
+            super::fragments::hide_coincident(surfaces, self.scale);
+            return;
+        };
+        let mut all = [HeldFragment::EMPTY; 2 * SURFACES];
+        all[..SURFACES].copy_from_slice(&self.held[p]);
+        all[SURFACES..].copy_from_slice(surfaces);
+        // Near to far; stable, so the layer in front comes first among equals.
+        all.sort_by(|a, b| a.depth_m.total_cmp(&b.depth_m));
+        let finite = all.iter().take_while(|h| h.depth_m.is_finite()).count();
+        let mut resolved = all;
+        super::fragments::hide_coincident(&mut resolved[..finite], self.scale);
+        // This slot's surfaces, in their order, with what the resolution left of them.
+        let mut kept = [HeldFragment::EMPTY; SURFACES];
+        let mut n = 0;
+        for h in surfaces.iter().filter(|h| h.depth_m.is_finite()) {
+            let at = (0..finite).find(|&k| all[k] == *h).unwrap_or(0);
+            let r = resolved[at];
+            if r.color[3] > 0.0 && n < SURFACES {
+                kept[n] = r;
+                n += 1;
+            }
+        }
+        *surfaces = kept;
+    }
+}
+
 impl TileSink for LayersTile {
     #[inline]
     fn occluded(&self, x: u32, y: u32, depth_m: f32) -> bool {
@@ -422,7 +464,7 @@ impl TileSink for LayersTile {
                 done |= 1 << b;
                 let s = w * 64 + b as usize;
                 let mut surfaces = self.held[s];
-                super::fragments::hide_coincident(&mut surfaces, self.scale);
+                self.hide_coincident_across(s, area, &mut surfaces);
                 let [front, behind @ ..] = &mut surfaces;
                 if front.depth_m.is_finite() {
                     let (l, i) = (s / area, s % area);

@@ -14,8 +14,9 @@
 //    is appended to its pixel's list (capacity `view.info.z`; the count goes on past it, so
 //    the CPU sees how many a pixel needed).
 // 3. `composite` (compute): per pixel, the list sorted far to near (equal depths in scene
-//    order) and composited over the opaque colour, the depth taken from the surface with the
-//    largest weight, exactly as the CPU's `GBufferTile::finish`; then added to the sum (or, in
+//    order) and composited over the opaque colour, the depth taken from the nearest surface
+//    at least Z_ALPHA_THRESHOLD opaque, else the one with the largest weight, exactly as the
+//    CPU's `GBufferTile::finish`; then added to the sum (or, in
 //    store mode, written out as the G-buffer).
 // Once per frame, `resolve` (compute) divides the sum by the number of views (or, with the
 // cat's eye, by the views that reach each pixel).
@@ -127,6 +128,8 @@ const CLIP: u32 = 2u;
 const CLOCKWISE_FRONT: u32 = 4u;
 // Entries a pixel's list can hold at most (the composite sorts them in registers).
 const MAX_LIST: u32 = 16u;
+// A blended surface this opaque gives the depth pass its depth (the CPU's `Z_ALPHA_THRESHOLD`).
+const Z_ALPHA_THRESHOLD: f32 = 0.5;
 
 struct Varyings {
     @builtin(position) position: vec4<f32>,
@@ -551,12 +554,14 @@ fn composite(@builtin(global_invocation_id) id: vec3<u32>) {
             src[j] = c;
         }
         var best = select(0.0, 1.0, raw != 0.0);
+        var passed = raw != 0.0;
         for (var i = 0u; i < n; i++) {
             let s = src[i];
             let a = s.w;
             color = vec4<f32>(s.xyz * a + color.xyz * (1.0 - a), a + color.w * (1.0 - a));
             best *= 1.0 - a;
-            if a > 0.0 && a >= best {
+            if a >= Z_ALPHA_THRESHOLD || (!passed && a > 0.0 && a >= best) {
+                passed = passed || a >= Z_ALPHA_THRESHOLD;
                 best = a;
                 depth = bitcast<f32>(key[i].x);
             }

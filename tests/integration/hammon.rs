@@ -957,3 +957,59 @@ fn hammon_is_closer_to_reference_than_the_pinhole_image_on_railing_and_lights() 
         );
     }
 }
+
+/// `render --method hammon` of an in-focus chart (stripes 2 px wide, focus on it) behind three
+/// stacked faint panes (alpha 0.30, 0.46 and 0.40 at 1.5, 2.1 and 2.8 m, no one of them half
+/// opaque): the depth pass the method blurs by is the chart's, as a renderer's Z pass with an
+/// alpha threshold gives it and as a compositor's `blur` of that renderer's frame uses, so the
+/// chart stays as sharp as the pinhole frame (every CoC is zero: the frame comes back). When
+/// the depth was the pane that weighs most, the chart took that pane's blur.
+#[test]
+fn an_in_focus_chart_behind_faint_panes_stays_sharp() {
+    use defocus::methods::registry::{self, MethodSettings, PinholeSettings, SceneOptions};
+    use defocus::scene::{AlphaMode, Material, Scene};
+    let camera = Camera {
+        fstop: 1.0,
+        ..test_camera(64, 48, 4.0, 1.0)
+    };
+    let mut scene = Scene::default();
+    let white = scene.add_material(Material::color("white", [0.9; 3]));
+    let black = scene.add_material(Material::color("black", [0.05; 3]));
+    for k in 0..32 {
+        let x = 2.0 * k as f32;
+        let m = if k % 2 == 0 { white } else { black };
+        crate::add_screen_rect(&mut scene, &camera, (x, -8.0, x + 2.0, 56.0), 4.0, m);
+    }
+    for (k, (alpha, z)) in [(0.3, 1.5), (0.46, 2.1), (0.4, 2.8)]
+        .into_iter()
+        .enumerate()
+    {
+        let pane = scene.add_material(Material {
+            name: format!("pane{k}"),
+            base_color: [0.3, 0.5, 0.4, alpha],
+            alpha_mode: AlphaMode::Blend,
+            ..Default::default()
+        });
+        crate::add_screen_rect(&mut scene, &camera, (-8.0, -8.0, 72.0, 56.0), z, pane);
+    }
+    let options = SceneOptions {
+        with_depth: true,
+        ..SceneOptions::default()
+    };
+    let run = |settings: &MethodSettings| {
+        registry::run_scene(settings, &scene, &camera, &options, &mut |_, _| {}).unwrap()
+    };
+    let frame = run(&MethodSettings::Pinhole(PinholeSettings {
+        samples: options.frame_samples,
+        seed: options.seed,
+        ..PinholeSettings::default()
+    }));
+    let blurred = run(&MethodSettings::Hammon(HammonSettings::default()));
+    let depth = frame.depth.as_ref().expect("depth");
+    assert!(
+        depth.pixels().iter().all(|&z| (z - 4.0).abs() < 1e-3),
+        "the depth pass is the chart's"
+    );
+    let diff = max_rel_diff(frame.image.pixels(), blurred.image.pixels());
+    assert!(diff < PRESERVE_TOLERANCE, "the chart blurred: {diff}");
+}

@@ -237,9 +237,13 @@ fn transparent_surfaces_composite_in_depth_order_whatever_the_submission_order()
             assert!((p[k] - expected[k]).abs() < 1e-6, "{p:?} vs {expected:?}");
         }
         assert_eq!(p[3], 1.0);
-        // The surface that contributes most: red weighs 1 * 0.5 * 0.75 = 0.375, blue
-        // 0.5 * 0.75 = 0.375 (a tie, to the nearer), green 0.25: blue at 2 m.
-        assert_eq!(g.depth.get(8, 8), 2.0, "depth of the largest contribution");
+        // A Z pass with alpha threshold 0.5: green (0.25) is passed through, blue (0.5) is
+        // the nearest surface that opaque by itself: 2 m.
+        assert_eq!(
+            g.depth.get(8, 8),
+            2.0,
+            "depth of the nearest surface half opaque"
+        );
     }
 }
 
@@ -441,38 +445,67 @@ fn coverage_agrees_with_a_naive_point_in_triangle_test_on_random_triangles() {
     }
 }
 
+/// The depth pass is a renderer's Z pass with Blender Cycles' default alpha threshold (0.5):
+/// the nearest surface at least half opaque by itself, through any number of fainter ones; a
+/// compositor's `blur` of that renderer's frame and Z then blurs what `render` does.
 #[test]
-fn a_pixel_takes_the_depth_of_the_surface_that_contributes_most() {
+fn a_pixel_takes_the_depth_a_z_pass_with_an_alpha_threshold_gives() {
     let camera = test_camera(16, 16, 2.0, 2.8);
-    for (alpha, expected_depth) in [(0.3, 4.0), (0.7, 1.5)] {
+    let glass = |scene: &mut Scene, alpha: f32| {
+        scene.add_material(Material {
+            name: format!("glass {alpha}"),
+            base_color: [0.2, 0.4, 0.6, alpha],
+            alpha_mode: AlphaMode::Blend,
+            ..Default::default()
+        })
+    };
+    let depth_of = |scene: &Scene| {
+        let prepared = PreparedScene::new(scene, &camera.camera_from_world).unwrap();
+        render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap()))
+            .unwrap()
+            .depth
+    };
+    for (alpha, expected_depth) in [(0.3, 4.0), (0.5, 1.5), (0.7, 1.5)] {
         let mut scene = Scene::default();
         let wall = scene.add_material(Material::color("wall", [1.0; 3]));
-        let glass = scene.add_material(Material {
-            name: "glass".into(),
-            base_color: [0.2, 0.4, 0.6, alpha],
-            alpha_mode: AlphaMode::Blend,
-            ..Default::default()
-        });
+        let pane = glass(&mut scene, alpha);
         add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 4.0, wall);
         // The pane covers the left half only; over nothing at all on the far right.
-        add_screen_rect(&mut scene, &camera, (0.0, 0.0, 8.0, 16.0), 1.5, glass);
-        let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-        let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap())).unwrap();
-        assert_eq!(g.depth.get(3, 8), expected_depth, "alpha {alpha}");
-        assert_eq!(g.depth.get(12, 8), 4.0, "beside the pane");
+        add_screen_rect(&mut scene, &camera, (0.0, 0.0, 8.0, 16.0), 1.5, pane);
+        let depth = depth_of(&scene);
+        assert_eq!(depth.get(3, 8), expected_depth, "alpha {alpha}");
+        assert_eq!(depth.get(12, 8), 4.0, "beside the pane");
     }
-    // A pane over empty space is all the pixel shows: it keeps its depth however faint.
-    for alpha in [0.1, 0.7] {
+    // Three stacked faint panes (0.30, 0.46, 0.40) before a wall: the wall shows through
+    // 0.7 x 0.54 x 0.6 = 23% of the pixel, less than the middle pane's 32%, but no pane is
+    // half opaque by itself: the wall's depth, as Cycles' Z pass gives. A half-opaque one
+    // among them gives its own.
+    for (alphas, expected_depth) in [([0.3, 0.46, 0.4], 4.0), ([0.3, 0.6, 0.4], 2.1)] {
         let mut scene = Scene::default();
-        let glass = scene.add_material(Material {
-            name: "glass".into(),
-            base_color: [0.2, 0.4, 0.6, alpha],
-            alpha_mode: AlphaMode::Blend,
-            ..Default::default()
-        });
-        add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 1.5, glass);
-        let prepared = PreparedScene::new(&scene, &camera.camera_from_world).unwrap();
-        let g = render_gbuffer(&prepared, &View::pinhole(camera.thin_lens().unwrap())).unwrap();
-        assert_eq!(g.depth.get(8, 8), 1.5, "alpha {alpha}");
+        let wall = scene.add_material(Material::color("wall", [1.0; 3]));
+        add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), 4.0, wall);
+        for (alpha, z) in alphas.into_iter().zip([1.5, 2.1, 2.8]) {
+            let pane = glass(&mut scene, alpha);
+            add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), z, pane);
+        }
+        assert_eq!(
+            depth_of(&scene).get(8, 8),
+            expected_depth,
+            "panes {alphas:?}"
+        );
+    }
+    // A pane over empty space is all the pixel shows: it keeps its depth however faint; of
+    // faint ones over nothing, the one that weighs most (0.3 x 0.8 = 0.24 against 0.2).
+    for (alphas, expected_depth) in [(vec![0.1], 1.5), (vec![0.7], 1.5), (vec![0.2, 0.3], 2.5)] {
+        let mut scene = Scene::default();
+        for (&alpha, z) in alphas.iter().zip([1.5, 2.5]) {
+            let pane = glass(&mut scene, alpha);
+            add_screen_rect(&mut scene, &camera, (0.0, 0.0, 16.0, 16.0), z, pane);
+        }
+        assert_eq!(
+            depth_of(&scene).get(8, 8),
+            expected_depth,
+            "alphas {alphas:?}"
+        );
     }
 }
