@@ -41,7 +41,7 @@ pub use fragments::{
     from_half, nearest_depths, to_half, FragmentLists, FragmentTile, HalfRgba, HeldFragment, Reach,
     COINCIDENT_COC_PX, MAX_FRAGMENTS_PER_PIXEL, SAME_SURFACE,
 };
-pub use gbuffer::{GBuffer, GBufferTile};
+pub use gbuffer::{GBuffer, GBufferTile, Z_ALPHA_THRESHOLD};
 pub use layers::{DepthLayers, LayerSpacing, LayersTile, CONTINUITY_PX};
 pub use setup::{SetupTriangle, COVERAGE_PATTERN, COVERAGE_SAMPLES, FULL_COVERAGE};
 pub use views::{
