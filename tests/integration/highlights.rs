@@ -306,10 +306,10 @@ fn small_double_sided_lights_keep_the_energy_of_reference() {
 /// connected patch of pixels brighter than white, at its depth pass's CoC). The luminance
 /// summed over the bokeh of each whose disc meets no other's is, in every layered method at
 /// its defaults (highlights scattered ray by ray), the same as with the highlights blended by
-/// `multilayer --highlight-rays off` within 3%: the scatter moves light, it adds none. Summed over all
-/// of those bulbs it is `reference`'s (1024 views) within 3%; bulb by bulb the bulbs, 1-2 px
-/// across, are sampled by the lists' 16 coverage samples a pixel, which puts each one's energy
-/// within about 10% of `reference`'s whatever the method does.
+/// `multilayer --highlight-rays off` within 3%: the scatter moves light, it adds none. Summed
+/// over all of those bulbs it is `reference`'s (1024 views) within 3%; bulb by bulb the bulbs,
+/// 1-2 px across, are sampled by the lists' 16 coverage samples a pixel, which puts each one's
+/// energy within about 10% of `reference`'s whatever the method does.
 #[test]
 fn each_bulb_of_lights_keeps_its_energy() {
     use defocus::methods::pinhole;
