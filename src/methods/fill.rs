@@ -176,8 +176,7 @@ fn decompose(frame: &Frame, fill: &FillSettings) -> Result<Option<Layers>> {
     let hole = dilate(&near, w, h, fill.dilate_px);
     // The back layer: its own pixels, and the hole filled from them.
     let back_known: Vec<f32> = hole.iter().map(|&hd| f32::from(u8::from(!hd))).collect();
-    let back_color = pull_push_color(frame.color, &back_known);
-    let back_depth = pull_push_depth(frame.depth, &back_known);
+    let (back_color, back_depth) = pull_push_color_depth(frame.color, frame.depth, &back_known);
     // The near layer: its pixels, transparent elsewhere, its depth spread from its pixels.
     let near_known: Vec<f32> = near.iter().map(|&n| f32::from(u8::from(n))).collect();
     let mut near_depth = pull_push_depth(frame.depth, &near_known);
@@ -186,25 +185,27 @@ fn decompose(frame: &Frame, fill: &FillSettings) -> Result<Option<Layers>> {
     let reach = frame
         .depth
         .pixels()
-        .iter()
-        .zip(&near)
+        .par_iter()
+        .zip(near.par_iter())
         .filter(|(_, &n)| n)
         .map(|(&z, _)| frame.lens.coc_px(z).abs())
-        .fold(0.0f32, f32::max);
+        .reduce(|| 0.0f32, f32::max);
     let reached = dilate(&near, w, h, reach.ceil() as usize + 2);
-    for (z, &r) in near_depth.pixels_mut().iter_mut().zip(&reached) {
-        if !r {
-            *z = frame.lens.focus_m;
-        }
-    }
+    let focus_m = frame.lens.focus_m;
+    near_depth
+        .pixels_mut()
+        .par_iter_mut()
+        .zip(reached.par_iter())
+        .filter(|(_, &r)| !r)
+        .for_each(|(z, _)| *z = focus_m);
     let near_color = ColorImage::from_vec(
         w,
         h,
         frame
             .color
             .pixels()
-            .iter()
-            .zip(&near)
+            .par_iter()
+            .zip(near.par_iter())
             .map(|(&c, &n)| if n { c } else { [0.0; 4] })
             .collect(),
     )?;
@@ -373,12 +374,49 @@ fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
     out
 }
 
-/// The colour of `image` where `known` is 1, filled by pull-push elsewhere.
-fn pull_push_color(image: &ColorImage, known: &[f32]) -> ColorImage {
+/// The colour of `image` and the depth of `depth` where `known` is 1, filled by pull-push
+/// elsewhere, in one pyramid (their weights are the same): the colour as it is, the depth as
+/// [`pull_push_depth`] fills it. Each channel is computed as a pyramid of its own would.
+fn pull_push_color_depth(
+    image: &ColorImage,
+    depth: &GrayImage,
+    known: &[f32],
+) -> (ColorImage, GrayImage) {
     let (w, h) = (image.width(), image.height());
-    let values: Vec<[f32; 4]> = image.pixels().to_vec();
+    let values: Vec<[f32; 5]> = image
+        .pixels()
+        .par_iter()
+        .zip(depth.pixels().par_iter())
+        .map(|(c, &z)| [c[0], c[1], c[2], c[3], 1.0 / z])
+        .collect();
     let filled = pull_push(values, known.to_vec(), w, h);
-    ColorImage::from_vec(w, h, filled).expect("sizes agree by construction")
+    let color = filled
+        .par_iter()
+        .map(|v| [v[0], v[1], v[2], v[3]])
+        .collect();
+    let depth = filled
+        .par_iter()
+        .zip(depth.pixels().par_iter())
+        .zip(known.par_iter())
+        .map(|((v, &z), &k)| depth_from_inverse(v[4], z, k))
+        .collect();
+    (
+        ColorImage::from_vec(w, h, color).expect("sizes agree by construction"),
+        GrayImage::from_vec(w, h, depth).expect("sizes agree by construction"),
+    )
+}
+
+/// A filled depth from its interpolated inverse `v`: the pixel's own `z` where it was known
+/// (`k` 1), else `1 / v`, infinite where nothing finite was near.
+#[inline]
+fn depth_from_inverse(v: f32, z: f32, k: f32) -> f32 {
+    if k >= 1.0 {
+        z
+    } else if v > 0.0 {
+        1.0 / v
+    } else {
+        f32::INFINITY
+    }
 }
 
 /// The depth of `depth` where `known` is 1, filled by pull-push elsewhere: inverse depth is
@@ -386,21 +424,13 @@ fn pull_push_color(image: &ColorImage, known: &[f32]) -> ColorImage {
 /// back into depth.
 fn pull_push_depth(depth: &GrayImage, known: &[f32]) -> GrayImage {
     let (w, h) = (depth.width(), depth.height());
-    let values: Vec<[f32; 1]> = depth.pixels().iter().map(|&z| [1.0 / z]).collect();
+    let values: Vec<[f32; 1]> = depth.pixels().par_iter().map(|&z| [1.0 / z]).collect();
     let filled = pull_push(values, known.to_vec(), w, h);
     let data = filled
-        .into_iter()
-        .zip(depth.pixels())
-        .zip(known)
-        .map(|((v, &z), &k)| {
-            if k >= 1.0 {
-                z
-            } else if v[0] > 0.0 {
-                1.0 / v[0]
-            } else {
-                f32::INFINITY
-            }
-        })
+        .par_iter()
+        .zip(depth.pixels().par_iter())
+        .zip(known.par_iter())
+        .map(|((v, &z), &k)| depth_from_inverse(v[0], z, k))
         .collect();
     GrayImage::from_vec(w, h, data).expect("sizes agree by construction")
 }
@@ -468,7 +498,9 @@ fn pull_push<const N: usize>(
                     // The centre of (x, y) in the coarser level's pixels, less a half.
                     let fx = ((x as f32 + 0.5) * 0.5 - 0.5).clamp(0.0, (cw - 1) as f32);
                     let fy = ((y as f32 + 0.5) * 0.5 - 0.5).clamp(0.0, (ch - 1) as f32);
-                    let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+                    // Truncation is the floor here: both are clamped at 0 (and `floor` is a library call
+                    // on the baseline x86-64).
+                    let (x0, y0) = (fx as usize, fy as usize);
                     let (x1, y1) = ((x0 + 1).min(cw - 1), (y0 + 1).min(ch - 1));
                     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
                     let at = |x: usize, y: usize| cv[y * cw + x];
